@@ -1,0 +1,256 @@
+"""The driver: one `lax.scan` over time steps, `vmap`ped over samples."""
+
+from __future__ import annotations
+
+import functools
+import math
+import warnings
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import _noise
+from ._model import RigidBody, concrete
+from ._solution import RESULTS, Solution
+from ._solver.base import AbstractMethod
+from ._solver.lie_poisson import LiePoisson
+
+
+def _scan_path(method, model, y0, dt, n_steps, save_every, draw, xs, want_stats):
+    """Integrate one sample. `draw(n, x)` gives step n's increment from the scan input `x`.
+
+    Returns the saved states `(n_steps // save_every, 3)`, the step of failure (-1 if none)
+    and the Newton statistics `(iterations sum, iterations max, residual max)` or `()`.
+    """
+    dtype = y0.dtype
+    zero = jnp.zeros((), dtype)
+    acc0 = (zero, jnp.zeros((), jnp.int32), zero) if want_stats else ()
+    carry0 = (y0, jnp.array(True), jnp.array(-1, jnp.int32), jnp.array(0, jnp.int32), acc0)
+
+    def step(carry, x):
+        y, alive, fail_step, n, acc = carry
+        dW = draw(n, x)
+        # A failed sample idles at its last good state: with dt = dW = 0 every method's
+        # step is trivial, so it costs no Newton iterations.
+        y_new, info = method.step(model, y, jnp.where(alive, dt, 0.0).astype(dtype),
+                                  jnp.where(alive, dW, 0.0).astype(dtype))
+        ok = info.ok & jnp.all(jnp.isfinite(y_new))
+        fail_step = jnp.where(alive & ~ok, n, fail_step)
+        if want_stats:
+            it = jnp.where(alive, info.iterations, 0)
+            res = jnp.where(alive & ok, info.residual, 0.0)
+            acc = (acc[0] + it, jnp.maximum(acc[1], it), jnp.maximum(acc[2], res))
+        y = jnp.where(alive & ok, y_new, y)
+        return (y, alive & ok, fail_step, n + 1, acc), None
+
+    def block(carry, xb):
+        carry, _ = jax.lax.scan(step, carry, xb, length=save_every)
+        return carry, carry[0]
+
+    if xs is not None:
+        xs = xs.reshape(n_steps // save_every, save_every, *xs.shape[1:])
+    (_, _, fail_step, _, acc), ys = jax.lax.scan(block, carry0, xs,
+                                                length=n_steps // save_every)
+    return ys, fail_step, acc
+
+
+@functools.partial(jax.jit, static_argnames=("method", "save_every", "want_stats"))
+def _integrate_jit(method, model, y0, dW, dt, save_every, want_stats):
+    return _scan_path(method, model, y0, dt, dW.shape[0], save_every,
+                      lambda n, x: x, dW, want_stats)
+
+
+@functools.partial(jax.jit, static_argnames=("method", "n_steps", "save_every", "want_stats"))
+def _ensemble_jit(method, model, y0, keys, dt, bound, n_steps, save_every, want_stats):
+    dtype = y0.dtype
+
+    def one(key):
+        draw = lambda n, _: _noise.increment(key, n, dt, bound, dtype)  # noqa: E731
+        return _scan_path(method, model, y0, dt, n_steps, save_every, draw, None, want_stats)
+
+    return jax.vmap(one)(keys)
+
+
+# --------------------------------------------------------------------------------------
+# Validation: every check runs in Python on concrete values, before anything compiles.
+
+
+def _check_model(model):
+    if not isinstance(model, RigidBody):
+        raise TypeError(f"model must be a RigidBody, got {type(model).__name__}.")
+
+
+def _check_method(method):
+    if not isinstance(method, AbstractMethod):
+        raise TypeError(
+            f"method must be an instance such as LiePoisson(), got {method!r}"
+            + (" (a class: call it)" if isinstance(method, type) else "") + "."
+        )
+
+
+def _check_y0(y0, method, model):
+    y0 = jnp.asarray(y0)
+    if y0.shape != (3,):
+        raise ValueError(f"y0 must have shape (3,), got shape {y0.shape}.")
+    y_np = concrete(y0)
+    if y_np is not None:
+        if not np.all(np.isfinite(y_np)):
+            raise ValueError(f"y0 must be finite, got {y_np}.")
+        method.check_initial(model, y_np)
+    return y0.astype(model.inertia.dtype)
+
+
+def _check_positive(name, x):
+    x_np = concrete(x)
+    if x_np is not None:
+        if np.shape(x_np) != ():
+            raise ValueError(f"{name} must be a scalar, got shape {np.shape(x_np)}.")
+        if not (np.isfinite(x_np) and x_np > 0):
+            raise ValueError(f"{name} must be positive and finite, got {x_np}.")
+    return x_np
+
+
+def _check_save_every(save_every, n_steps):
+    if save_every is None:
+        return n_steps
+    if isinstance(save_every, bool) or not isinstance(save_every, (int, np.integer)) \
+            or save_every < 1:
+        raise ValueError(f"save_every must be a positive integer or None, got {save_every!r}.")
+    if n_steps % save_every:
+        raise ValueError(
+            f"save_every={save_every} must divide the number of steps {n_steps}; "
+            f"divisors near it: {[k for k in range(1, n_steps + 1) if n_steps % k == 0][-4:]}."
+        )
+    return int(save_every)
+
+
+def _raise_on_failure(fail_step):
+    if fail_step >= 0:
+        raise RuntimeError(
+            f"integrate: step {int(fail_step)} could not be solved; the path is frozen at its "
+            f"last good state from there on. Pass throw=False to return it anyway, or use a "
+            f"smaller dt (or LiePoisson(scale=...) near |y| = 1)."
+        )
+
+
+# --------------------------------------------------------------------------------------
+# Public API.
+
+
+def integrate(model, y0, dW, dt, *, method=LiePoisson(), save_every=None, throw=True):
+    r"""Integrate one path of $dy = f(y)(dt + c \circ dW)$ with the given increments.
+
+    Uses `dW` exactly as given (no truncation). Works under `jax.jit`, `jax.vmap` and
+    `jax.grad` (with `throw=False`, or `throw=True`, which then raises through a callback).
+
+    **Arguments:**
+
+    - `model`: a `RigidBody`.
+    - `y0`: initial value, shape `(3,)`.
+    - `dW`: Brownian increments, shape `(n_steps,)`.
+    - `dt`: the step size.
+    - `method`: a method instance (default `LiePoisson()`).
+    - `save_every`: `None` for the final state only; `k` for the states at steps
+      `0, k, 2k, ..., n_steps` (`k` must divide `n_steps`).
+    - `throw`: raise `RuntimeError` if a step cannot be solved. With `throw=False` a failed
+      path is frozen at its last good state.
+
+    **Returns:** the final state `(3,)`, or `(n_steps // save_every + 1, 3)`.
+    """
+    _check_model(model)
+    _check_method(method)
+    y0 = _check_y0(y0, method, model)
+    dW = jnp.asarray(dW)
+    if dW.ndim != 1 or dW.shape[0] < 1:
+        raise ValueError(f"dW must be a non-empty 1-D array of increments, got shape {dW.shape}.")
+    dt_np = _check_positive("dt", dt)
+    dW_np = concrete(dW)
+    if dW_np is not None and not np.all(np.isfinite(dW_np)):
+        raise ValueError("dW must be finite.")
+    n_steps = dW.shape[0]
+    k = _check_save_every(save_every, n_steps)
+    dtype = y0.dtype
+    dt = jnp.asarray(dt if dt_np is None else float(dt_np), dtype)
+    ys, fail_step, _ = _integrate_jit(method, model, y0, dW.astype(dtype), dt, k, False)
+    if throw:
+        if isinstance(fail_step, jax.core.Tracer):
+            jax.debug.callback(_raise_on_failure, fail_step)
+        else:
+            _raise_on_failure(fail_step)
+    if save_every is None:
+        return ys[-1]
+    return jnp.concatenate([y0[None], ys], axis=0)
+
+
+def simulate(model, y0, *, t1, dt, n_samples, key, method=LiePoisson(), save_every=None,
+             truncate_k=4, newton_stats=False, throw=True):
+    r"""Simulate an ensemble of paths of $dy = f(y)(dt + c \circ dW)$ on $[0, t_1]$.
+
+    Sample `i` draws its increments from `fold_in(key, i)` inside the time loop, truncated as
+    $\Delta\hat W = \sqrt h\,\mathrm{clip}(\xi, \pm\sqrt{2k|\ln h|})$ (Milstein, Repin &
+    Tretyakov 2002). Nothing of size `n_steps` is stored when only the final state is saved,
+    and a sample's path does not depend on `n_samples`.
+
+    **Arguments:**
+
+    - `model`: a `RigidBody`; `y0`: the initial value `(3,)`, shared by all samples.
+    - `t1`: final time, a multiple of `dt`; `dt`: step size.
+    - `n_samples`: number of Brownian samples; `key`: a `jax.random.key`.
+    - `method`: default `LiePoisson()`.
+    - `save_every`: `None` (final state only) or `k` (states at steps `0, k, ..., n`).
+    - `truncate_k`: the `k` of the truncation (default 4, the paper's), `None` for none.
+    - `newton_stats`: also report Newton iteration counts and residuals in `stats`.
+    - `throw`: raise `RuntimeError` if any sample failed; with `throw=False` a warning is
+      issued and `result`, `fail_step` say which samples failed and where.
+
+    **Returns:** a `Solution`.
+    """
+    _check_model(model)
+    _check_method(method)
+    y0 = _check_y0(y0, method, model)
+    dt = _check_positive("dt", dt)
+    t1 = _check_positive("t1", t1)
+    if dt is None or t1 is None:
+        raise TypeError("simulate needs concrete t1 and dt (they fix the number of steps).")
+    dt, t1 = float(dt), float(t1)
+    ratio = t1 / dt
+    n_steps = int(round(ratio))
+    if n_steps < 1 or abs(ratio - n_steps) > 1e-9 * max(1.0, ratio):
+        raise ValueError(f"t1={t1} must be a positive multiple of dt={dt} (t1/dt = {ratio}).")
+    if isinstance(n_samples, bool) or not isinstance(n_samples, (int, np.integer)) \
+            or n_samples < 1:
+        raise ValueError(f"n_samples must be a positive integer, got {n_samples!r}.")
+    key = _noise.check_key(key)
+    _noise.check_truncation(dt, truncate_k)
+    k = _check_save_every(save_every, n_steps)
+    dtype = y0.dtype
+
+    keys = _noise.sample_keys(key, int(n_samples))
+    bound = jnp.asarray(_noise.truncation_bound(dt, truncate_k), dtype)
+    ys, fail_step, acc = _ensemble_jit(method, model, y0, keys, jnp.asarray(dt, dtype), bound,
+                                       n_steps, k, bool(newton_stats))
+    if save_every is None:
+        ts = jnp.asarray([n_steps * dt], dtype)
+    else:
+        ys = jnp.concatenate([jnp.broadcast_to(y0, (ys.shape[0], 1, 3)), ys], axis=1)
+        ts = jnp.arange(0, n_steps + 1, k, dtype=dtype) * dt
+    failed = fail_step >= 0
+    stats = {"n_failed": jnp.sum(failed)}
+    if newton_stats:
+        stats["newton_iterations_mean"] = jnp.sum(acc[0]) / (n_samples * n_steps)
+        stats["newton_iterations_max"] = jnp.max(acc[1])
+        stats["residual_max"] = jnp.max(acc[2])
+    sol = Solution(ts=ts, ys=ys, result=jnp.where(failed, RESULTS.step_failed,
+                                                   RESULTS.successful).astype(jnp.int8),
+                   fail_step=fail_step, stats=stats)
+    n_failed = concrete(stats["n_failed"])
+    if n_failed is not None and n_failed > 0:
+        first = int(np.min(np.where(np.asarray(failed), np.asarray(fail_step), n_steps)))
+        msg = (f"simulate: {int(n_failed)} of {n_samples} samples failed (first at step "
+               f"{first}); they are frozen at their last good state. See Solution.result and "
+               f"fail_step; a smaller dt usually helps.")
+        if throw:
+            raise RuntimeError(msg + " Pass throw=False to get the other samples.")
+        warnings.warn(msg, RuntimeWarning, stacklevel=2)
+    return sol

@@ -1,0 +1,100 @@
+"""Brownian increments: one key per sample, one draw per step, optional truncation.
+
+Sample `i` of an ensemble uses the key `fold_in(key, i)`, and its step `n` the increment drawn
+from `fold_in(fold_in(key, i), n)`. So a sample's path depends on nothing but the user's key,
+its index and the step: not on the batch size, the chunking, or the number of steps.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+def check_key(key, name="key"):
+    """A typed PRNG key (`jax.random.key`), or a legacy raw `uint32[2]` key, as a typed key."""
+    if isinstance(key, (int, np.integer)):
+        raise TypeError(
+            f"{name} must be a JAX PRNG key, got the integer {key!r}: "
+            f"pass jax.random.key({key!r})."
+        )
+    if not hasattr(key, "dtype"):
+        raise TypeError(f"{name} must be a JAX PRNG key (jax.random.key(seed)), got {type(key)}.")
+    if jax.dtypes.issubdtype(key.dtype, jax.dtypes.prng_key):
+        if key.shape != ():
+            raise ValueError(f"{name} must be a single key, got a key array of shape {key.shape}.")
+        return key
+    if key.dtype == jnp.uint32 and key.shape == (2,):
+        return jax.random.wrap_key_data(key)
+    raise TypeError(
+        f"{name} must be a JAX PRNG key: jax.random.key(seed) (or a legacy "
+        f"jax.random.PRNGKey(seed)); got an array of dtype {key.dtype} and shape {key.shape}."
+    )
+
+
+def truncation_bound(dt, truncate_k):
+    """$A_h = \\sqrt{2k|\\ln h|}$ (Milstein, Repin & Tretyakov 2002), or `inf` for `None`."""
+    if truncate_k is None:
+        return math.inf
+    return math.sqrt(2.0 * truncate_k * abs(math.log(dt)))
+
+
+def check_truncation(dt, truncate_k):
+    if truncate_k is None:
+        return
+    if not (isinstance(truncate_k, (int, float)) and truncate_k > 0 and math.isfinite(truncate_k)):
+        raise ValueError(f"truncate_k must be a positive number or None, got {truncate_k!r}.")
+    if dt >= 1.0:
+        raise ValueError(
+            f"truncate_k={truncate_k} needs dt < 1: the bound sqrt(2k|ln dt|) collapses at "
+            f"dt = 1 (got dt={dt}); pass truncate_k=None."
+        )
+
+
+def sample_keys(key, n_samples, offset=0):
+    """Keys of samples `offset, ..., offset + n_samples - 1`."""
+    idx = jnp.arange(offset, offset + n_samples, dtype=jnp.uint32)
+    return jax.vmap(lambda i: jax.random.fold_in(key, i))(idx)
+
+
+def increment(sample_key, n, dt, bound, dtype):
+    """The truncated increment $\\Delta\\hat W_n = \\sqrt h\\, \\mathrm{clip}(\\xi_n, \\pm A_h)$."""
+    xi = jax.random.normal(jax.random.fold_in(sample_key, n), (), dtype)
+    return jnp.sqrt(dt).astype(dtype) * jnp.clip(xi, -bound, bound)
+
+
+def brownian_increments(key, n_steps, dt, *, n_samples=None, truncate_k=4, dtype=None):
+    """The increments `simulate` uses, materialised: for `integrate`, plots and checks.
+
+    **Arguments:**
+
+    - `key`: a `jax.random.key`.
+    - `n_steps`, `dt`: number and size of the steps.
+    - `n_samples`: `None` for one path (the path of sample 0), else that many paths.
+    - `truncate_k`: the truncation parameter $k$ of $A_h = \\sqrt{2k|\\ln h|}$, `None` for none.
+    - `dtype`: defaults to the default float dtype.
+
+    **Returns:** `(n_steps,)`, or `(n_samples, n_steps)`; row `i` equals what `simulate` draws
+    for sample `i` with the same key.
+    """
+    key = check_key(key)
+    dt = float(dt)
+    if not dt > 0:
+        raise ValueError(f"dt must be positive, got {dt}.")
+    if int(n_steps) != n_steps or n_steps < 1:
+        raise ValueError(f"n_steps must be a positive integer, got {n_steps!r}.")
+    check_truncation(dt, truncate_k)
+    dtype = jnp.result_type(float) if dtype is None else dtype
+    bound = jnp.asarray(truncation_bound(dt, truncate_k), dtype)
+    dt = jnp.asarray(dt, dtype)
+    steps = jnp.arange(int(n_steps), dtype=jnp.uint32)
+
+    def one(k):
+        return jax.vmap(lambda n: increment(k, n, dt, bound, dtype))(steps)
+
+    keys = sample_keys(key, 1 if n_samples is None else int(n_samples))
+    out = jax.vmap(one)(keys)
+    return out[0] if n_samples is None else out

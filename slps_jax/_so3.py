@@ -1,0 +1,300 @@
+"""The Lie algebra so(3) and the group SO(3): hat, vee, exponential, Cayley map.
+
+Two layers. The public functions take arrays whose last axis has length 3 (vectors) or whose
+last two axes are 3x3 (matrices), and broadcast over leading axes. Underneath, every formula
+is written once on *components*: a vector is a tuple of three arrays, a matrix a tuple of three
+rows. Under `vmap` each component becomes one array over the batch, so the integrators' hot
+loop is element-wise arithmetic on long vectors (structure of arrays) rather than many tiny
+batched 3x3 products, which XLA executes poorly on CPU.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax.numpy as jnp
+
+# --------------------------------------------------------------------------------------
+# Component algebra (private, shared by the integrators).
+
+
+def vec(x):
+    """Array `(..., 3)` -> tuple of three arrays."""
+    return (x[..., 0], x[..., 1], x[..., 2])
+
+
+def unvec(v):
+    """Tuple of three arrays -> array `(..., 3)`."""
+    return jnp.stack(jnp.broadcast_arrays(*v), axis=-1)
+
+
+def mat(m):
+    """Array `(..., 3, 3)` -> tuple of three rows."""
+    return tuple(tuple(m[..., i, j] for j in range(3)) for i in range(3))
+
+
+def unmat(m):
+    """Tuple of three rows -> array `(..., 3, 3)`."""
+    return jnp.stack([unvec(row) for row in m], axis=-2)
+
+
+def add(a, b):
+    return tuple(x + y for x, y in zip(a, b))
+
+
+def sub(a, b):
+    return tuple(x - y for x, y in zip(a, b))
+
+
+def scale(s, a):
+    return tuple(s * x for x in a)
+
+
+def mul(a, b):
+    """Component-wise product (a diagonal matrix times a vector)."""
+    return tuple(x * y for x, y in zip(a, b))
+
+
+def dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def cross(a, b):
+    return (
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    )
+
+
+def mv(m, x):
+    """Matrix times vector."""
+    return tuple(dot(row, x) for row in m)
+
+
+def mtv(m, x):
+    """Transposed matrix times vector."""
+    return tuple(m[0][j] * x[0] + m[1][j] * x[1] + m[2][j] * x[2] for j in range(3))
+
+
+def transpose(m):
+    return tuple(tuple(m[i][j] for i in range(3)) for j in range(3))
+
+
+def mm(a, b):
+    """Matrix product."""
+    return tuple(
+        tuple(a[i][0] * b[0][j] + a[i][1] * b[1][j] + a[i][2] * b[2][j] for j in range(3))
+        for i in range(3)
+    )
+
+
+def madd(*ms):
+    return tuple(tuple(sum(m[i][j] for m in ms) for j in range(3)) for i in range(3))
+
+
+def mscale(s, m):
+    return tuple(tuple(s * m[i][j] for j in range(3)) for i in range(3))
+
+
+def diag_left(d, m):
+    """`diag(d) @ m`."""
+    return tuple(tuple(d[i] * m[i][j] for j in range(3)) for i in range(3))
+
+
+def diag_right(m, d):
+    """`m @ diag(d)`."""
+    return tuple(tuple(m[i][j] * d[j] for j in range(3)) for i in range(3))
+
+
+def outer(a, b):
+    return tuple(tuple(a[i] * b[j] for j in range(3)) for i in range(3))
+
+
+def trace(m):
+    return m[0][0] + m[1][1] + m[2][2]
+
+
+def shift(m, s):
+    """`m + s Id`."""
+    return tuple(tuple(m[i][j] + s if i == j else m[i][j] for j in range(3)) for i in range(3))
+
+
+def mat_hat(m, x):
+    """`m @ hat(x)`: row i is `m_i x x` (6 products instead of 27)."""
+    return tuple(cross(row, x) for row in m)
+
+
+def hat_mat(x, m):
+    """`hat(x) @ m`: column j is `x x m_j`."""
+    cols = [cross(x, (m[0][j], m[1][j], m[2][j])) for j in range(3)]
+    return tuple(tuple(cols[j][i] for j in range(3)) for i in range(3))
+
+
+def hat_c(v):
+    z = jnp.zeros_like(v[0])
+    return ((z, -v[2], v[1]), (v[2], z, -v[0]), (-v[1], v[0], z))
+
+
+def vee_skew(m):
+    """`vee(skew(m))`, the axial vector of the skew part."""
+    return (
+        0.5 * (m[2][1] - m[1][2]),
+        0.5 * (m[0][2] - m[2][0]),
+        0.5 * (m[1][0] - m[0][1]),
+    )
+
+
+def solve3(m, b):
+    """Solve `m x = b` by cofactors (Cramer's rule): far cheaper than a batched LU for 3x3."""
+    c00 = m[1][1] * m[2][2] - m[1][2] * m[2][1]
+    c01 = m[1][2] * m[2][0] - m[1][0] * m[2][2]
+    c02 = m[1][0] * m[2][1] - m[1][1] * m[2][0]
+    c10 = m[0][2] * m[2][1] - m[0][1] * m[2][2]
+    c11 = m[0][0] * m[2][2] - m[0][2] * m[2][0]
+    c12 = m[0][1] * m[2][0] - m[0][0] * m[2][1]
+    c20 = m[0][1] * m[1][2] - m[0][2] * m[1][1]
+    c21 = m[0][2] * m[1][0] - m[0][0] * m[1][2]
+    c22 = m[0][0] * m[1][1] - m[0][1] * m[1][0]
+    inv_det = 1.0 / (m[0][0] * c00 + m[0][1] * c01 + m[0][2] * c02)
+    # The inverse is the transposed cofactor matrix over the determinant.
+    return (
+        inv_det * (c00 * b[0] + c10 * b[1] + c20 * b[2]),
+        inv_det * (c01 * b[0] + c11 * b[1] + c21 * b[2]),
+        inv_det * (c02 * b[0] + c12 * b[1] + c22 * b[2]),
+    )
+
+
+def _small_angle_threshold(dtype):
+    # Below this theta^2 the two-term Taylor series is exact to round-off: its first
+    # neglected term is O(theta^4) = O(eps).
+    return math.sqrt(float(jnp.finfo(dtype).eps))
+
+
+def exp_coefficients(theta2):
+    """`sin(t)/t`, `(1 - cos t)/t^2` and `(t - sin t)/t^3` at `t^2 = theta2`.
+
+    The "double where" keeps gradients finite at t = 0: the exact branch never sees t = 0,
+    the series branch is used there. `1 - cos t` is computed as `2 sin^2(t/2)`, which does not
+    cancel.
+    """
+    small = theta2 < _small_angle_threshold(theta2.dtype)
+    t2 = jnp.where(small, 1.0, theta2)
+    t = jnp.sqrt(t2)
+    s = jnp.sin(t)
+    half = jnp.sin(0.5 * t) / (0.5 * t)
+    a = jnp.where(small, 1.0 - theta2 / 6.0, s / t)
+    b = jnp.where(small, 0.5 - theta2 / 24.0, 0.5 * half * half)
+    c = jnp.where(small, 1.0 / 6.0 - theta2 / 120.0, (t - s) / (t2 * t))
+    return a, b, c
+
+
+def exp_c(xi):
+    """Rodrigues' formula on components: `exp(hat xi) = Id + a X + b X^2`."""
+    a, b, _ = exp_coefficients(dot(xi, xi))
+    x = hat_c(xi)
+    return shift(madd(mscale(a, x), mscale(b, mm(x, x))), 1.0)
+
+
+def exp_right_jacobian_c(xi):
+    """`Jr(xi)` with `exp(hat(xi + d)) = exp(hat xi) exp(hat(Jr d)) + O(d^2)`."""
+    _, b, c = exp_coefficients(dot(xi, xi))
+    x = hat_c(xi)
+    return shift(madd(mscale(-b, x), mscale(c, mm(x, x))), 1.0)
+
+
+def cayley_c(xi):
+    """Cayley map on components: `(Id - X/2)^{-1} (Id + X/2) = Id + 4/(4+|xi|^2) (X + X^2/2)`."""
+    x = hat_c(xi)
+    s = 4.0 / (4.0 + dot(xi, xi))
+    return shift(madd(mscale(s, x), mscale(0.5 * s, mm(x, x))), 1.0)
+
+
+def cayley_right_jacobian_c(xi):
+    """`Jc(xi)` with `cay(xi + d) = cay(xi) exp(hat(Jc d)) + O(d^2)`: `4/(4+|xi|^2) (Id - X/2)`."""
+    s = 4.0 / (4.0 + dot(xi, xi))
+    return shift(mscale(-0.5 * s, hat_c(xi)), s)
+
+
+# --------------------------------------------------------------------------------------
+# Public array API.
+
+
+def hat(v):
+    """The skew matrix of a vector: `hat(v) @ u = v x u`.
+
+    **Arguments:** `v`, shape `(..., 3)`. **Returns:** shape `(..., 3, 3)`.
+    """
+    return unmat(hat_c(vec(jnp.asarray(v))))
+
+
+def vee(m):
+    """Inverse of `hat` on skew matrices: the axial vector. For a general matrix it returns
+    the axial vector of its skew part.
+
+    **Arguments:** `m`, shape `(..., 3, 3)`. **Returns:** shape `(..., 3)`.
+    """
+    return unvec(vee_skew(mat(jnp.asarray(m))))
+
+
+def skew(m):
+    """$\\mathrm{skew}(M) = (M - M^T)/2$."""
+    m = jnp.asarray(m)
+    return 0.5 * (m - jnp.swapaxes(m, -1, -2))
+
+
+def sym(m):
+    """$\\mathrm{sym}(M) = (M + M^T)/2$."""
+    m = jnp.asarray(m)
+    return 0.5 * (m + jnp.swapaxes(m, -1, -2))
+
+
+def exp(xi):
+    """The exponential map so(3) -> SO(3) (Rodrigues' formula).
+
+    $\\exp(\\hat\\xi) = I + \\frac{\\sin\\theta}{\\theta}\\hat\\xi
+    + \\frac{1-\\cos\\theta}{\\theta^2}\\hat\\xi^2$, $\\theta = |\\xi|$, with a Taylor series
+    below a dtype-dependent threshold so that values and gradients are exact at $\\theta = 0$.
+
+    **Arguments:** `xi`, shape `(..., 3)`. **Returns:** rotation matrices `(..., 3, 3)`.
+    """
+    return unmat(exp_c(vec(jnp.asarray(xi))))
+
+
+def log(r):
+    """Inverse of `exp` for rotations by an angle $\\theta < \\pi$.
+
+    Uses $\\theta = \\operatorname{atan2}(|w|, (\\operatorname{tr} R - 1)/2)$ with
+    $w = \\mathrm{vee}(\\mathrm{skew}\\,R) = \\sin\\theta\\, u$; accurate away from
+    $\\theta = \\pi$, where the axis is not determined by the skew part.
+
+    **Arguments:** `r`, rotation matrices `(..., 3, 3)`. **Returns:** `(..., 3)`.
+    """
+    m = mat(jnp.asarray(r))
+    w = vee_skew(m)
+    s2 = dot(w, w)
+    small = s2 < _small_angle_threshold(s2.dtype) ** 2
+    s = jnp.sqrt(jnp.where(small, 1.0, s2))
+    theta = jnp.arctan2(s, 0.5 * (trace(m) - 1.0))
+    # theta / sin(theta) -> 1 + theta^2/6 as theta -> 0.
+    factor = jnp.where(small, 1.0 + s2 / 6.0, theta / s)
+    return unvec(scale(factor, w))
+
+
+def cayley(xi):
+    """The Cayley map so(3) -> SO(3): $(I - \\hat\\xi/2)^{-1}(I + \\hat\\xi/2)$.
+
+    It is the rotation by $\\theta = 2\\arctan(|\\xi|/2)$ about $\\xi/|\\xi|$, smooth everywhere.
+
+    **Arguments:** `xi`, shape `(..., 3)`. **Returns:** `(..., 3, 3)`.
+    """
+    return unmat(cayley_c(vec(jnp.asarray(xi))))
+
+
+def cayley_inv(r):
+    """Inverse of `cayley` for rotations by $\\theta < \\pi$: $\\xi = 4 w / (1 + \\operatorname{tr} R)$.
+
+    **Arguments:** `r`, rotation matrices `(..., 3, 3)`. **Returns:** `(..., 3)`.
+    """
+    m = mat(jnp.asarray(r))
+    return unvec(scale(4.0 / (1.0 + trace(m)), vee_skew(m)))
