@@ -1,0 +1,68 @@
+"""Strong order against the exact time-change solution y(T) = phi_{T + c W(T)}(y0)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import slps_jax as sj
+from reference import exact_sde_solution, fitted_order
+
+N_SAMPLES = 200
+LEVELS = [5, 6, 7, 8, 9]  # h = 2^-5 ... 2^-9
+
+
+class _NoKappa(sj.LiePoisson):
+    """Scheme (42) with its c^2 dW^2 term removed."""
+
+    def _kappa(self, cdw):
+        return 0.0 * cdw
+
+
+@pytest.fixture(scope="module")
+def study():
+    model, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
+    h_fine = 2.0 ** -LEVELS[-1]
+    fine = sj.brownian_increments(jax.random.key(42), 2 ** LEVELS[-1], h_fine,
+                                  n_samples=N_SAMPLES)
+    exact = exact_sde_solution(model.inertia, float(model.c), y0, np.asarray(fine.sum(1)), 1.0)
+    return model, y0, fine, exact
+
+
+_CACHE = {}
+
+
+def rms_errors(study, method):
+    if method not in _CACHE:
+        _CACHE[method] = _rms_errors(study, method)
+    return _CACHE[method]
+
+
+def _rms_errors(study, method):
+    model, y0, fine, exact = study
+    errs, hs = [], []
+    for level in LEVELS:
+        factor = 2 ** (LEVELS[-1] - level)
+        coarse = fine.reshape(N_SAMPLES, -1, factor).sum(-1)  # the same Brownian paths
+        h = 2.0 ** -level
+        run = jax.jit(jax.vmap(lambda dW: sj.integrate(model, y0, dW, h, method=method,
+                                                       throw=False)))
+        y_end = run(coarse)
+        errs.append(float(np.sqrt(np.mean(np.sum((np.asarray(y_end) - exact) ** 2, -1)))))
+        hs.append(h)
+    return np.array(hs), np.array(errs)
+
+
+@pytest.mark.parametrize("method", [sj.LiePoisson(), sj.Midpoint()], ids=lambda m: type(m).__name__)
+def test_strong_order_one(study, method):
+    hs, errs = rms_errors(study, method)
+    order = fitted_order(hs, errs)
+    assert 0.85 <= order <= 1.2, (order, errs)
+    assert np.all(np.diff(errs) < 0)
+
+
+def test_without_kappa_term_no_convergence(study):
+    hs, errs = rms_errors(study, _NoKappa())
+    assert fitted_order(hs, errs) <= 0.4, errs
+    _, errs_full = rms_errors(study, sj.LiePoisson())
+    assert errs[-1] > 10 * errs_full[-1]

@@ -1,0 +1,235 @@
+"""The driver: invariants, determinism, saving, failures, bad input."""
+
+import warnings
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import slps_jax as sj
+
+
+def test_casimir_preserved_over_ten_thousand_steps(paper):
+    model, y0 = paper
+    dW = sj.brownian_increments(jax.random.key(3), 10_000, 0.01)
+    ys_lp = sj.integrate(model, y0, dW, 0.01, save_every=100)
+    ys_em = sj.integrate(model, y0, dW, 0.01, method=sj.EulerMaruyama(), save_every=100)
+    r0 = float(jnp.linalg.norm(y0))
+    drift_lp = np.abs(np.linalg.norm(ys_lp, axis=-1) / r0 - 1.0)
+    drift_em = np.abs(np.linalg.norm(ys_em, axis=-1) / r0 - 1.0)
+    assert drift_lp.max() < 1e-13
+    # Euler-Maruyama's |y| grows along the same path (its step adds f(y) orthogonal to y).
+    assert drift_em[-1] > 1e-2
+    assert drift_em[-1] > drift_em[len(drift_em) // 10] > 0
+
+
+def test_midpoint_preserves_both_quadratic_invariants(paper):
+    model, y0 = paper
+    dW = sj.brownian_increments(jax.random.key(4), 2000, 0.01)
+    ys = sj.integrate(model, y0, dW, 0.01, method=sj.Midpoint(), save_every=2000)
+    np.testing.assert_allclose(model.casimir(ys[-1]), model.casimir(y0), rtol=1e-12)
+    np.testing.assert_allclose(model.hamiltonian(ys[-1]), model.hamiltonian(y0), rtol=1e-12)
+
+
+def test_simulate_matches_integrate_on_the_same_increments(paper):
+    model, y0 = paper
+    key = jax.random.key(5)
+    sol = sj.simulate(model, y0, t1=0.5, dt=0.01, n_samples=4, key=key, save_every=10)
+    dW = sj.brownian_increments(key, 50, 0.01, n_samples=4)
+    for i in range(4):
+        ys = sj.integrate(model, y0, dW[i], 0.01, save_every=10)
+        np.testing.assert_allclose(sol.ys[i], ys, atol=1e-14)
+    assert sol.ys.shape == (4, 6, 3)
+    np.testing.assert_allclose(sol.ts, np.arange(6) * 0.1, atol=1e-15)
+    np.testing.assert_allclose(sol.ys[:, 0], np.broadcast_to(y0, (4, 3)))
+
+
+def test_final_state_only_by_default(paper):
+    model, y0 = paper
+    key = jax.random.key(6)
+    sol = sj.simulate(model, y0, t1=0.5, dt=0.01, n_samples=3, key=key)
+    full = sj.simulate(model, y0, t1=0.5, dt=0.01, n_samples=3, key=key, save_every=25)
+    assert sol.ys.shape == (3, 1, 3) and sol.ts.shape == (1,)
+    np.testing.assert_allclose(sol.ys[:, 0], full.ys[:, -1], atol=0)
+    assert set(sol.stats) == {"n_failed"}
+    assert int(sol.stats["n_failed"]) == 0 and np.all(sol.result == sj.RESULTS.successful)
+
+
+def test_determinism_and_batch_independence(paper):
+    model, y0 = paper
+    key = jax.random.key(7)
+    a = sj.simulate(model, y0, t1=0.25, dt=2 ** -6, n_samples=10, key=key)
+    b = sj.simulate(model, y0, t1=0.25, dt=2 ** -6, n_samples=10, key=key)
+    big = sj.simulate(model, y0, t1=0.25, dt=2 ** -6, n_samples=1000, key=key)
+    np.testing.assert_array_equal(a.ys, b.ys)
+    np.testing.assert_allclose(big.ys[:10], a.ys, atol=1e-15)
+    other = sj.simulate(model, y0, t1=0.25, dt=2 ** -6, n_samples=10, key=jax.random.key(8))
+    assert not np.allclose(other.ys, a.ys)
+
+
+def test_legacy_keys_accepted_and_integers_rejected(paper):
+    model, y0 = paper
+    a = sj.simulate(model, y0, t1=0.1, dt=0.05, n_samples=2, key=jax.random.PRNGKey(1))
+    b = sj.simulate(model, y0, t1=0.1, dt=0.05, n_samples=2,
+                    key=jax.random.wrap_key_data(jax.random.PRNGKey(1)))
+    np.testing.assert_array_equal(a.ys, b.ys)
+    with pytest.raises(TypeError, match="jax.random.key"):
+        sj.simulate(model, y0, t1=0.1, dt=0.05, n_samples=2, key=1)
+
+
+def test_newton_stats_only_when_asked(paper):
+    model, y0 = paper
+    sol = sj.simulate(model, y0, t1=1.0, dt=2 ** -5, n_samples=100, key=jax.random.key(9),
+                      newton_stats=True)
+    s = sol.stats
+    assert 1 <= float(s["newton_iterations_mean"]) <= int(s["newton_iterations_max"]) <= 12
+    assert 0 < float(s["residual_max"]) <= 64 * np.finfo(np.float64).eps
+
+
+def test_truncation(paper):
+    model, _ = paper
+    h = 0.01
+    dW = sj.brownian_increments(jax.random.key(10), 20_000, h, truncate_k=0.1)
+    bound = np.sqrt(2 * 0.1 * abs(np.log(h)))
+    assert np.max(np.abs(dW)) == pytest.approx(np.sqrt(h) * bound, rel=1e-12)
+    raw = sj.brownian_increments(jax.random.key(10), 20_000, h, truncate_k=None)
+    np.testing.assert_allclose(np.clip(raw, -np.sqrt(h) * bound, np.sqrt(h) * bound), dW,
+                               atol=1e-15)
+    assert abs(np.std(raw) / np.sqrt(h) - 1) < 0.03
+
+
+def test_failed_sample_is_flagged_frozen_and_does_not_poison_others(paper):
+    model, y0 = paper
+    y0 = y0 * 0.99
+    dW = sj.brownian_increments(jax.random.key(11), 40, 0.01, n_samples=3)
+    dW = dW.at[1, 20].set(400.0)  # tau = 80 at step 20: no root on the branch theta < pi/2
+    run = jax.jit(jax.vmap(lambda w: sj.integrate(model, y0, w, 0.01, throw=False)))
+    out = np.asarray(run(dW))
+    assert np.all(np.isfinite(out))
+    for i in (0, 2):
+        np.testing.assert_allclose(out[i], sj.integrate(model, y0, dW[i], 0.01), atol=1e-15)
+    # Sample 1 keeps its last good state: the state after steps 0..19.
+    np.testing.assert_allclose(out[1], sj.integrate(model, y0, dW[1, :20], 0.01), atol=1e-15)
+    with pytest.raises(RuntimeError, match="step 20"):
+        sj.integrate(model, y0, dW[1], 0.01)
+
+
+def test_simulate_reports_failures(paper):
+    model, y0 = paper
+    # Four Newton updates per parameterisation are too few for some steps at this size.
+    method = sj.LiePoisson(max_iter=4)
+    kwargs = dict(t1=1.0, dt=2 ** -5, n_samples=50, key=jax.random.key(12), method=method)
+    with pytest.raises(RuntimeError, match="samples failed"):
+        sj.simulate(model, y0, **kwargs)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        sol = sj.simulate(model, y0, throw=False, **kwargs)
+    assert any("samples failed" in str(w.message) for w in caught)
+    failed = np.asarray(sol.result) == sj.RESULTS.step_failed
+    assert 0 < failed.sum() < 50 and int(sol.stats["n_failed"]) == failed.sum()
+    assert np.all(np.isfinite(sol.ys))
+    assert np.all(np.asarray(sol.fail_step)[failed] >= 0)
+    assert np.all(np.asarray(sol.fail_step)[~failed] == -1)
+    good = sj.simulate(model, y0, t1=1.0, dt=2 ** -5, n_samples=50, key=jax.random.key(12))
+    np.testing.assert_allclose(sol.ys[~failed], good.ys[~failed], atol=1e-14)
+
+
+def test_scaling_option_handles_norm_above_one():
+    model = sj.RigidBody.paper()
+    y0 = jnp.array([1.4, 1.4, 0.0])
+    with pytest.raises(ValueError, match="scale"):
+        sj.simulate(model, y0, t1=0.1, dt=0.01, n_samples=2, key=jax.random.key(0))
+    dW = sj.brownian_increments(jax.random.key(13), 100, 0.01)
+    y1 = sj.integrate(model, y0, dW, 0.01, method=sj.LiePoisson(scale=3.0))
+    np.testing.assert_allclose(np.linalg.norm(y1), np.linalg.norm(y0), rtol=1e-14)
+    # z = y / lambda solves the same SDE with time scaled by lambda.
+    z1 = sj.integrate(model, y0 / 3.0, 3.0 * dW, 0.03)
+    np.testing.assert_allclose(y1, 3.0 * z1, atol=1e-14)
+
+
+def test_float32(paper):
+    model32 = sj.RigidBody(np.asarray(sj.RigidBody.paper().inertia, np.float32), 0.2)
+    sol = sj.simulate(model32, sj.PAPER_Y0, t1=1.0, dt=2 ** -5, n_samples=64,
+                      key=jax.random.key(14), newton_stats=True)
+    assert sol.ys.dtype == jnp.float32
+    r = np.linalg.norm(np.asarray(sol.ys[:, -1], np.float64), axis=-1)
+    np.testing.assert_allclose(r, np.linalg.norm(sj.PAPER_Y0), rtol=1e-5)
+    assert int(sol.stats["n_failed"]) == 0
+    # Same increments in both precisions: float32 stays within its round-off of float64.
+    dW = sj.brownian_increments(jax.random.key(14), 32, 2 ** -5, n_samples=8)
+    y32 = jax.vmap(lambda w: sj.integrate(model32, sj.PAPER_Y0, w.astype(jnp.float32), 2 ** -5))(dW)
+    y64 = jax.vmap(lambda w: sj.integrate(sj.RigidBody.paper(), sj.PAPER_Y0, w, 2 ** -5))(dW)
+    assert y32.dtype == jnp.float32
+    assert np.max(np.abs(np.asarray(y32, np.float64) - y64)) < 1e-5
+
+
+BAD_SIMULATE = [
+    (dict(dt=0.0), "dt"),
+    (dict(dt=-0.1), "dt"),
+    (dict(dt=float("nan")), "dt"),
+    (dict(t1=1.0, dt=0.3), "multiple"),
+    (dict(t1=-1.0), "t1"),
+    (dict(n_samples=0), "n_samples"),
+    (dict(n_samples=2.5), "n_samples"),
+    (dict(save_every=3), "save_every"),
+    (dict(save_every=0), "save_every"),
+    (dict(truncate_k=-1), "truncate_k"),
+    (dict(y0=[0.1, 0.2]), "y0"),
+    (dict(y0=[0.1, float("nan"), 0.0]), "y0"),
+    (dict(y0=[0.8, 0.8, 0.0]), r"\|y0\|"),
+]
+
+
+@pytest.mark.parametrize("bad,match", BAD_SIMULATE)
+def test_simulate_rejects_bad_input(paper, bad, match):
+    model, y0 = paper
+    kwargs = dict(t1=1.0, dt=0.1, n_samples=4, key=jax.random.key(0), y0=y0)
+    kwargs.update(bad)
+    y0 = kwargs.pop("y0")
+    with pytest.raises(ValueError, match=match):
+        sj.simulate(model, y0, **kwargs)
+
+
+@pytest.mark.parametrize("inertia,c,match", [
+    ([1.0, 2.0], 0.2, "inertia"),
+    ([1.0, -2.0, 3.0], 0.2, "inertia"),
+    ([1.0, np.inf, 3.0], 0.2, "inertia"),
+    ([1.0, 0.0, 3.0], 0.2, "inertia"),
+    ([1.0, 2.0, 3.0], np.nan, "c"),
+    ([1.0, 2.0, 3.0], [0.1, 0.2], "c"),
+])
+def test_rigid_body_rejects_bad_input(inertia, c, match):
+    with pytest.raises(ValueError, match=match):
+        sj.RigidBody(inertia, c)
+
+
+def test_integrate_rejects_bad_input(paper):
+    model, y0 = paper
+    dW = jnp.zeros(10)
+    with pytest.raises(ValueError, match="dt"):
+        sj.integrate(model, y0, dW, 0.0)
+    with pytest.raises(ValueError, match="dW"):
+        sj.integrate(model, y0, jnp.zeros((2, 5)), 0.1)
+    with pytest.raises(ValueError, match="save_every"):
+        sj.integrate(model, y0, dW, 0.1, save_every=3)
+    with pytest.raises(TypeError, match="call it"):
+        sj.integrate(model, y0, dW, 0.1, method=sj.LiePoisson)
+    with pytest.raises(ValueError, match="max_iter"):
+        sj.LiePoisson(max_iter=0)
+
+
+def test_model_is_a_pytree_and_gradients_reach_it(paper):
+    model, y0 = paper
+    leaves = jax.tree_util.tree_leaves(model)
+    assert len(leaves) == 2
+    dW = sj.brownian_increments(jax.random.key(15), 16, 1 / 16)
+
+    def final_energy(inertia, c):
+        m = sj.RigidBody(inertia, c)
+        return m.hamiltonian(sj.integrate(m, y0, dW, 1 / 16, method=sj.EulerMaruyama()))
+
+    g = jax.grad(final_energy, argnums=(0, 1))(model.inertia, model.c)
+    eps = 1e-6
+    fd = (final_energy(model.inertia, model.c + eps) - final_energy(model.inertia, model.c - eps)) / (2 * eps)
+    np.testing.assert_allclose(g[1], fd, rtol=1e-6)
