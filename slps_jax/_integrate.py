@@ -17,20 +17,24 @@ from ._solver.base import AbstractMethod
 from ._solver.lie_poisson import LiePoisson
 
 
-def _scan_path(method, model, y0, dt, n_steps, save_every, draw, xs, want_stats):
-    """Integrate one sample. `draw(n, x)` gives step n's increment from the scan input `x`.
+def _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats):
+    """Integrate one sample: `n_blocks` blocks of `block_len` steps, saving after each block.
 
-    Returns the saved states `(n_steps // save_every, 3)`, the step of failure (-1 if none)
-    and the Newton statistics `(iterations sum, iterations max, residual max)` or `()`.
+    `draw(n)` gives step n's increment. With a Python-int `block_len` the time loop is a
+    `lax.scan` (reverse-mode differentiable); with a traced one it is a `while_loop`, so one
+    compilation serves every step count (convergence studies).
+
+    Returns the saved states `(n_blocks, 3)`, the step of failure (-1 if none) and the Newton
+    statistics `(iterations sum, iterations max, residual max)` or `()`.
     """
     dtype = y0.dtype
     zero = jnp.zeros((), dtype)
     acc0 = (zero, jnp.zeros((), jnp.int32), zero) if want_stats else ()
     carry0 = (y0, jnp.array(True), jnp.array(-1, jnp.int32), jnp.array(0, jnp.int32), acc0)
 
-    def step(carry, x):
+    def step(_, carry):
         y, alive, fail_step, n, acc = carry
-        dW = draw(n, x)
+        dW = draw(n)
         # A failed sample idles at its last good state: with dt = dW = 0 every method's
         # step is trivial, so it costs no Newton iterations.
         y_new, info = method.step(model, y, jnp.where(alive, dt, 0.0).astype(dtype),
@@ -42,34 +46,48 @@ def _scan_path(method, model, y0, dt, n_steps, save_every, draw, xs, want_stats)
             res = jnp.where(alive & ok, info.residual, 0.0)
             acc = (acc[0] + it, jnp.maximum(acc[1], it), jnp.maximum(acc[2], res))
         y = jnp.where(alive & ok, y_new, y)
-        return (y, alive & ok, fail_step, n + 1, acc), None
+        return y, alive & ok, fail_step, n + 1, acc
 
-    def block(carry, xb):
-        carry, _ = jax.lax.scan(step, carry, xb, length=save_every)
+    def block(carry, _):
+        carry = jax.lax.fori_loop(0, block_len, step, carry)
         return carry, carry[0]
 
-    if xs is not None:
-        xs = xs.reshape(n_steps // save_every, save_every, *xs.shape[1:])
-    (_, _, fail_step, _, acc), ys = jax.lax.scan(block, carry0, xs,
-                                                length=n_steps // save_every)
+    (_, _, fail_step, _, acc), ys = jax.lax.scan(block, carry0, None, length=n_blocks)
     return ys, fail_step, acc
 
 
 @functools.partial(jax.jit, static_argnames=("method", "save_every", "want_stats"))
 def _integrate_jit(method, model, y0, dW, dt, save_every, want_stats):
-    return _scan_path(method, model, y0, dt, dW.shape[0], save_every,
-                      lambda n, x: x, dW, want_stats)
+    return _path(method, model, y0, dt, lambda n: dW[n], dW.shape[0] // save_every,
+                 save_every, want_stats)
 
 
-@functools.partial(jax.jit, static_argnames=("method", "n_steps", "save_every", "want_stats"))
-def _ensemble_jit(method, model, y0, keys, dt, bound, n_steps, save_every, want_stats):
+def _ensemble(method, model, y0, keys, dt, bound, n_blocks, block_len, want_stats,
+              substeps=1):
+    """Each sample draws its increments from its key. With `substeps = s > 1`, step `n`'s
+    increment is the sum of the fine increments `n s, ..., n s + s - 1` of size `dt / s`:
+    coarse paths that are the very same Brownian paths as a run with step `dt / s`."""
     dtype = y0.dtype
+    fine_dt = dt / substeps
 
     def one(key):
-        draw = lambda n, _: _noise.increment(key, n, dt, bound, dtype)  # noqa: E731
-        return _scan_path(method, model, y0, dt, n_steps, save_every, draw, None, want_stats)
+        def draw(n):
+            if isinstance(substeps, int) and substeps == 1:
+                return _noise.increment(key, n, dt, bound, dtype)
+            return jax.lax.fori_loop(
+                0, substeps,
+                lambda k, w: w + _noise.increment(key, n * substeps + k, fine_dt, bound, dtype),
+                jnp.zeros((), dtype))
+
+        return _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats)
 
     return jax.vmap(one)(keys)
+
+
+_ensemble_jit = jax.jit(_ensemble, static_argnames=("method", "n_blocks", "block_len",
+                                                   "want_stats", "substeps"))
+# Step count and substeps traced: one compilation for every step size of a study.
+_ensemble_dynamic_jit = jax.jit(_ensemble, static_argnames=("method", "n_blocks", "want_stats"))
 
 
 # --------------------------------------------------------------------------------------
@@ -229,7 +247,7 @@ def simulate(model, y0, *, t1, dt, n_samples, key, method=LiePoisson(), save_eve
     keys = _noise.sample_keys(key, int(n_samples))
     bound = jnp.asarray(_noise.truncation_bound(dt, truncate_k), dtype)
     ys, fail_step, acc = _ensemble_jit(method, model, y0, keys, jnp.asarray(dt, dtype), bound,
-                                       n_steps, k, bool(newton_stats))
+                                       n_steps // k, k, bool(newton_stats))
     if save_every is None:
         ts = jnp.asarray([n_steps * dt], dtype)
     else:
