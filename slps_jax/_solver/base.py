@@ -59,12 +59,13 @@ def default_tol(dtype):
     return 64.0 * float(jnp.finfo(dtype).eps)
 
 
-def newton(fn, starts, *, tol, max_iter, accept=None, active=True):
+def newton(fn, starts, *, tol, max_iter, active=True):
     """Newton's method for a 3-vector unknown, on components, with fallback parameterisations.
 
-    `fn(x, mode) -> (r, J)` is the residual and its Jacobian in parameterisation `mode`
-    (0, 1, ...), started from `starts[mode]`. Iterates `x <- x - J^{-1} r` until
-    `max|r| <= tol` at a root that `accept(x, mode)` takes. After `max_iter` updates, a
+    `fn(x, mode) -> (r, J, admissible)` is the residual, its Jacobian in parameterisation
+    `mode` (0, 1, ...), started from `starts[mode]`, and whether `x` would be an acceptable
+    root (for example on the right branch). Iterates `x <- x - J^{-1} r` until
+    `max|r| <= tol` at an admissible root. After `max_iter` updates, a
     non-finite residual, or convergence to a rejected root, the sample restarts in the next
     parameterisation; after the last it gives up. All modes share one loop, so the fallback
     costs nothing unless some sample needs it. Samples with `active=False` do no work. Under
@@ -91,10 +92,10 @@ def newton(fn, starts, *, tol, max_iter, accept=None, active=True):
 
     def body(state):
         mode, evals, total, x, _, _, _ = state
-        r, jac = fn(x, mode)
+        r, jac, admissible = fn(x, mode)
         rnorm = jnp.maximum(jnp.maximum(jnp.abs(r[0]), jnp.abs(r[1])), jnp.abs(r[2]))
         small = rnorm <= tol
-        good = small if accept is None else small & accept(x, mode)
+        good = small & admissible
         exhausted = ~good & ((evals > max_iter) | ~jnp.isfinite(rnorm) | small)
         switch = exhausted & (mode < last)
         dx = _so3.solve3(jac, r)

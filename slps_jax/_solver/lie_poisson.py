@@ -91,6 +91,28 @@ def _branch_start(y):
     return so3.scale(f_exp, y), so3.scale(f_cay, y)
 
 
+def _rotation_and_chain(x, mode):
+    """`A` and the right-trivialised derivative `dA = A hat(chain dx)` of the parameterisation.
+
+    mode 0: `A = exp(hat x)`, chain = the right Jacobian of exp;
+    mode 1: `A = cay(hat x)`, chain = `4/(4+|x|^2) (Id - hat(x)/2)`.
+    Both are `Id + a X + b X^2` and `e Id - f X + g X^2` with `X = hat x`: one set of matrix
+    products, only the scalar coefficients differ.
+    """
+    theta2 = so3.dot(x, x)
+    sa, sb, sc = so3.exp_coefficients(theta2)
+    s = 4.0 / (4.0 + theta2)
+    cay = mode == 1
+    a_coef, b_coef = jnp.where(cay, s, sa), jnp.where(cay, 0.5 * s, sb)
+    e_coef, f_coef, g_coef = jnp.where(cay, s, 1.0), jnp.where(cay, 0.5 * s, sb), \
+        jnp.where(cay, 0.0, sc)
+    xm = so3.hat_c(x)
+    x2 = so3.mm(xm, xm)
+    a = so3.shift(so3.madd(so3.mscale(a_coef, xm), so3.mscale(b_coef, x2)), 1.0)
+    chain = so3.shift(so3.madd(so3.mscale(-f_coef, xm), so3.mscale(g_coef, x2)), e_coef)
+    return a, chain
+
+
 @dataclasses.dataclass(frozen=True)
 class LiePoisson(AbstractMethod):
     r"""Scheme (42) of Liu & Wang: the stochastic Lie–Poisson reduction integrator.
@@ -158,23 +180,13 @@ class LiePoisson(AbstractMethod):
         z = so3.scale(1.0 / lam, so3.vec(y))
         feasible = so3.dot(z, z) < 1.0
 
-        def rotation(x, mode):
-            return tuple(tuple(jnp.where(mode == 0, e, c) for e, c in zip(re, rc))
-                         for re, rc in zip(so3.exp_c(x), so3.cayley_c(x)))
-
         def system(x, mode):
-            r, jac = in_map(rotation(x, mode), z, d, tau, kappa)
-            chain = tuple(tuple(jnp.where(mode == 0, e, c) for e, c in zip(re, rc))
-                          for re, rc in zip(so3.exp_right_jacobian_c(x),
-                                            so3.cayley_right_jacobian_c(x)))
-            return r, so3.mm(jac, chain)
-
-        def on_branch(x, mode):
-            return so3.trace(rotation(x, mode)) > 1.0  # theta < pi/2
+            a, chain = _rotation_and_chain(x, mode)
+            r, jac = in_map(a, z, d, tau, kappa)
+            return r, so3.mm(jac, chain), so3.trace(a) > 1.0  # the branch theta < pi/2
 
         x, mode, iterations, residual, ok = newton(
-            system, _branch_start(z), tol=tol, max_iter=self.max_iter, accept=on_branch,
-            active=feasible)
-        a = rotation(x, mode)
+            system, _branch_start(z), tol=tol, max_iter=self.max_iter, active=feasible)
+        a, _ = _rotation_and_chain(x, mode)
         y_next = so3.unvec(so3.mv(a, so3.vec(y))).astype(dtype)
         return y_next, StepInfo(ok, iterations, residual.astype(dtype))

@@ -50,7 +50,7 @@ class Midpoint(AbstractMethod):
             fprime = so3.madd(so3.diag_right(so3.hat_c(m), d),
                               so3.mscale(-1.0, so3.hat_c(so3.mul(d, m))))
             jac = so3.shift(so3.mscale(-0.5 * tau, fprime), 1.0)
-            return r, jac
+            return r, jac, True
 
         start = tuple(a + tau * b for a, b in zip(y0, f(y0)))
         y1, _, it, res, ok = newton(system, (start,), tol=tol, max_iter=self.max_iter)
