@@ -1,13 +1,17 @@
 """slps-jax: structure-preserving integrators for stochastic Lie–Poisson systems in JAX."""
 
+from ._convergence import ConvergenceResult as ConvergenceResult, strong_convergence as strong_convergence
+from ._exact import exact_flow as exact_flow, exact_solution as exact_solution
 from ._integrate import integrate as integrate, simulate as simulate
 from ._model import PAPER_Y0 as PAPER_Y0, RigidBody as RigidBody
 from ._noise import brownian_increments as brownian_increments
 from ._solution import RESULTS as RESULTS, Solution as Solution
 from ._solver.base import AbstractMethod as AbstractMethod, StepInfo as StepInfo
 from ._solver.euler_maruyama import EulerMaruyama as EulerMaruyama
+from ._solver.exact import Exact as Exact
 from ._solver.lie_poisson import LiePoisson as LiePoisson
 from ._solver.midpoint import Midpoint as Midpoint
+from ._solver.strang import Strang as Strang
 from . import so3 as so3
 
 __version__ = "0.1.0"

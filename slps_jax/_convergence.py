@@ -1,0 +1,154 @@
+"""Strong convergence studies: one batched computation per method and step size."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import _noise
+from ._exact import exact_solution
+from ._integrate import _check_method, _check_model, _check_y0, _ensemble_dynamic_jit
+from ._solver.midpoint import Midpoint
+
+
+@dataclasses.dataclass(frozen=True)
+class ConvergenceResult:
+    """What `strong_convergence` returns. Dicts are keyed by method name.
+
+    - `dts`: the step sizes, shape `(n_dts,)`.
+    - `errors`: RMS error $\\sqrt{E|y_N - y(t_1)|^2}$ per step size.
+    - `stderr`: standard error of each RMS estimate (delta method over the samples).
+    - `order`: least-squares slope of `log error` against `log dt`.
+    - `order_stderr`: its standard error, by bootstrap over the samples (the errors at
+      different step sizes share their paths, so they are correlated).
+    - `seconds`: wall time of each method's runs (all step sizes, compilation included).
+    """
+
+    dts: np.ndarray
+    errors: dict
+    stderr: dict
+    order: dict
+    order_stderr: dict
+    seconds: dict
+
+    def table(self):
+        """A Markdown table of errors and orders."""
+        names = list(self.errors)
+        head = "| h | " + " | ".join(names) + " |\n|---|" + "---|" * len(names) + "\n"
+        rows = "".join(
+            f"| 2^{math.log2(h):.0f} | " + " | ".join(
+                f"{self.errors[n][i]:.3e} ± {self.stderr[n][i]:.1e}" for n in names) + " |\n"
+            for i, h in enumerate(self.dts))
+        order = "| order | " + " | ".join(
+            f"{self.order[n]:.3f} ± {self.order_stderr[n]:.3f}" for n in names) + " |\n"
+        return head + rows + order
+
+
+@functools.partial(jax.jit, static_argnames=("n_fine",))
+def _brownian_endpoints(keys, fine_dt, bound, n_fine):
+    def one(key):
+        return jax.lax.fori_loop(
+            0, n_fine, lambda n, w: w + _noise.increment(key, n, fine_dt, bound, fine_dt.dtype),
+            jnp.zeros((), fine_dt.dtype))
+
+    return jax.vmap(one)(keys)
+
+
+@jax.jit
+def _exact_endpoints(model, y0, t1, w_t):
+    return jax.vmap(lambda w: exact_solution(model, y0, t1, w))(w_t)
+
+
+def _substeps(dt, fine_dt, name):
+    ratio = dt / fine_dt
+    s = int(round(ratio))
+    if s < 1 or abs(ratio - s) > 1e-9 * ratio:
+        raise ValueError(f"{name}={dt} must be an integer multiple of the finest step {fine_dt}.")
+    return s
+
+
+def strong_convergence(model, y0, *, t1, dts, n_samples, key, methods, reference="exact",
+                       reference_dt=None, truncate_k=4, n_bootstrap=200):
+    r"""Root-mean-square error at `t1` of each method at each step size, on shared paths.
+
+    Every step size integrates the same Brownian paths: a coarse increment is the sum of the
+    fine increments it spans (drawn per sample from `fold_in(key, i)` as in `simulate`, at
+    the finest step, truncated there). No path is stored: each run keeps only final states.
+
+    **Arguments:**
+
+    - `model`, `y0`: the `RigidBody` and initial value.
+    - `t1`: the final time, a multiple of every step size.
+    - `dts`: step sizes, each an integer multiple of the finest.
+    - `n_samples`, `key`: number of Brownian samples and a `jax.random.key`.
+    - `methods`: a method instance or a dict `{name: method}`.
+    - `reference`: `"exact"` (default): $y(t_1) = \varphi_{t_1 + cW(t_1)}(y_0)$, the exact
+      solution for each path, with no discretisation error; or `"midpoint"`: the paper's
+      choice, the implicit midpoint rule at `reference_dt` (default `min(dts)/16`).
+    - `truncate_k`: the truncation parameter of the fine increments (`None` for none).
+    - `n_bootstrap`: resamples for the order's standard error.
+
+    **Returns:** a `ConvergenceResult`.
+    """
+    _check_model(model)
+    if not isinstance(methods, dict):
+        methods = {type(methods).__name__: methods}
+    for m in methods.values():
+        _check_method(m)
+        y0 = _check_y0(y0, m, model)
+    dts = np.sort(np.asarray(dts, float))[::-1]
+    if dts.ndim != 1 or len(dts) < 2 or not np.all(dts > 0):
+        raise ValueError(f"dts must hold at least two positive step sizes, got {dts}.")
+    if reference not in ("exact", "midpoint"):
+        raise ValueError(f"reference must be 'exact' or 'midpoint', got {reference!r}.")
+    if isinstance(n_samples, bool) or not isinstance(n_samples, (int, np.integer)) \
+            or n_samples < 2:
+        raise ValueError(f"n_samples must be an integer >= 2, got {n_samples!r}.")
+    key = _noise.check_key(key)
+    fine_dt = float(dts[-1])
+    if reference == "midpoint":
+        fine_dt = fine_dt / 16 if reference_dt is None else float(reference_dt)
+    _noise.check_truncation(fine_dt, truncate_k)
+    n_fine = _substeps(float(t1), fine_dt, "t1")
+    dtype = y0.dtype
+    keys = _noise.sample_keys(key, int(n_samples))
+    bound = jnp.asarray(_noise.truncation_bound(fine_dt, truncate_k), dtype)
+
+    def final_states(method, dt):
+        s = _substeps(dt, fine_dt, "dt")
+        ys, fail_step, _ = _ensemble_dynamic_jit(method, model, y0, keys, jnp.asarray(dt, dtype),
+                                                 bound, 1, jnp.asarray(n_fine // s),
+                                                 False, jnp.asarray(s))
+        n_failed = int(jnp.sum(fail_step >= 0))
+        if n_failed:
+            raise RuntimeError(f"{type(method).__name__} at dt={dt}: {n_failed} samples failed.")
+        return ys[:, -1]
+
+    if reference == "exact":
+        w_t = _brownian_endpoints(keys, jnp.asarray(fine_dt, dtype), bound, n_fine)
+        y_ref = _exact_endpoints(model, y0, jnp.asarray(t1, dtype), w_t)
+    else:
+        y_ref = final_states(Midpoint(), fine_dt)
+
+    errors, stderr, order, order_se, seconds = {}, {}, {}, {}, {}
+    rng = np.random.default_rng(0)
+    boot = rng.integers(0, n_samples, size=(n_bootstrap, n_samples))
+    log_h = np.log(dts)
+    for name, method in methods.items():
+        start = time.perf_counter()
+        e2 = np.stack([np.asarray(jnp.sum((final_states(method, float(dt)) - y_ref) ** 2, -1))
+                       for dt in dts], axis=1)  # (n_samples, n_dts)
+        seconds[name] = time.perf_counter() - start
+        ms = e2.mean(0)
+        errors[name] = np.sqrt(ms)
+        stderr[name] = e2.std(0, ddof=1) / math.sqrt(n_samples) / (2 * np.sqrt(ms))
+        order[name] = float(np.polyfit(log_h, np.log(errors[name]), 1)[0])
+        slopes = [np.polyfit(log_h, 0.5 * np.log(e2[b].mean(0)), 1)[0] for b in boot]
+        order_se[name] = float(np.std(slopes, ddof=1))
+    return ConvergenceResult(dts, errors, stderr, order, order_se, seconds)

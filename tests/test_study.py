@@ -1,0 +1,95 @@
+"""strong_convergence, the Exact sampler and the `slps-jax paper` command."""
+
+import json
+import os
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import slps_jax as sj
+from reference import exact_sde_solution
+
+DTS = [2.0 ** -k for k in (5, 6, 7, 8)]
+
+
+@pytest.fixture(scope="module")
+def study():
+    model = sj.RigidBody.paper()
+    return sj.strong_convergence(
+        model, sj.PAPER_Y0, t1=1.0, dts=DTS, n_samples=200, key=jax.random.key(20),
+        methods={"LiePoisson": sj.LiePoisson(), "Exact": sj.Exact(),
+                 "EulerMaruyama": sj.EulerMaruyama()})
+
+
+def test_orders(study):
+    assert 0.85 <= study.order["LiePoisson"] <= 1.2
+    assert study.order_stderr["LiePoisson"] < 0.05
+    assert np.all(study.errors["Exact"] < 1e-13)  # no discretisation error at all
+    # Euler-Maruyama converges to the Ito equation, not to this Stratonovich one: its error
+    # levels off at the distance between the two (order well below 1/2).
+    assert study.order["EulerMaruyama"] < 0.35
+    assert study.errors["EulerMaruyama"][-1] > 1e-3
+    assert "LiePoisson" in study.table()
+
+
+def test_errors_match_an_independent_computation(study):
+    """The same samples and paths, integrated with `integrate` and scipy's reference."""
+    model, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
+    fine = sj.brownian_increments(jax.random.key(20), 256, DTS[-1], n_samples=200)
+    exact = exact_sde_solution(model.inertia, 0.2, y0, np.asarray(fine.sum(1)), 1.0)
+    coarse = fine.reshape(200, -1, 2).sum(-1)  # h = 2^-7
+    y = jax.jit(jax.vmap(lambda w: sj.integrate(model, y0, w, DTS[2])))(coarse)
+    rms = np.sqrt(np.mean(np.sum((np.asarray(y) - exact) ** 2, -1)))
+    np.testing.assert_allclose(study.errors["LiePoisson"][2], rms, rtol=1e-8)
+
+
+def test_midpoint_reference_option():
+    res = sj.strong_convergence(sj.RigidBody.paper(), sj.PAPER_Y0, t1=0.5, dts=DTS[:3],
+                                n_samples=50, key=jax.random.key(21),
+                                methods={"LP": sj.LiePoisson()}, reference="midpoint",
+                                reference_dt=DTS[2] / 8)
+    exact = sj.strong_convergence(sj.RigidBody.paper(), sj.PAPER_Y0, t1=0.5, dts=DTS[:3],
+                                  n_samples=50, key=jax.random.key(21),
+                                  methods={"LP": sj.LiePoisson()}, reference_dt=DTS[2] / 8)
+    # The midpoint reference is far more accurate than the scheme at these steps.
+    np.testing.assert_allclose(res.errors["LP"], exact.errors["LP"], rtol=0.05)
+
+
+def test_study_rejects_bad_input():
+    model = sj.RigidBody.paper()
+    kw = dict(t1=1.0, n_samples=10, key=jax.random.key(0), methods=sj.LiePoisson())
+    with pytest.raises(ValueError, match="dts"):
+        sj.strong_convergence(model, sj.PAPER_Y0, dts=[0.1], **kw)
+    with pytest.raises(ValueError, match="multiple"):
+        sj.strong_convergence(model, sj.PAPER_Y0, dts=[0.1, 0.03], **kw)
+    with pytest.raises(ValueError, match="reference"):
+        sj.strong_convergence(model, sj.PAPER_Y0, dts=[0.1, 0.05], reference="rk4", **kw)
+
+
+def test_exact_method_reproduces_exact_solution(paper):
+    model, y0 = paper
+    dW = sj.brownian_increments(jax.random.key(22), 400, 0.05, n_samples=5)
+    ys = jax.vmap(lambda w: sj.integrate(model, y0, w, 0.05, method=sj.Exact()))(dW)
+    ref = exact_sde_solution(model.inertia, 0.2, y0, np.asarray(dW.sum(1)), 20.0)
+    np.testing.assert_allclose(ys, ref, atol=1e-10)
+
+
+def test_paper_command_fast(tmp_path):
+    from slps_jax.__main__ import main
+
+    out = tmp_path / "paper"
+    assert main(["paper", "--fast", "--out", str(out)]) == 0
+    names = {"fig4_1_sample_path.png", "fig4_2_invariants.png", "fig4_3_phase_sphere.png",
+             "fig4_4_strong_order.png", "results.json", "results.md"}
+    assert names <= set(os.listdir(out))
+    for n in names:
+        assert (out / n).stat().st_size > 300
+    res = json.loads((out / "results.json").read_text())
+    lp = res["fig4_4"]["methods"]["LiePoisson"]
+    assert 0.8 <= lp["order"] <= 1.25
+    assert res["fig4_2"]["drift"]["LiePoisson"]["casimir_max"] < 1e-13
+    assert res["fig4_2"]["drift"]["EulerMaruyama"]["casimir_max"] > 1e-3
+    assert res["fig4_4"]["exact_method_max_rms_error"] < 1e-12
+    assert "| LiePoisson |" in (out / "results.md").read_text()
