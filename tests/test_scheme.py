@@ -117,3 +117,27 @@ def test_euler_maruyama_step(paper):
     y1, _ = sj.EulerMaruyama().step(model, y0, 0.01, 0.3)
     np.testing.assert_allclose(y1, y0 + model.vector_field(y0) * (0.01 + model.c * 0.3),
                                atol=1e-16)
+
+
+def test_large_increment_near_the_fold_converges(paper):
+    """|y| = 0.99 and a 4.5-sigma increment at h = 2^-5: Newton from the arcsin start diverged
+    here (its Jacobian is nearly singular there), the tangent predictor lands in the basin."""
+    model, _ = paper
+    y = jnp.array([0.69566237, 0.66189641, 0.24072184])
+    dW, dt = 0.7981970294584523, 2.0 ** -5
+    y1, info = lie_poisson_step(model, y, dt, dW)
+    assert bool(info.ok)
+    tau, kappa = dt + model.c * dW, (model.c * dW) ** 2
+    # Independent solution by continuation in tau with an autodiff Newton.
+    r = jnp.linalg.norm(y)
+    xi = y * jnp.arcsin(r) / r
+    def f(x, s):
+        return in_map_by_autodiff(so3.exp(x), y, model.inertia, s * tau, s * s * kappa)
+
+    update = jax.jit(lambda x, s: x - jnp.linalg.solve(jax.jacfwd(f)(x, s), f(x, s)))
+    for k in range(1, 21):
+        for _ in range(6):
+            xi = update(xi, k / 20)
+    a = so3.exp(xi)
+    np.testing.assert_allclose(f(xi, 1.0), 0, atol=1e-14)
+    np.testing.assert_allclose(y1, a @ y, atol=1e-13)
