@@ -1,0 +1,128 @@
+"""Helpers shared by the benchmark scripts: timing, machine description, output files.
+
+Timing follows diffrax's benchmarks: compile once (timed on its own, ahead of time with
+`jax.jit(f).lower(*args).compile()`), run once to warm up, then time repeated calls that end
+in `jax.block_until_ready`, and report the median and the minimum.
+"""
+
+from __future__ import annotations
+
+import csv
+import datetime
+import json
+import os
+import platform
+import statistics
+import subprocess
+import time
+
+DEFAULT_OUT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
+
+
+def machine_info():
+    """CPU model, core count, versions and date: what the README's tables were measured on."""
+    import jax
+
+    model = platform.processor() or platform.machine()
+    try:
+        out = subprocess.run(["lscpu"], capture_output=True, text=True, timeout=10).stdout
+        for line in out.splitlines():
+            if line.strip().startswith("Model name:"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except (OSError, subprocess.SubprocessError):
+        pass
+    info = {
+        "cpu_model": model,
+        "cpu_count": os.cpu_count(),
+        "python": platform.python_version(),
+        "jax": jax.__version__,
+        "backend": jax.default_backend(),
+        "x64": bool(jax.config.jax_enable_x64),
+        "date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
+    }
+    try:
+        import diffrax
+
+        info["diffrax"] = diffrax.__version__
+    except ImportError:
+        info["diffrax"] = None
+    return info
+
+
+def compile_timed(fn, *args):
+    """`jax.jit(fn)` compiled ahead of time for `args`: (compiled, seconds to lower+compile)."""
+    import jax
+
+    start = time.perf_counter()
+    compiled = jax.jit(fn).lower(*args).compile()
+    return compiled, time.perf_counter() - start
+
+
+def time_call(fn, *args, repeats=3, min_total=0.5, max_repeats=30, warmup=True):
+    """Median and minimum wall time of `fn(*args)` (blocking), after one warm-up call
+    (`warmup=False`: the caller has already made it).
+
+    At least `repeats` timed calls; fast calls are repeated until `min_total` seconds have
+    been spent (at most `max_repeats` calls), so the median of a millisecond run is not one
+    scheduler hiccup on a shared machine.
+
+    **Returns:** `(median_s, min_s, n_repeats, last_output)`.
+    """
+    import jax
+
+    out = jax.block_until_ready(fn(*args)) if warmup else None
+    times = []
+    while len(times) < repeats or (sum(times) < min_total and len(times) < max_repeats):
+        start = time.perf_counter()
+        out = jax.block_until_ready(fn(*args))
+        times.append(time.perf_counter() - start)
+    return statistics.median(times), min(times), len(times), out
+
+
+def write_csv(path, rows):
+    """Rows (dicts with the same keys) to CSV."""
+    if not rows:
+        return
+    with open(path, "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def write_json(path, obj):
+    with open(path, "w") as fh:
+        json.dump(obj, fh, indent=2, default=_jsonable)
+        fh.write("\n")
+
+
+def _jsonable(x):
+    try:
+        return float(x)
+    except (TypeError, ValueError):
+        return str(x)
+
+
+def pyplot():
+    """matplotlib.pyplot on the non-interactive Agg backend."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def markdown_table(rows, columns, formats=None):
+    """A Markdown table of `rows` (dicts); `formats` maps a column to a format spec."""
+    formats = formats or {}
+    head = "| " + " | ".join(columns) + " |\n|" + "---|" * len(columns) + "\n"
+    body = ""
+    for row in rows:
+        cells = []
+        for col in columns:
+            val = row[col]
+            fmt = formats.get(col)
+            cells.append(format(val, fmt) if fmt and val is not None and val == val else str(val))
+        body += "| " + " | ".join(cells) + " |\n"
+    return head + body

@@ -1,0 +1,136 @@
+"""The benchmark scripts run (`--fast`, in a subprocess, into a tmp dir) and write sane files.
+
+Correctness only: no timing is asserted. The diffrax parts of `work_precision.py` are
+checked only where diffrax (the `bench` extra) is installed; without it the script skips
+them and our own methods are still checked.
+"""
+
+import csv
+import importlib.util
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+BENCH = ROOT / "benchmarks"
+HAVE_DIFFRAX = importlib.util.find_spec("diffrax") is not None
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def run_script(name, out, *extra):
+    cmd = [sys.executable, str(BENCH / name), "--fast", "--out", str(out), *extra]
+    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=600)
+    assert proc.returncode == 0, f"{name} failed:\n{proc.stdout}\n{proc.stderr[-4000:]}"
+    return proc.stdout
+
+
+def read_csv(path):
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def is_png(path):
+    return path.exists() and path.stat().st_size > 1000 and path.read_bytes()[:8] == PNG_MAGIC
+
+
+@pytest.fixture(scope="module")
+def work_precision(tmp_path_factory):
+    out = tmp_path_factory.mktemp("work_precision")
+    stdout = run_script("work_precision.py", out)
+    rows = read_csv(out / "work_precision.csv")
+    for r in rows:
+        for key in ("h", "rms_error", "rms_stderr", "time_median_s", "time_min_s", "compile_s",
+                    "max_rel_casimir_error"):
+            r[key] = float(r[key])
+    return out, stdout, rows, json.loads((out / "work_precision.json").read_text())
+
+
+def by_method(rows, name):
+    pts = sorted((r for r in rows if r["method"] == name), key=lambda r: -r["h"])
+    assert pts, f"no rows for {name}"
+    return pts
+
+
+def test_work_precision_our_methods(work_precision):
+    out, stdout, rows, summary = work_precision
+    assert is_png(out / "work_precision.png")
+    assert (out / "per_step_cost.csv").exists()
+    for r in rows:
+        assert r["finite"] == "True"
+        assert math.isfinite(r["rms_error"]) and r["rms_error"] >= 0
+        assert 0 < r["time_min_s"] <= r["time_median_s"]
+        assert r["compile_s"] > 0 and int(r["n_repeats"]) >= 3
+    for name in ("LiePoisson", "Strang", "lax.scan Heun (shared dW)"):
+        pts = by_method(rows, name)
+        errors = [p["rms_error"] for p in pts]
+        assert errors[0] < 0.1 and errors[-1] < errors[0], (name, errors)  # converges
+        assert all(0 < p["rms_stderr"] < p["rms_error"] for p in pts)
+    # the Lie-Poisson and splitting schemes keep |y| to round-off
+    for name in ("LiePoisson", "Strang"):
+        assert max(p["max_rel_casimir_error"] for p in by_method(rows, name)) < 1e-12
+    cost = {r["method"]: r for r in summary["per_step_cost"]}
+    assert "LiePoisson" in cost
+    ratio = summary["per_step_ratio_LiePoisson_to_reference"]
+    assert math.isfinite(ratio) and ratio > 0
+    assert "time to reach RMS error" in stdout
+    assert {t["method"] for t in summary["time_to_target"]} == {r["method"] for r in rows}
+
+
+def test_work_precision_diffrax(work_precision):
+    pytest.importorskip("diffrax")
+    _, _, rows, summary = work_precision
+    ours = by_method(rows, "lax.scan Heun (shared dW)")
+    theirs = by_method(rows, "diffrax Heun (shared dW)")
+    # diffrax Heun on the shared increments is the very same scheme as our lax.scan Heun
+    for a, b in zip(ours, theirs):
+        assert b["rms_error"] == pytest.approx(a["rms_error"], rel=1e-9)
+    assert summary["max_abs_diff_diffrax_heun_vs_scan_heun"] < 1e-12
+    assert summary["per_step_reference"] == "diffrax Heun (shared dW)"
+    spark = by_method(rows, "diffrax SPaRK (VBT, space-time Levy area)")
+    assert spark[0]["brownian"].startswith("VBT")
+    assert spark[-1]["rms_error"] < spark[0]["rms_error"] < 0.01
+
+
+@pytest.mark.skipif(HAVE_DIFFRAX, reason="diffrax is installed: the full run covers it")
+def test_work_precision_skips_diffrax_cleanly(work_precision):
+    _, stdout, rows, summary = work_precision
+    assert "diffrax not available" in stdout
+    assert not any(r["method"].startswith("diffrax") for r in rows)
+    assert summary["max_abs_diff_diffrax_heun_vs_scan_heun"] is None
+
+
+def test_scaling(tmp_path):
+    stdout = run_script("scaling.py", tmp_path)
+    assert is_png(tmp_path / "scaling.png")
+    rows = read_csv(tmp_path / "scaling.csv")
+    assert rows and all(r["finite"] == "True" for r in rows)
+    assert all(0 < float(r["time_min_s"]) <= float(r["time_median_s"]) for r in rows)
+    assert len({int(r["n_samples"]) for r in rows}) >= 2
+    assert len({int(r["n_steps"]) for r in rows}) >= 2
+    summary = json.loads((tmp_path / "scaling.json").read_text())
+    mem = summary["memory"]
+    assert {int(r["n_steps"]) for r in mem} >= {64, 1024}
+    for method, verdict in summary["memory_flat"].items():
+        # XLA's buffer sizes are deterministic: final-state-only runs may not grow
+        assert verdict["xla_flat"] is True, (method, verdict)
+    assert summary["control_growth_mb"] > 0.5  # ...while materialised increments do
+    rss = [r for r in mem if r["rss_run_rise_mb"] is not None]
+    assert rss and all(r["rss_run_rise_mb"] > 1 and r["ru_maxrss_mb"] > 50 for r in rss)
+    assert "memory stayed flat as n_steps grew" in stdout
+
+
+def test_paper_study(tmp_path):
+    stdout = run_script("paper_study.py", tmp_path)
+    assert is_png(tmp_path / "paper_study.png")
+    summary = json.loads((tmp_path / "paper_study.json").read_text())
+    case = summary["cases"]["LiePoisson"]
+    assert case["wall_s_median"] > case["study_s_median"] > 0
+    assert 0.5 < case["order"]["LiePoisson"] < 3.0
+    rows = read_csv(tmp_path / "paper_study.csv")
+    errors = [float(r["rms_error"]) for r in sorted(rows, key=lambda r: -float(r["h"]))]
+    assert errors[-1] < errors[0] < 0.1
+    assert "LiePoisson study within" in stdout
