@@ -59,55 +59,75 @@ def default_tol(dtype):
     return 64.0 * float(jnp.finfo(dtype).eps)
 
 
-def newton(fn, starts, *, tol, max_iter, active=True):
+def newton(fn, starts, *, tol, max_iter, active=True, aux0=None):
     """Newton's method for a 3-vector unknown, on components, with fallback parameterisations.
 
-    `fn(x, mode) -> (r, J, admissible)` is the residual, its Jacobian in parameterisation
-    `mode` (0, 1, ...), started from `starts[mode]`, and whether `x` would be an acceptable
-    root (for example on the right branch). Iterates `x <- x - J^{-1} r` until
-    `max|r| <= tol` at an admissible root. After `max_iter` updates, a
-    non-finite residual, or convergence to a rejected root, the sample restarts in the next
-    parameterisation; after the last it gives up. All modes share one loop, so the fallback
-    costs nothing unless some sample needs it. Samples with `active=False` do no work. Under
-    `vmap` the loop runs until every sample stops; `while_loop`'s batching leaves finished
-    samples unchanged.
+    `fn(x, mode) -> (r, J, admissible)` (or `(r, J, admissible, aux)`) is the residual, its
+    Jacobian in parameterisation `mode` (0, 1, ...), whether `x` would be an acceptable root
+    (for example on the right branch), and optionally anything the caller wants back from
+    the evaluation at the final iterate (`aux`, for example the rotation built from `x`).
+    Mode `m` starts from `starts[m]`: a component tuple, or for `m >= 1` a zero-argument
+    callable, evaluated inside the loop only, so a fallback start costs nothing unless some
+    sample needs it. Iterates `x <- x - J^{-1} r` until `max|r| <= tol` at an admissible
+    root. After `max_iter` updates, a non-finite residual, or convergence to a rejected root,
+    the sample restarts in the next parameterisation; after the last it gives up. All modes
+    share one loop. Samples with `active=False` do no work and return `starts[0]` and `aux0`
+    unchanged. Under `vmap` the loop runs until every sample stops (zero times if none is
+    active); `while_loop`'s batching leaves finished samples unchanged.
 
-    **Returns:** `(x, mode, iterations, residual_norm, converged)`; `iterations` counts the
-    updates of all modes.
+    **Returns:** `(x, mode, iterations, residual_norm, converged)`, and `aux` last when `fn`
+    returns one; `iterations` counts the updates of all modes.
     """
-    dtype = starts[0][0].dtype
+    x0 = starts[0]
+    dtype = x0[0].dtype
     last = len(starts) - 1
+    with_aux = aux0 is not None
 
     def start_of(mode):
+        vals = [s() if callable(s) else s for s in starts[1:]]
         return tuple(
-            functools.reduce(lambda acc, m: jnp.where(mode == m, starts[m][i], acc),
-                             range(1, last + 1), starts[0][i])
+            functools.reduce(lambda acc, m: jnp.where(mode == m, vals[m - 1][i], acc),
+                             range(2, last + 1), vals[0][i])
             for i in range(3)
         )
 
     # State: mode, evaluations in this mode, total updates, iterate, residual, converged,
-    # gave up.
+    # gave up, aux.
     def cond(state):
         return ~(state[5] | state[6])
 
     def body(state):
-        mode, evals, total, x, _, _, _ = state
-        r, jac, admissible = fn(x, mode)
-        rnorm = jnp.maximum(jnp.maximum(jnp.abs(r[0]), jnp.abs(r[1])), jnp.abs(r[2]))
+        mode, evals, total, x, _, _, _, aux = state
+        out = fn(x, mode)
+        r, jac, admissible = out[:3]
+        if with_aux:
+            aux = out[3]
+        rnorm = max_norm(r)
         small = rnorm <= tol
         good = small & admissible
         exhausted = ~good & ((evals > max_iter) | ~jnp.isfinite(rnorm) | small)
         switch = exhausted & (mode < last)
         dx = _so3.solve3(jac, r)
         step = ~good & ~exhausted
-        restart = start_of(jnp.minimum(mode + 1, last))
-        x = tuple(jnp.where(switch, s0, jnp.where(step, xi - di, xi))
-                  for xi, di, s0 in zip(x, dx, restart))
+        if last > 0:
+            restart = start_of(jnp.minimum(mode + 1, last))
+            x = tuple(jnp.where(switch, s0, jnp.where(step, xi - di, xi))
+                      for xi, di, s0 in zip(x, dx, restart))
+        else:
+            x = tuple(jnp.where(step, xi - di, xi) for xi, di in zip(x, dx))
         return (mode + switch, jnp.where(switch, 0, evals + 1), total + step, x, rnorm,
-                good, exhausted & ~switch)
+                good, exhausted & ~switch, aux)
 
     z = jnp.zeros((), jnp.int32)
     inactive = ~jnp.asarray(active)
-    init = (z, z, z, starts[0], jnp.asarray(jnp.inf, dtype), jnp.array(False), inactive)
-    mode, _, total, x, rnorm, conv, _ = jax.lax.while_loop(cond, body, init)
+    init = (z, z, z, x0, jnp.asarray(jnp.inf, dtype), jnp.array(False), inactive,
+            aux0 if with_aux else ())
+    mode, _, total, x, rnorm, conv, _, aux = jax.lax.while_loop(cond, body, init)
+    if with_aux:
+        return x, mode, total, rnorm, conv, aux
     return x, mode, total, rnorm, conv
+
+
+def max_norm(r):
+    """Max-norm of a component 3-vector."""
+    return jnp.maximum(jnp.maximum(jnp.abs(r[0]), jnp.abs(r[1])), jnp.abs(r[2]))
