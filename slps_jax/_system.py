@@ -36,7 +36,7 @@ class LiePoissonSystem:
     values; traced values are not checked.
 
     **Reference:** Liu & Wang, *Lie–Poisson numerical method for a class of stochastic
-    Lie–Poisson systems*, the class (1)–(2) on the dual of so(3).
+    Lie–Poisson systems*, system (1) with $B(y) = \hat y$, $H_0 = H$ and $H_1 = cH$.
     """
 
     def __init__(self, hamiltonian, params=None, c=0.0):
