@@ -10,8 +10,10 @@ from ._solver.base import AbstractMethod as AbstractMethod, StepInfo as StepInfo
 from ._solver.euler_maruyama import EulerMaruyama as EulerMaruyama
 from ._solver.exact import Exact as Exact
 from ._solver.lie_poisson import LiePoisson as LiePoisson
+from ._solver.lie_poisson_sym import LiePoissonSym2 as LiePoissonSym2, LiePoissonSym4 as LiePoissonSym4
 from ._solver.midpoint import Midpoint as Midpoint
-from ._solver.strang import Strang as Strang
+from ._solver.strang import Strang as Strang, Strang4 as Strang4
+from ._system import LiePoissonSystem as LiePoissonSystem
 from . import so3 as so3
 
 __version__ = "0.1.0"

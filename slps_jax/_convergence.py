@@ -14,6 +14,7 @@ import numpy as np
 from . import _noise
 from ._exact import exact_solution
 from ._integrate import _check_method, _check_model, _check_y0, _ensemble_dynamic_jit
+from ._model import RigidBody
 from ._solver.midpoint import Midpoint
 
 
@@ -83,14 +84,20 @@ def strong_convergence(model, y0, *, t1, dts, n_samples, key, methods, reference
 
     **Arguments:**
 
-    - `model`, `y0`: the `RigidBody` and initial value.
+    - `model`, `y0`: the model and initial value. A `LiePoissonSystem` (general Hamiltonian)
+      has no closed-form flow: it needs `reference="midpoint"`.
     - `t1`: the final time, a multiple of every step size.
     - `dts`: step sizes, each an integer multiple of the finest.
     - `n_samples`, `key`: number of Brownian samples and a `jax.random.key`.
-    - `methods`: a method instance or a dict `{name: method}`.
+    - `methods`: a method instance or a dict `{name: method}`, e.g. `LiePoisson()`,
+      `LiePoissonSym2()`, `LiePoissonSym4()`, `Strang()`, `Strang4()`, `Midpoint()`.
     - `reference`: `"exact"` (default): $y(t_1) = \varphi_{t_1 + cW(t_1)}(y_0)$, the exact
       solution for each path, with no discretisation error; or `"midpoint"`: the paper's
-      choice, the implicit midpoint rule at `reference_dt` (default `min(dts)/16`).
+      choice, the implicit midpoint rule at `reference_dt` (default `min(dts)/16`); or a
+      callable `flow(times) -> states`, the deterministic flow $\varphi_t(y_0)$ at the
+      NumPy array of times $t_1 + cW(t_1)$, shape `(n_samples,)` to `(n_samples, 3)` (for
+      example a tight ODE solve for a `LiePoissonSystem`: the same time change holds for
+      every Hamiltonian).
     - `truncate_k`: the truncation parameter of the fine increments (`None` for none).
     - `n_bootstrap`: resamples for the order's standard error.
 
@@ -105,8 +112,13 @@ def strong_convergence(model, y0, *, t1, dts, n_samples, key, methods, reference
     dts = np.sort(np.asarray(dts, float))[::-1]
     if dts.ndim != 1 or len(dts) < 2 or not np.all(dts > 0):
         raise ValueError(f"dts must hold at least two positive step sizes, got {dts}.")
-    if reference not in ("exact", "midpoint"):
-        raise ValueError(f"reference must be 'exact' or 'midpoint', got {reference!r}.")
+    if not callable(reference) and reference not in ("exact", "midpoint"):
+        raise ValueError(f"reference must be 'exact', 'midpoint' or a callable, got "
+                         f"{reference!r}.")
+    if isinstance(reference, str) and reference == "exact" and not isinstance(model, RigidBody):
+        raise ValueError("reference='exact' needs a RigidBody (the closed-form flow); for a "
+                         "LiePoissonSystem pass a deterministic flow as reference (a callable) "
+                         "or reference='midpoint'.")
     if isinstance(n_samples, bool) or not isinstance(n_samples, (int, np.integer)) \
             or n_samples < 2:
         raise ValueError(f"n_samples must be an integer >= 2, got {n_samples!r}.")
@@ -130,7 +142,16 @@ def strong_convergence(model, y0, *, t1, dts, n_samples, key, methods, reference
             raise RuntimeError(f"{type(method).__name__} at dt={dt}: {n_failed} samples failed.")
         return ys[:, -1]
 
-    if reference == "exact":
+    if callable(reference):
+        # The time change: y(t1) = phi_{t1 + c W(t1)}(y0) for the deterministic flow phi.
+        w_t = _brownian_endpoints(keys, jnp.asarray(fine_dt, dtype), bound, n_fine)
+        times = float(t1) + np.asarray(model.c) * np.asarray(w_t)
+        y_ref = np.asarray(reference(times), dtype=np.float64)
+        if y_ref.shape != (n_samples, 3):
+            raise ValueError(f"reference(times) must return shape ({n_samples}, 3), got "
+                             f"{y_ref.shape}.")
+        y_ref = jnp.asarray(y_ref, dtype)
+    elif reference == "exact":
         w_t = _brownian_endpoints(keys, jnp.asarray(fine_dt, dtype), bound, n_fine)
         y_ref = _exact_endpoints(model, y0, jnp.asarray(t1, dtype), w_t)
     else:

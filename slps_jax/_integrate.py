@@ -15,6 +15,7 @@ from ._model import RigidBody, concrete
 from ._solution import RESULTS, Solution
 from ._solver.base import AbstractMethod
 from ._solver.lie_poisson import LiePoisson
+from ._system import LiePoissonSystem
 
 
 def _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats):
@@ -95,8 +96,19 @@ _ensemble_dynamic_jit = jax.jit(_ensemble, static_argnames=("method", "n_blocks"
 
 
 def _check_model(model):
-    if not isinstance(model, RigidBody):
-        raise TypeError(f"model must be a RigidBody, got {type(model).__name__}.")
+    if not isinstance(model, (RigidBody, LiePoissonSystem)):
+        raise TypeError(f"model must be a RigidBody or a LiePoissonSystem, got "
+                        f"{type(model).__name__}.")
+
+
+def _check_pair(method, model):
+    # Methods built on the rigid body's structure (I^{-1}, its axis splitting, the kappa
+    # term of scheme (42)) say nothing about a general Hamiltonian.
+    if isinstance(model, LiePoissonSystem) and not getattr(method, "general_hamiltonian",
+                                                           False):
+        raise TypeError(
+            f"{type(method).__name__} works for a RigidBody only; for a LiePoissonSystem use "
+            f"LiePoissonSym2, LiePoissonSym4, Midpoint or EulerMaruyama.")
 
 
 def _check_method(method):
@@ -108,6 +120,7 @@ def _check_method(method):
 
 
 def _check_y0(y0, method, model):
+    _check_pair(method, model)
     y0 = jnp.asarray(y0)
     if y0.shape != (3,):
         raise ValueError(f"y0 must have shape (3,), got shape {y0.shape}.")
@@ -116,7 +129,7 @@ def _check_y0(y0, method, model):
         if not np.all(np.isfinite(y_np)):
             raise ValueError(f"y0 must be finite, got {y_np}.")
         method.check_initial(model, y_np)
-    return y0.astype(model.inertia.dtype)
+    return y0.astype(model.c.dtype)
 
 
 def _check_positive(name, x):
@@ -164,7 +177,7 @@ def integrate(model, y0, dW, dt, *, method=LiePoisson(), save_every=None, throw=
 
     **Arguments:**
 
-    - `model`: a `RigidBody`.
+    - `model`: a `RigidBody` or a `LiePoissonSystem`.
     - `y0`: initial value, shape `(3,)`.
     - `dW`: Brownian increments, shape `(n_steps,)`.
     - `dt`: the step size.
@@ -212,7 +225,7 @@ def simulate(model, y0, *, t1, dt, n_samples, key, method=LiePoisson(), save_eve
 
     **Arguments:**
 
-    - `model`: a `RigidBody`; `y0`: the initial value `(3,)`, shared by all samples.
+    - `model`: a `RigidBody` or a `LiePoissonSystem`; `y0`: the initial value `(3,)`, shared by all samples.
     - `t1`: final time, a multiple of `dt`; `dt`: step size.
     - `n_samples`: number of Brownian samples; `key`: a `jax.random.key`.
     - `method`: default `LiePoisson()`.

@@ -9,6 +9,7 @@ import csv
 import importlib.util
 import json
 import math
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -23,7 +24,11 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 def run_script(name, out, *extra):
     cmd = [sys.executable, str(BENCH / name), "--fast", "--out", str(out), *extra]
-    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=600)
+    # The scripts must import this checkout's slps_jax, not an installed (possibly editable,
+    # possibly other) copy: the script's own folder comes first on sys.path, not the cwd.
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [str(ROOT)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
+    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=600, env=env)
     assert proc.returncode == 0, f"{name} failed:\n{proc.stdout}\n{proc.stderr[-4000:]}"
     return proc.stdout
 
@@ -134,3 +139,32 @@ def test_paper_study(tmp_path):
     errors = [float(r["rms_error"]) for r in sorted(rows, key=lambda r: -float(r["h"]))]
     assert errors[-1] < errors[0] < 0.1
     assert "LiePoisson study within" in stdout
+
+
+def test_long_time(tmp_path):
+    stdout = run_script("long_time.py", tmp_path)
+    assert is_png(tmp_path / "long_time.png")
+    summary = json.loads((tmp_path / "long_time.json").read_text())
+    methods = summary["methods"]
+    expected = {"EulerMaruyama", "Midpoint", "Strang", "LiePoisson", "LiePoissonSym4"}
+    if HAVE_DIFFRAX:
+        expected.add("diffrax Heun")
+    else:
+        assert "diffrax not available" in stdout
+    assert set(methods) == expected
+    rows = read_csv(tmp_path / "long_time.csv")
+    assert {r["method"] for r in rows} == expected
+    t1 = summary["settings"]["t1"]
+    assert max(float(r["t"]) for r in rows) == pytest.approx(t1)
+    # Poisson maps that are rotations keep the Casimir to round-off; Midpoint to its tolerance
+    for name in ("Strang", "LiePoisson", "LiePoissonSym4", "Midpoint"):
+        assert methods[name]["n_failed"] == 0
+        assert methods[name]["casimir"]["max_over_time_and_paths"] < 1e-11, name
+    assert methods["Midpoint"]["energy"]["max_over_time_and_paths"] < 1e-11
+    # Euler-Maruyama's |y| grows steadily (it adds f(y), orthogonal to y, each step)
+    em = methods["EulerMaruyama"]["casimir"]
+    assert em["verdict"] in ("drifts", "blows up") and em["final_median"] > 1e-2
+    if HAVE_DIFFRAX:  # Heun: no invariant kept, a linear drift of both
+        heun = methods["diffrax Heun"]
+        assert heun["casimir"]["verdict"] == "drifts" and heun["casimir"]["slope"] > 0.75
+    assert "wrote" in stdout

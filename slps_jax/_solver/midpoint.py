@@ -8,6 +8,8 @@ import math
 import jax.numpy as jnp
 
 from .. import _so3 as so3
+from .._model import RigidBody
+from .._system import gradient_c, gradient_hessian_c
 from .base import AbstractMethod, StepInfo, default_tol, newton
 
 
@@ -17,15 +19,18 @@ class Midpoint(AbstractMethod):
     $\tau = h + c\Delta W_n$.
 
     Symmetric and of deterministic order 2, hence strong order 1 for this SDE; it conserves
-    every quadratic invariant, here both $|y|^2$ and $H$, up to the solver tolerance. Solved by
-    Newton's method from the explicit Euler predictor, with the analytic Jacobian
-    $\mathrm{Id} - \tfrac\tau2 f'(m)$, $f'(m) = \hat m I^{-1} - \widehat{I^{-1} m}$.
+    every quadratic invariant, here both $|y|^2$ and (for the rigid body) $H$, up to the
+    solver tolerance. Solved by Newton's method from the explicit Euler predictor, with the
+    Jacobian $\mathrm{Id} - \tfrac\tau2 f'(m)$,
+    $f'(m) = \hat m\, \nabla^2 H(m) - \widehat{\nabla H(m)}$: analytic for the `RigidBody`
+    ($\nabla^2 H = I^{-1}$), by autodiff of $H$ for a `LiePoissonSystem`.
 
     **Arguments:** `tol` (default `64 eps`), `max_iter` (default 12).
     """
 
     tol: float | None = None
     max_iter: int = 12
+    general_hamiltonian = True  # works for RigidBody and LiePoissonSystem
 
     def __post_init__(self):
         if self.tol is not None and not (math.isfinite(self.tol) and self.tol > 0):
@@ -37,18 +42,23 @@ class Midpoint(AbstractMethod):
         dtype = y.dtype
         tol = default_tol(dtype) if self.tol is None else self.tol
         tau = dt + model.c * dW
-        d = model.inverse_inertia()
         y0 = so3.vec(y)
+        rigid = isinstance(model, RigidBody)
 
         def f(u):
-            return so3.cross(u, so3.mul(d, u))
+            return so3.cross(u, gradient_c(model, u))
 
         def system(y1, mode):
             m = so3.scale(0.5, so3.add(y0, y1))
-            fm = f(m)
+            if rigid:  # the Hessian is diagonal: I^{-1}
+                d = model.inverse_inertia()
+                g, hess_part = so3.mul(d, m), so3.diag_right(so3.hat_c(m), d)
+            else:
+                g, hess = gradient_hessian_c(model, m)
+                hess_part = so3.mm(so3.hat_c(m), hess)
+            fm = so3.cross(m, g)
             r = tuple(a - b - tau * c for a, b, c in zip(y1, y0, fm))
-            fprime = so3.madd(so3.diag_right(so3.hat_c(m), d),
-                              so3.mscale(-1.0, so3.hat_c(so3.mul(d, m))))
+            fprime = so3.madd(hess_part, so3.mscale(-1.0, so3.hat_c(g)))
             jac = so3.shift(so3.mscale(-0.5 * tau, fprime), 1.0)
             return r, jac, True
 
