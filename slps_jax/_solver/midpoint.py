@@ -8,7 +8,7 @@ import math
 import jax.numpy as jnp
 
 from .. import _so3 as so3
-from .base import AbstractMethod, StepInfo, default_tol, newton
+from .base import AbstractMethod, StepInfo, default_tol, implicit_root, newton
 
 
 @dataclasses.dataclass(frozen=True)
@@ -43,17 +43,24 @@ class Midpoint(AbstractMethod):
         def f(u):
             return so3.cross(u, so3.mul(d, u))
 
+        def residual(y1):
+            m = so3.scale(0.5, so3.add(y0, y1))
+            return tuple(a - b - tau * c for a, b, c in zip(y1, y0, f(m)))
+
         def system(y1, mode):
             m = so3.scale(0.5, so3.add(y0, y1))
-            fm = f(m)
-            r = tuple(a - b - tau * c for a, b, c in zip(y1, y0, fm))
             fprime = so3.madd(so3.diag_right(so3.hat_c(m), d),
                               so3.mscale(-1.0, so3.hat_c(so3.mul(d, m))))
             jac = so3.shift(so3.mscale(-0.5 * tau, fprime), 1.0)
-            return r, jac, True
+            return residual(y1), jac, True
 
-        start = tuple(a + tau * b for a, b in zip(y0, f(y0)))
-        y1, _, it, res, ok = newton(system, (start,), tol=tol, max_iter=self.max_iter)
+        def solve():
+            start = tuple(a + tau * b for a, b in zip(y0, f(y0)))
+            y1, _, it, res, ok = newton(system, (start,), tol=tol, max_iter=self.max_iter)
+            return y1, ok & jnp.isfinite(res), (it, res)
+
+        # Derivatives by the implicit function theorem at the root, not through Newton.
+        y1, ok, (it, res) = implicit_root(residual, solve, y0)
         y_next = so3.unvec(y1).astype(dtype)
         ok = ok & jnp.all(jnp.isfinite(y_next))
-        return y_next, StepInfo(ok, it, res.astype(dtype))
+        return y_next, StepInfo(ok, it.astype(jnp.int32), res.astype(dtype))
