@@ -22,8 +22,9 @@ def _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats):
     """Integrate one sample: `n_blocks` blocks of `block_len` steps, saving after each block.
 
     `draw(n)` gives step n's increment. With a Python-int `block_len` the time loop is a
-    `lax.scan` (reverse-mode differentiable); with a traced one it is a `while_loop`, so one
-    compilation serves every step count (convergence studies).
+    `lax.scan` (reverse-mode differentiable, checkpointed: see `_checkpointed_loop`); with a
+    traced one it is a `while_loop`, so one compilation serves every step count
+    (convergence studies).
 
     Returns the saved states `(n_blocks, 3)`, the step of failure (-1 if none) and the Newton
     statistics `(iterations sum, iterations max, residual max)` or `()`.
@@ -50,11 +51,30 @@ def _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats):
         return y, alive & ok, fail_step, n + 1, acc
 
     def block(carry, _):
-        carry = jax.lax.fori_loop(0, block_len, step, carry)
+        carry = _checkpointed_loop(step, block_len, carry)
         return carry, carry[0]
 
     (_, _, fail_step, _, acc), ys = jax.lax.scan(block, carry0, None, length=n_blocks)
     return ys, fail_step, acc
+
+
+def _checkpointed_loop(step, n, carry):
+    """`fori_loop(0, n, step, carry)`, arranged so that reverse mode stores O(sqrt n) carries.
+
+    With a Python-int `n` the loop runs as `n_outer` chunks of `n_inner ~ sqrt(n)` steps,
+    each chunk under `jax.checkpoint`: the backward pass keeps the carry at chunk boundaries
+    and recomputes one chunk at a time, so the memory of `jax.grad` grows like
+    `sqrt(n_steps)`, not `n_steps`. Without differentiation this is the plain loop. A traced
+    `n` (one compilation for every step count) gives a `while_loop`, which has no reverse
+    mode.
+    """
+    if not isinstance(n, int):
+        return jax.lax.fori_loop(0, n, step, carry)
+    n_inner = max(1, math.isqrt(n))
+    n_outer, rest = divmod(n, n_inner)
+    chunk = jax.checkpoint(lambda c: jax.lax.fori_loop(0, n_inner, step, c), prevent_cse=False)
+    carry = jax.lax.fori_loop(0, n_outer, lambda _, c: chunk(c), carry)
+    return jax.lax.fori_loop(0, rest, step, carry)
 
 
 @functools.partial(jax.jit, static_argnames=("method", "save_every", "want_stats"))

@@ -128,6 +128,44 @@ def newton(fn, starts, *, tol, max_iter, active=True, aux0=None):
     return x, mode, total, rnorm, conv
 
 
+def implicit_root(residual, solve, safe):
+    """A root of `residual` found by `solve`, differentiable by the implicit function theorem.
+
+    `residual(x)` (component 3-vectors) may close over anything: the model's parameters, the
+    state, the step. `solve() -> (x, ok, aux)` finds the root by any iteration at all;
+    derivatives never go through it. With `R(x*, p) = 0`, `dx* = -J^{-1} (dR/dp) dp` at the
+    root (`jax.lax.custom_root`), in forward and reverse mode, so a Newton solve costs one
+    3x3 solve per step to differentiate, whatever its iteration count, and its while_loop
+    (not reverse-differentiable) is never differentiated. Where `ok` is false the root is
+    replaced by `safe`, a point where `J` is regular, so that a failed sample (which the
+    driver freezes) yields finite, unused derivatives instead of NaNs that would leak through
+    `where` into the gradient.
+
+    **Returns:** `(x, ok, aux)`.
+    """
+
+    def f(x):
+        return _so3.unvec(residual(_so3.vec(x)))
+
+    dtype = safe[0].dtype
+
+    def run(_, __):
+        x, ok, aux = solve()
+        x = tuple(jnp.where(ok, xi, si) for xi, si in zip(x, safe))
+        # custom_root wants floating auxiliary outputs; integers and flags travel as floats
+        return _so3.unvec(x), tuple(jnp.asarray(t, dtype) for t in (ok, *aux))
+
+    def tangent_solve(g, b):
+        # g is f linearised at the root: its Jacobian, materialised, in a 3x3 solve. Only
+        # derivative passes run this.
+        jac = jax.jacfwd(g)(b)
+        return _so3.unvec(_so3.solve3(_so3.mat(jac), _so3.vec(b)))
+
+    x, aux = jax.lax.custom_root(f, _so3.unvec(safe), run, tangent_solve, has_aux=True)
+    aux = jax.lax.stop_gradient(aux)
+    return _so3.vec(x), aux[0] > 0.5, aux[1:]
+
+
 def max_norm(r):
     """Max-norm of a component 3-vector."""
     return jnp.maximum(jnp.maximum(jnp.abs(r[0]), jnp.abs(r[1])), jnp.abs(r[2]))

@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 
 from .. import _so3 as so3
-from .base import AbstractMethod, StepInfo, default_tol, max_norm, newton
+from .base import AbstractMethod, StepInfo, default_tol, implicit_root, max_norm, newton
 
 
 def in_map(a, y, d, tau, kappa, jacobian=True):
@@ -230,6 +230,59 @@ def _rotation_and_chain(x, mode):
 FAST_UPDATES = 3
 
 
+def solve_in_map(z, d, tau, kappa, *, tol, max_iter, feasible=True):
+    """The root of the in-map at `z`, as the sine vector `v` of `A` (`A = branch_rotation(v)`).
+
+    Fast path: `FAST_UPDATES` Newton updates in the sine chart from `v = z` and one residual
+    test, straight-line code. Fallback (samples still above `tol`, rare): more sine-chart
+    updates, then Newton in exponential and then Cayley coordinates from their tangent
+    predictors, accepting only the branch `tr A > 1`; under `vmap` it runs zero times when
+    no sample needs it. Derivatives follow the implicit function theorem (`implicit_root`).
+
+    **Returns:** `(v, ok, iterations, residual)`.
+    """
+
+    def sine_system(v):
+        r, jac = sine_chart_in_map(v, z, d, tau, kappa)
+        return r, jac, so3.dot(v, v) < 1.0, v
+
+    def system(x, mode):
+        def chart(_):
+            a, chain = _rotation_and_chain(x, mode)
+            r, jac = in_map(a, z, d, tau, kappa)
+            # accept the branch theta < pi/2 only; report the root as its sine vector
+            return r, so3.mm(jac, chain), so3.trace(a) > 1.0, so3.vee_skew(a)
+
+        return jax.lax.cond(mode == 0, lambda _: sine_system(x), chart, None)
+
+    def solve():
+        # Fast path: Newton in the sine chart from v = z, the solution at tau = kappa = 0,
+        # a fixed number of updates, then one residual test. Straight-line code.
+        v = z
+        for _ in range(FAST_UPDATES):
+            r, jac = sine_chart_in_map(v, z, d, tau, kappa)
+            v = tuple(vi - di for vi, di in zip(v, so3.solve3(jac, r)))
+        rnorm = max_norm(sine_chart_in_map(v, z, d, tau, kappa, jacobian=False))
+        done = (rnorm <= tol) & (so3.dot(v, v) < 1.0)
+        # The rest (rare): more Newton updates in the sine chart, then the exponential and
+        # the Cayley parameterisations from their own predictors. Zero iterations if all
+        # samples are done.
+        starts = (v, lambda: _predictor(z, d, tau, kappa, 1),
+                  lambda: _predictor(z, d, tau, kappa, 2))
+        _, _, more, res_more, ok_more, v = newton(
+            system, starts, tol=tol, max_iter=max_iter, active=feasible & ~done,
+            aux0=v)
+        ok = feasible & (done | ok_more)
+        return v, ok, (FAST_UPDATES + more, jnp.where(done, rnorm, res_more))
+
+    # Derivatives (with respect to the inertia, c, y and dW) by the implicit function
+    # theorem at the root, never through the iterations; v = 0 (A = Id) where it failed.
+    zero = so3.scale(0.0, z)
+    v, ok, (iterations, residual) = implicit_root(
+        lambda v: sine_chart_in_map(v, z, d, tau, kappa, jacobian=False), solve, zero)
+    return v, ok, iterations.astype(jnp.int32), residual
+
+
 @dataclasses.dataclass(frozen=True)
 class LiePoisson(AbstractMethod):
     r"""Scheme (42) of Liu & Wang: the stochastic Lie–Poisson reduction integrator.
@@ -309,35 +362,8 @@ class LiePoisson(AbstractMethod):
         z = so3.scale(1.0 / lam, so3.vec(y))
         feasible = so3.dot(z, z) < 1.0
 
-        def sine_system(v):
-            r, jac = sine_chart_in_map(v, z, d, tau, kappa)
-            return r, jac, so3.dot(v, v) < 1.0, branch_rotation(v)[0]
-
-        def system(x, mode):
-            def chart(_):
-                a, chain = _rotation_and_chain(x, mode)
-                r, jac = in_map(a, z, d, tau, kappa)
-                return r, so3.mm(jac, chain), so3.trace(a) > 1.0, a  # the branch theta < pi/2
-
-            return jax.lax.cond(mode == 0, lambda _: sine_system(x), chart, None)
-
-        # Fast path: Newton in the sine chart from v = z, the solution at tau = kappa = 0, a
-        # fixed number of updates, then one residual test. Straight-line code: no loop.
-        v = z
-        for _ in range(FAST_UPDATES):
-            r, jac = sine_chart_in_map(v, z, d, tau, kappa)
-            v = tuple(vi - di for vi, di in zip(v, so3.solve3(jac, r)))
+        v, ok, iterations, residual = solve_in_map(z, d, tau, kappa, tol=tol,
+                                                   max_iter=self.max_iter, feasible=feasible)
         a, _, _ = branch_rotation(v)
-        rnorm = max_norm(sine_chart_in_map(v, z, d, tau, kappa, jacobian=False))
-        done = (rnorm <= tol) & (so3.dot(v, v) < 1.0)
-
-        # The rest (rare): more Newton updates in the sine chart, then the exponential and the
-        # Cayley parameterisations from their own predictors. Zero iterations if all are done.
-        starts = (v, lambda: _predictor(z, d, tau, kappa, 1),
-                  lambda: _predictor(z, d, tau, kappa, 2))
-        _, _, more, res_more, ok_more, a = newton(
-            system, starts, tol=tol, max_iter=self.max_iter, active=feasible & ~done, aux0=a)
-        ok = feasible & (done | ok_more)
-        residual = jnp.where(done, rnorm, res_more)
         y_next = so3.unvec(so3.mv(a, so3.vec(y))).astype(dtype)
-        return y_next, StepInfo(ok, FAST_UPDATES + more, residual.astype(dtype))
+        return y_next, StepInfo(ok, iterations.astype(jnp.int32), residual.astype(dtype))

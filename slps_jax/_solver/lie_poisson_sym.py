@@ -13,7 +13,7 @@ from .._model import RigidBody
 from .._system import gradient_c, gradient_hessian_c
 from .base import AbstractMethod, StepInfo, default_tol, newton
 from .composition import TRIPLE_JUMP, combine
-from .lie_poisson import _branch_start, _predictor, _rotation_and_chain, in_map
+from .lie_poisson import _branch_start, _rotation_and_chain, branch_rotation, solve_in_map
 
 
 def in_map_general(a, y, model, tau, jacobian=True):
@@ -51,7 +51,7 @@ def _tangent_starts(y, residual):
     """The tangent predictor of `LiePoisson` (see `_predictor`) for any in-map residual: from
     the rotation about `y` by `arcsin|y|`, one step with the `tau = 0` Jacobian `P`."""
     starts = []
-    for mode, x0 in enumerate(_branch_start(y)):
+    for mode, x0 in enumerate(_branch_start(y), start=1):  # 1: exponential, 2: Cayley
         a0, chain = _rotation_and_chain(x0, mode)
         r, _ = residual(a0)
         t = so3.trace(a0)
@@ -64,30 +64,28 @@ def _tangent_starts(y, residual):
 def _solve_rotation(model, y, tau, tol, max_iter, active):
     """The rotation `A` (branch `tr A > 1`) that solves the `kappa = 0` in-map at `y`, `tau`.
 
-    Newton on `A = exp(hat x)`, Cayley as the fallback parameterisation, as in `LiePoisson`.
-    The rigid body uses the analytic `in_map`; other Hamiltonians `in_map_general`.
+    The rigid body uses `LiePoisson`'s solver (`solve_in_map` with `kappa = 0`: the sine
+    chart, exp and Cayley fallbacks, implicit derivatives). Other Hamiltonians: Newton on
+    `A = exp(hat x)` with the Cayley fallback, on `in_map_general`.
     """
     if isinstance(model, RigidBody):
-        d = model.inverse_inertia()
+        v, ok, iterations, res = solve_in_map(y, model.inverse_inertia(), tau, 0.0, tol=tol,
+                                              max_iter=max_iter, feasible=active)
+        return branch_rotation(v)[0], StepInfo(ok, iterations, res)
 
-        def residual(a, jacobian=True):
-            return in_map(a, y, d, tau, 0.0, jacobian)
+    def residual(a, jacobian=True):
+        return in_map_general(a, y, model, tau, jacobian)
 
-        starts = _predictor(y, d, tau, 0.0)
-    else:
-        def residual(a, jacobian=True):
-            return in_map_general(a, y, model, tau, jacobian)
-
-        starts = _tangent_starts(y, lambda a: residual(a, jacobian=False))
+    starts = _tangent_starts(y, lambda a: residual(a, jacobian=False))
 
     def system(x, mode):
-        a, chain = _rotation_and_chain(x, mode)
+        a, chain = _rotation_and_chain(x, mode + 1)  # mode 0: exponential, 1: Cayley
         r, jac = residual(a)
         return r, so3.mm(jac, chain), so3.trace(a) > 1.0  # the branch theta < pi/2
 
     x, mode, iterations, res, ok = newton(system, starts, tol=tol, max_iter=max_iter,
                                           active=active)
-    a, _ = _rotation_and_chain(x, mode)
+    a, _ = _rotation_and_chain(x, mode + 1)
     return a, StepInfo(ok, iterations, res)
 
 

@@ -10,7 +10,7 @@ import jax.numpy as jnp
 from .. import _so3 as so3
 from .._model import RigidBody
 from .._system import gradient_c, gradient_hessian_c
-from .base import AbstractMethod, StepInfo, default_tol, newton
+from .base import AbstractMethod, StepInfo, default_tol, implicit_root, newton
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,6 +48,10 @@ class Midpoint(AbstractMethod):
         def f(u):
             return so3.cross(u, gradient_c(model, u))
 
+        def residual(y1):
+            m = so3.scale(0.5, so3.add(y0, y1))
+            return tuple(a - b - tau * c for a, b, c in zip(y1, y0, f(m)))
+
         def system(y1, mode):
             m = so3.scale(0.5, so3.add(y0, y1))
             if rigid:  # the Hessian is diagonal: I^{-1}
@@ -56,14 +60,18 @@ class Midpoint(AbstractMethod):
             else:
                 g, hess = gradient_hessian_c(model, m)
                 hess_part = so3.mm(so3.hat_c(m), hess)
-            fm = so3.cross(m, g)
-            r = tuple(a - b - tau * c for a, b, c in zip(y1, y0, fm))
+            r = tuple(a - b - tau * c for a, b, c in zip(y1, y0, so3.cross(m, g)))
             fprime = so3.madd(hess_part, so3.mscale(-1.0, so3.hat_c(g)))
             jac = so3.shift(so3.mscale(-0.5 * tau, fprime), 1.0)
             return r, jac, True
 
-        start = tuple(a + tau * b for a, b in zip(y0, f(y0)))
-        y1, _, it, res, ok = newton(system, (start,), tol=tol, max_iter=self.max_iter)
+        def solve():
+            start = tuple(a + tau * b for a, b in zip(y0, f(y0)))
+            y1, _, it, res, ok = newton(system, (start,), tol=tol, max_iter=self.max_iter)
+            return y1, ok & jnp.isfinite(res), (it, res)
+
+        # Derivatives by the implicit function theorem at the root, not through Newton.
+        y1, ok, (it, res) = implicit_root(residual, solve, y0)
         y_next = so3.unvec(y1).astype(dtype)
         ok = ok & jnp.all(jnp.isfinite(y_next))
-        return y_next, StepInfo(ok, it, res.astype(dtype))
+        return y_next, StepInfo(ok, it.astype(jnp.int32), res.astype(dtype))
