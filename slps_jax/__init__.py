@@ -1,6 +1,6 @@
 """slps-jax: structure-preserving integrators for stochastic Lie–Poisson systems in JAX."""
 
-from ._calibrate import CalibrationResult as CalibrationResult, calibrate as calibrate
+from ._calibrate import CalibrationResult as CalibrationResult, calibrate as calibrate, moments as moments
 from ._convergence import ConvergenceResult as ConvergenceResult, strong_convergence as strong_convergence
 from ._exact import exact_flow as exact_flow, exact_solution as exact_solution
 from ._integrate import integrate as integrate, simulate as simulate

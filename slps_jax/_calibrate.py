@@ -27,9 +27,11 @@ class CalibrationResult:
     """What `calibrate` returns.
 
     - `model`: the fitted `RigidBody`.
-    - `loss`: the loss after each optimiser step (`loss[0]` at the start).
+    - `loss`: the loss before each optimiser step (`loss[0]` at `init`).
     - `stderr`: delta-method standard errors of `(I_1, I_2, I_3, c)` from the Jacobian of the
-      statistics at the fit and `observed_stderr` (`None` if that was not given).
+      statistics at the fit and `observed_stderr` (`None` if that was not given; 0 for the
+      fixed parameters); with `observed_n_samples` they include the simulation's own
+      sampling error.
     - `singular_values`: of the weighted Jacobian of the statistics with respect to
       `(log I, log c)` at the start; their spread says how well the data determine the
       parameters.
@@ -41,13 +43,16 @@ class CalibrationResult:
     singular_values: np.ndarray
 
 
+_NAMES = ("I_1", "I_2", "I_3", "c")
+
+
 def _unpack(theta):
     return RigidBody(jnp.exp(theta[:3]), jnp.exp(theta[3]))
 
 
 def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
-              observed_stderr=None, method=LiePoisson(), optimizer=None, steps=50,
-              truncate_k=4, rtol=1e-10, progress=True):
+              observed_stderr=None, observed_n_samples=None, fixed=(), method=LiePoisson(),
+              optimizer=None, steps=50, truncate_k=4, rtol=1e-10, progress=True):
     r"""Fit `inertia` and `c` of a `RigidBody` to observed ensemble statistics.
 
     Minimises the weighted least-squares misfit
@@ -60,9 +65,12 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
     exactly (pathwise, through the implicit Newton solves); its minimiser estimates the
     parameters, with a bias of order $1/$`n_samples`.
 
-    Before optimising, the Jacobian of the weighted statistics with respect to $\theta$ is
-    computed at `init`; if it is rank deficient (a combination of parameters the statistics
-    do not depend on), a `ValueError` says which.
+    Before optimising, the Jacobian of the weighted statistics with respect to the fitted
+    parameters is computed at `init`; if it is (nearly) rank deficient, a `ValueError` says
+    which combination the statistics do not determine. One such combination is exact for
+    the rigid body: adding the same constant to every $1/I_i$ adds a multiple of the Casimir
+    to $H$ and leaves the motion unchanged, so the three moments can only be fitted with
+    one of them held fixed (`fixed=("I_3",)`).
 
     **Arguments:**
 
@@ -73,6 +81,11 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
     - `statistic`: `(n_samples, 3) -> (k,)`; default `moments` (means of `y` and `y**2`).
     - `observed_stderr`: standard errors of `observed` (same shape), used as weights and for
       the standard errors of the fit.
+    - `observed_n_samples`: the size of the observed ensemble, if known: the standard errors
+      then include the sampling error of the simulated statistics too (a factor
+      $\sqrt{1 + n_{obs}/n_{samples}}$, the model's statistics having the observed ones'
+      variance).
+    - `fixed`: names among `"I_1", "I_2", "I_3", "c"` held at their values in `init`.
     - `optimizer`: an optax optimiser; default `optax.lbfgs()` (the loss is deterministic and
       smooth). Optimisers that need the loss value (line searches) get it.
     - `steps`: at most this many optimiser steps; stops earlier when the loss changes by
@@ -101,9 +114,18 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
     if weight.shape != observed.shape or not bool(jnp.all(jnp.isfinite(weight) & (weight > 0))):
         raise ValueError("observed_stderr must be positive and have the shape of observed.")
     key = _noise.check_key(key)
+    unknown = [n for n in fixed if n not in _NAMES]
+    if unknown or len(set(fixed)) == len(_NAMES):
+        raise ValueError(f"fixed must name some (not all) of {_NAMES}, got {fixed!r}.")
+    free = np.array([n not in fixed for n in _NAMES])
+    names = [n for n in _NAMES if n not in fixed]
+    theta_all = jnp.concatenate([jnp.log(init.inertia), jnp.log(init.c)[None]])
+
+    def full(theta):
+        return theta_all.at[np.flatnonzero(free)].set(theta)
 
     def statistics(theta):
-        sol = simulate(_unpack(theta), y0, t1=float(ts[-1]), dt=dt, n_samples=n_samples,
+        sol = simulate(_unpack(full(theta)), y0, t1=float(ts[-1]), dt=dt, n_samples=n_samples,
                        key=key, method=method, save_every=every, truncate_k=truncate_k,
                        throw=False)
         ys = sol.ys[:, idx // every]  # (n_samples, len(ts), 3)
@@ -116,57 +138,74 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
         r = residuals(theta)
         return 0.5 * jnp.dot(r, r)
 
-    theta = jnp.concatenate([jnp.log(init.inertia), jnp.log(init.c)[None]])
-    sv = _check_identifiable(jax.jacfwd(residuals)(theta))
+    theta = theta_all[free]
+    sv = _check_identifiable(jax.jacfwd(residuals)(theta), names, np.asarray(init.inertia))
 
     opt = optax.with_extra_args_support(optax.lbfgs() if optimizer is None else optimizer)
-    state = opt.init(theta)
     loss = jax.jit(loss)
-    value_and_grad = jax.jit(jax.value_and_grad(loss))
-    value, grad = value_and_grad(theta)
-    history = [float(value)]
-    for i in range(steps):
-        updates, state = opt.update(grad, state, theta, value=value, grad=grad, value_fn=loss)
-        theta = optax.apply_updates(theta, updates)
+    value_and_grad = jax.value_and_grad(loss)
+
+    @jax.jit
+    def opt_step(theta, state):
+        # one compiled step: the line search of L-BFGS evaluates `loss` inside it
         value, grad = value_and_grad(theta)
-        history.append(float(value))
+        updates, state = opt.update(grad, state, theta, value=value, grad=grad, value_fn=loss)
+        return optax.apply_updates(theta, updates), state, value
+
+    state = opt.init(theta)
+    history = []
+    for i in range(steps):
+        new_theta, state, value = opt_step(theta, state)
+        history.append(float(value))  # the loss at theta, before this step
+        if i > 0 and abs(history[-2] - history[-1]) <= rtol * max(history[-2], 1e-300):
+            break
+        theta = new_theta
         if progress:
-            m = _unpack(theta)
+            m = _unpack(full(theta))
             print(f"calibrate: step {i + 1:3d}  loss {history[-1]:.6e}  inertia "
                   f"{np.round(np.asarray(m.inertia), 6)}  c {float(m.c):.6f}", file=sys.stderr)
-        if abs(history[-2] - history[-1]) <= rtol * max(history[-2], 1e-300):
-            break
 
-    model = _unpack(theta)
+    model = _unpack(full(theta))
     stderr = None
     if observed_stderr is not None:
         # Delta method: Cov(theta) = (J^T J)^{-1} with the weighted Jacobian; then the chain
         # rule d exp(theta) = exp(theta) d theta.
         jac = np.asarray(jax.jacfwd(residuals)(theta))
         cov = np.linalg.pinv(jac.T @ jac)
-        stderr = np.sqrt(np.diag(cov)) * np.exp(np.asarray(theta))
+        stderr = np.zeros(len(_NAMES))
+        stderr[free] = np.sqrt(np.diag(cov)) * np.exp(np.asarray(theta))
+        if observed_n_samples is not None:
+            stderr *= math.sqrt(1.0 + observed_n_samples / n_samples)
     return CalibrationResult(model, np.asarray(history), stderr, sv)
 
 
-_NAMES = ("I_1", "I_2", "I_3", "c")
-
-
-def _check_identifiable(jac):
+def _check_identifiable(jac, names, inertia):
     """Raise if the statistics do not determine `(log I, log c)`: a (near) null direction of
     their Jacobian at the start."""
     jac = np.asarray(jac)
     if not np.all(np.isfinite(jac)):
         raise ValueError("calibrate: the statistics' Jacobian at init is not finite; "
                          "the initial model fails to simulate (try a smaller dt).")
+    n = jac.shape[1]
     _, sv, vt = np.linalg.svd(jac, full_matrices=True)
-    sv_full = np.zeros(4)
-    sv_full[:len(sv)] = sv[:4]
-    if sv_full[0] == 0 or sv_full[-1] <= 1e-8 * sv_full[0]:
+    sv_full = np.zeros(n)
+    sv_full[:min(n, len(sv))] = sv[:n]
+    if sv_full[0] == 0 or sv_full[-1] <= 1e-4 * sv_full[0]:
         null = vt[-1]
-        combo = " + ".join(f"{w:+.2f} log {n}" for w, n in zip(null, _NAMES) if abs(w) > 0.05)
+        combo = " ".join(f"{w:+.2f} log {nm}" for w, nm in zip(null, names) if abs(w) > 0.05)
+        why = ""
+        moments = [i for i, nm in enumerate(names) if nm.startswith("I_")]
+        if len(moments) == 3:
+            # d(1/I_i) = k for all i  <=>  d log I_i = -k I_i: the Casimir shift of H
+            shift = np.zeros(n)
+            shift[moments] = inertia
+            if abs(np.dot(null, shift)) > 0.9 * np.linalg.norm(shift):
+                why = (" This is the exact symmetry of the rigid body: adding a constant to "
+                       "every 1/I_i adds a multiple of the Casimir to H and does not change the "
+                       "motion. Hold one moment fixed, e.g. fixed=('I_3',).")
         raise ValueError(
             "calibrate: the parameters are not identifiable from these statistics: changing "
-            f"{combo} leaves them unchanged (singular values of their Jacobian: "
-            f"{np.array2string(sv_full, precision=3)}). Observe more times or other "
-            "statistics (the Casimir |y| is conserved and says nothing).")
+            f"{combo} leaves them (almost) unchanged (singular values of their Jacobian: "
+            f"{np.array2string(sv_full, precision=3)}).{why} Otherwise observe more times or "
+            "other statistics (the Casimir |y| is conserved and says nothing).")
     return sv_full
