@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import dataclasses
-import math
-
 import jax.numpy as jnp
 
 from .. import _so3 as so3
+from ._checks import check_options
 from .base import AbstractMethod, StepInfo, default_tol, newton
 
 
@@ -28,10 +27,7 @@ class Midpoint(AbstractMethod):
     max_iter: int = 12
 
     def __post_init__(self):
-        if self.tol is not None and not (math.isfinite(self.tol) and self.tol > 0):
-            raise ValueError(f"tol must be a positive number, got {self.tol!r}.")
-        if not (isinstance(self.max_iter, int) and self.max_iter >= 1):
-            raise ValueError(f"max_iter must be a positive integer, got {self.max_iter!r}.")
+        check_options(self)
 
     def step(self, model, y, dt, dW):
         dtype = y.dtype
