@@ -183,14 +183,13 @@ def _check_method(method):
 
 def _as_real_array(name, x):
     """`x` as a JAX array of a real (or integer) dtype, or a TypeError naming `name`."""
-    if isinstance(x, jax.core.Tracer):
-        arr = x
-    else:
-        try:
-            arr = jnp.asarray(np.asarray(x) if not isinstance(x, jax.Array) else x)
-        except (TypeError, ValueError) as err:
-            raise TypeError(f"{name} must be an array of real numbers, got {x!r} ({err}).") \
-                from None
+    if isinstance(x, str):
+        raise TypeError(f"{name} must be an array of real numbers, got the string {x!r}.")
+    try:
+        arr = jnp.asarray(x)  # (also a list of tracers, inside jit)
+    except (TypeError, ValueError) as err:
+        raise TypeError(f"{name} must be an array of real numbers, got {x!r} ({err}).") \
+            from None
     kind = np.dtype(arr.dtype).kind if not jax.dtypes.issubdtype(
         arr.dtype, jax.dtypes.extended) else "V"
     if kind not in "fiu":

@@ -122,7 +122,7 @@ def test_retry_keeps_strong_order_one():
     # error keeps order 1 (and the retried samples' errors are no larger than the others').
     model = sj.RigidBody.paper()
     y0 = 0.999 * PAPER_DIR
-    kwargs = dict(t1=1.0, dts=[2.0 ** -k for k in range(4, 9)], n_samples=64,
+    kwargs = dict(t1=1.0, dts=[2.0 ** -k for k in range(4, 9)], n_samples=200,
                   key=jax.random.key(24), methods={"LP": sj.LiePoisson()}, n_bootstrap=20)
     with pytest.raises(RuntimeError, match="retry_substeps"):
         sj.strong_convergence(model, y0, **kwargs)
@@ -416,7 +416,7 @@ inertias = st.lists(st.floats(-1.0, 1.0), min_size=3, max_size=3).map(
     lambda e: 10.0 ** np.asarray(e))  # ratios up to 1e2
 directions = st.lists(st.floats(-1.0, 1.0), min_size=3, max_size=3).filter(
     lambda v: np.linalg.norm(v) > 0.1).map(lambda v: np.asarray(v) / np.linalg.norm(v))
-FAST = settings(max_examples=25, deadline=None, derandomize=True,
+FAST = settings(max_examples=25, deadline=None, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.too_slow])
 
 
