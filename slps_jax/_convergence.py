@@ -13,7 +13,8 @@ import numpy as np
 
 from . import _noise
 from ._exact import exact_solution
-from ._integrate import _check_method, _check_model, _check_y0, _ensemble_dynamic_jit
+from ._integrate import (_check_count, _check_method, _check_model, _check_positive,
+                         _check_retry, _check_y0, _ensemble_dynamic_jit)
 from ._model import RigidBody
 from ._solver.midpoint import Midpoint
 
@@ -75,7 +76,8 @@ def _substeps(dt, fine_dt, name):
 
 
 def strong_convergence(model, y0, *, t1, dts, n_samples, key, methods, reference="exact",
-                       reference_dt=None, truncate_k=4, n_bootstrap=200):
+                       reference_dt=None, truncate_k=4, n_bootstrap=200,
+                       retry_substeps=None):
     r"""Root-mean-square error at `t1` of each method at each step size, on shared paths.
 
     Every step size integrates the same Brownian paths: a coarse increment is the sum of the
@@ -100,18 +102,32 @@ def strong_convergence(model, y0, *, t1, dts, n_samples, key, methods, reference
       every Hamiltonian).
     - `truncate_k`: the truncation parameter of the fine increments (`None` for none).
     - `n_bootstrap`: resamples for the order's standard error.
+    - `retry_substeps`: as in `simulate`: redo failing steps as `k, k^2, k^3` substeps.
 
     **Returns:** a `ConvergenceResult`.
     """
     _check_model(model)
-    if not isinstance(methods, dict):
+    if isinstance(methods, dict):
+        if not methods:
+            raise ValueError("methods must name at least one method, got an empty dict.")
+    else:
         methods = {type(methods).__name__: methods}
     for m in methods.values():
         _check_method(m)
         y0 = _check_y0(y0, m, model)
-    dts = np.sort(np.asarray(dts, float))[::-1]
-    if dts.ndim != 1 or len(dts) < 2 or not np.all(dts > 0):
-        raise ValueError(f"dts must hold at least two positive step sizes, got {dts}.")
+    t1_np = _check_positive("t1", t1)
+    if t1_np is None:
+        raise TypeError("strong_convergence needs a concrete t1: call it outside jax.jit.")
+    t1 = float(t1_np)
+    try:
+        dts = np.asarray(dts, float)
+    except (TypeError, ValueError):
+        raise TypeError(f"dts must be a list of step sizes, got {dts!r}.") from None
+    if dts.ndim != 1 or len(dts) < 2 or not np.all(np.isfinite(dts) & (dts > 0)):
+        raise ValueError(f"dts must hold at least two positive finite step sizes, got {dts}.")
+    if len(np.unique(dts)) != len(dts):
+        raise ValueError(f"dts must be distinct, got {dts}.")
+    dts = np.sort(dts)[::-1]
     if not callable(reference) and reference not in ("exact", "midpoint"):
         raise ValueError(f"reference must be 'exact', 'midpoint' or a callable, got "
                          f"{reference!r}.")
@@ -119,9 +135,11 @@ def strong_convergence(model, y0, *, t1, dts, n_samples, key, methods, reference
         raise ValueError("reference='exact' needs a RigidBody (the closed-form flow); for a "
                          "LiePoissonSystem pass a deterministic flow as reference (a callable) "
                          "or reference='midpoint'.")
-    if isinstance(n_samples, bool) or not isinstance(n_samples, (int, np.integer)) \
-            or n_samples < 2:
-        raise ValueError(f"n_samples must be an integer >= 2, got {n_samples!r}.")
+    if reference_dt is not None:
+        _check_positive("reference_dt", reference_dt)
+    n_samples = _check_count("n_samples", n_samples, minimum=2)
+    n_bootstrap = _check_count("n_bootstrap", n_bootstrap, minimum=2)
+    retry = _check_retry(retry_substeps)
     key = _noise.check_key(key)
     fine_dt = float(dts[-1])
     if reference == "midpoint":
@@ -134,12 +152,13 @@ def strong_convergence(model, y0, *, t1, dts, n_samples, key, methods, reference
 
     def final_states(method, dt):
         s = _substeps(dt, fine_dt, "dt")
-        ys, fail_step, _ = _ensemble_dynamic_jit(method, model, y0, keys, jnp.asarray(dt, dtype),
-                                                 bound, 1, jnp.asarray(n_fine // s),
-                                                 False, jnp.asarray(s))
+        ys, fail_step, _, _ = _ensemble_dynamic_jit(
+            method, model, y0, keys, jnp.asarray(dt, dtype), bound, 1, jnp.asarray(n_fine // s),
+            False, jnp.asarray(s), retry=retry)
         n_failed = int(jnp.sum(fail_step >= 0))
         if n_failed:
-            raise RuntimeError(f"{type(method).__name__} at dt={dt}: {n_failed} samples failed.")
+            raise RuntimeError(f"{type(method).__name__} at dt={dt}: {n_failed} samples failed; "
+                               f"use smaller dts or retry_substeps=4.")
         return ys[:, -1]
 
     if callable(reference):

@@ -15,7 +15,9 @@ not taken ("double where"), so no branch produces NaN values or gradients.
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import lax
 
 # Descending Landen steps. Each step squares the nome, so the moduli k_n = c_n / a_n fall
@@ -151,6 +153,35 @@ def _reduced_flow(b, z, t):
     return jnp.where(in_plane, rot, jnp.where(saddle, lin, ell))
 
 
+def _check_real(name, x, shape, hint=""):
+    """`x` as an array of real numbers with `shape`, finite where concrete."""
+    if isinstance(x, str) or isinstance(x, bool):
+        raise TypeError(f"{name} must be real numbers, got {x!r}.")
+    try:
+        x = jnp.asarray(x)
+    except (TypeError, ValueError) as err:
+        raise TypeError(f"{name} must be real numbers, got {x!r} ({err}).") from None
+    if np.dtype(x.dtype).kind not in "fiu":
+        raise TypeError(f"{name} must be real numbers, got dtype {x.dtype}.")
+    if x.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}, got shape {x.shape}{hint}.")
+    if not isinstance(x, jax.core.Tracer) and not np.all(np.isfinite(np.asarray(x))):
+        raise ValueError(f"{name} must be finite, got {np.asarray(x)}.")
+    return x
+
+
+def _check_flow_args(model, y0, t, need_c=False):
+    if not hasattr(model, "inertia") or (need_c and not hasattr(model, "c")):
+        raise TypeError(f"model must have `inertia`{' and `c`' if need_c else ''} (for example "
+                        f"a RigidBody), got {type(model).__name__}.")
+    inertia = _check_real("model.inertia", model.inertia, (3,))
+    if not isinstance(inertia, jax.core.Tracer) and not np.all(np.asarray(inertia) > 0):
+        raise ValueError(f"model.inertia must be positive, got {np.asarray(inertia)}.")
+    y0 = _check_real("y0", y0, (3,), "; use jax.vmap for a batch of initial values")
+    t = _check_real("t", t, (), "; use jax.vmap for several times")
+    return inertia, y0, t
+
+
 def exact_flow(model, y0, t):
     r"""The exact flow $\varphi_t(y_0)$ of the free rigid body
 
@@ -187,7 +218,7 @@ def exact_flow(model, y0, t):
     2084–2112. Jacobi functions by the descending Landen transformation / AGM (Abramowitz
     & Stegun 16.4, and 16.15 at the separatrix); Fukushima (2012) gives faster schemes.
     """
-    inertia, y0, t = jnp.asarray(model.inertia), jnp.asarray(y0), jnp.asarray(t)
+    inertia, y0, t = _check_flow_args(model, y0, t)
     dtype = jnp.result_type(float, inertia, y0, t)
     inertia, y0, t = inertia.astype(dtype), y0.astype(dtype), t.astype(dtype)
     # Scale y0 and a = 1/I to order one by powers of two (exact, and constants for autodiff):
@@ -240,4 +271,7 @@ def exact_solution(model, y0, t, W_t):
 
     Celledoni, Fassò, Säfström & Zanna (2008) for the flow, see `exact_flow`.
     """
+    _check_flow_args(model, y0, t, need_c=True)
+    W_t = _check_real("W_t", W_t, (), "; use jax.vmap for several paths")
+    _check_real("model.c", model.c, ())
     return exact_flow(model, y0, t + model.c * W_t)

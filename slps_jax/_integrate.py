@@ -13,49 +13,111 @@ import numpy as np
 from . import _noise
 from ._model import RigidBody, concrete
 from ._solution import RESULTS, Solution
+from ._solver._checks import check_options
 from ._solver.base import AbstractMethod
 from ._solver.lie_poisson import LiePoisson
 from ._system import LiePoissonSystem
 
 
-def _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats):
+# Split a failed step into k, k^2, ..., k^_RETRY_LEVELS equal parts before giving up.
+_RETRY_LEVELS = 3
+
+
+def _retry_step(method, model, y, need, dt, dW, k):
+    """Redo a failed step as `k^j` equal substeps of `(dt/k^j, dW/k^j)`, `j = 1, 2, ...`.
+
+    The SDE is the free rigid body flow run for `tau = dt + c dW`, and that flow is a group,
+    `phi_tau = phi_{tau/m}^m`, so `m` steps of `tau/m` approximate the same thing as one
+    step of `tau`, more accurately. For `LiePoisson` each substep has its own second-order
+    term `kappa = c^2 (dW/m)^2`, the square of its own random time, as in a step of size
+    `dt/m`: the substeps are the scheme itself run on a finer grid through the same point
+    `W(t_{n+1})`. Only samples with `need` do work (the others step with `dt = dW = 0`).
+
+    **Returns:** `(y_next, ok, iterations, residual_max)`.
+    """
+    dtype = y.dtype
+    zero_i = jnp.zeros((), jnp.int32)
+    zero_f = jnp.zeros((), dtype)
+
+    def substeps(m, y_start, its, res):
+        sub_dt = jnp.where(need, dt / m, 0.0).astype(dtype)
+        sub_dW = jnp.where(need, dW / m, 0.0).astype(dtype)
+
+        def body(state):
+            i, ys, ok, its, res = state
+            y2, info = method.step(model, ys, jnp.where(ok, sub_dt, 0.0).astype(dtype),
+                                   jnp.where(ok, sub_dW, 0.0).astype(dtype))
+            ok2 = ok & info.ok & jnp.all(jnp.isfinite(y2))
+            its = its + jnp.where(ok, info.iterations, 0)
+            res = jnp.maximum(res, jnp.where(ok2, info.residual, 0.0).astype(dtype))
+            return i + 1, jnp.where(ok2, y2, ys), ok2, its, res
+
+        _, ys, ok, its, res = jax.lax.while_loop(
+            lambda s: (s[0] < m) & s[2], body, (zero_i, y_start, need, its, res))
+        return ys, ok, its, res
+
+    def level(state):
+        j, m, done, y_out, its, res = state
+        ys, ok, its, res = substeps(m, y, its, res)
+        return j + 1, m * k, done | ok, jnp.where(ok, ys, y_out), its, res
+
+    init = (jnp.ones((), jnp.int32), jnp.asarray(k, jnp.int32), ~need, y, zero_i, zero_f)
+    _, _, done, y_out, its, res = jax.lax.while_loop(
+        lambda s: ~s[2] & (s[0] <= _RETRY_LEVELS), level, init)
+    return y_out, need & done, its, res
+
+
+def _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats, retry=None):
     """Integrate one sample: `n_blocks` blocks of `block_len` steps, saving after each block.
 
     `draw(n)` gives step n's increment. With a Python-int `block_len` the time loop is a
     `lax.scan` (reverse-mode differentiable, checkpointed: see `_checkpointed_loop`); with a
     traced one it is a `while_loop`, so one compilation serves every step count
-    (convergence studies).
+    (convergence studies). With `retry = k`, a step that fails is redone as `k`, then
+    `k^2`, ... equal substeps (`_retry_step`, a `while_loop`: no reverse mode) before the
+    sample is given up.
 
-    Returns the saved states `(n_blocks, 3)`, the step of failure (-1 if none) and the Newton
-    statistics `(iterations sum, iterations max, residual max)` or `()`.
+    Returns the saved states `(n_blocks, 3)`, the step of failure (-1 if none), the number
+    of retried steps, and the Newton statistics `(iterations sum, iterations max, residual
+    max)` or `()`.
     """
     dtype = y0.dtype
     zero = jnp.zeros((), dtype)
     acc0 = (zero, jnp.zeros((), jnp.int32), zero) if want_stats else ()
-    carry0 = (y0, jnp.array(True), jnp.array(-1, jnp.int32), jnp.array(0, jnp.int32), acc0)
+    carry0 = (y0, jnp.array(True), jnp.array(-1, jnp.int32), jnp.array(0, jnp.int32),
+              jnp.array(0, jnp.int32), acc0)
 
     def step(_, carry):
-        y, alive, fail_step, n, acc = carry
+        y, alive, fail_step, n, n_retried, acc = carry
         dW = draw(n)
         # A failed sample idles at its last good state: with dt = dW = 0 every method's
         # step is trivial, so it costs no Newton iterations.
         y_new, info = method.step(model, y, jnp.where(alive, dt, 0.0).astype(dtype),
                                   jnp.where(alive, dW, 0.0).astype(dtype))
         ok = info.ok & jnp.all(jnp.isfinite(y_new))
+        it = jnp.where(alive, info.iterations, 0)
+        res = jnp.where(alive & ok, info.residual, 0.0)
+        if retry is not None:
+            need = alive & ~ok
+            y_re, ok_re, it_re, res_re = _retry_step(method, model, y, need, dt, dW, retry)
+            y_new = jnp.where(need, y_re, y_new)
+            ok = ok | ok_re
+            it = it + it_re
+            res = jnp.maximum(res, res_re)
+            n_retried = n_retried + need.astype(jnp.int32)
         fail_step = jnp.where(alive & ~ok, n, fail_step)
         if want_stats:
-            it = jnp.where(alive, info.iterations, 0)
-            res = jnp.where(alive & ok, info.residual, 0.0)
             acc = (acc[0] + it, jnp.maximum(acc[1], it), jnp.maximum(acc[2], res))
         y = jnp.where(alive & ok, y_new, y)
-        return y, alive & ok, fail_step, n + 1, acc
+        return y, alive & ok, fail_step, n + 1, n_retried, acc
 
     def block(carry, _):
         carry = _checkpointed_loop(step, block_len, carry)
         return carry, carry[0]
 
-    (_, _, fail_step, _, acc), ys = jax.lax.scan(block, carry0, None, length=n_blocks)
-    return ys, fail_step, acc
+    (_, _, fail_step, _, n_retried, acc), ys = jax.lax.scan(block, carry0, None,
+                                                             length=n_blocks)
+    return ys, fail_step, n_retried, acc
 
 
 def _checkpointed_loop(step, n, carry):
@@ -77,14 +139,14 @@ def _checkpointed_loop(step, n, carry):
     return jax.lax.fori_loop(0, rest, step, carry)
 
 
-@functools.partial(jax.jit, static_argnames=("method", "save_every", "want_stats"))
-def _integrate_jit(method, model, y0, dW, dt, save_every, want_stats):
+@functools.partial(jax.jit, static_argnames=("method", "save_every", "want_stats", "retry"))
+def _integrate_jit(method, model, y0, dW, dt, save_every, want_stats, retry=None):
     return _path(method, model, y0, dt, lambda n: dW[n], dW.shape[0] // save_every,
-                 save_every, want_stats)
+                 save_every, want_stats, retry)
 
 
 def _ensemble(method, model, y0, keys, dt, bound, n_blocks, block_len, want_stats,
-              substeps=1):
+              substeps=1, retry=None):
     """Each sample draws its increments from its key. With `substeps = s > 1`, step `n`'s
     increment is the sum of the fine increments `n s, ..., n s + s - 1` of size `dt / s`:
     coarse paths that are the very same Brownian paths as a run with step `dt / s`."""
@@ -100,25 +162,35 @@ def _ensemble(method, model, y0, keys, dt, bound, n_blocks, block_len, want_stat
                 lambda k, w: w + _noise.increment(key, n * substeps + k, fine_dt, bound, dtype),
                 jnp.zeros((), dtype))
 
-        return _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats)
+        return _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats, retry)
 
     return jax.vmap(one)(keys)
 
 
 _ensemble_jit = jax.jit(_ensemble, static_argnames=("method", "n_blocks", "block_len",
-                                                   "want_stats", "substeps"))
+                                                   "want_stats", "substeps", "retry"))
 # Step count and substeps traced: one compilation for every step size of a study.
-_ensemble_dynamic_jit = jax.jit(_ensemble, static_argnames=("method", "n_blocks", "want_stats"))
+_ensemble_dynamic_jit = jax.jit(_ensemble, static_argnames=("method", "n_blocks", "want_stats",
+                                                           "retry"))
 
 
 # --------------------------------------------------------------------------------------
 # Validation: every check runs in Python on concrete values, before anything compiles.
+# Dtype policy: the model's dtype (that of `inertia` and `c`) is the dtype of the
+# computation. `y0` and `dW` are cast to it: a float32 `y0` with a float64 model is promoted
+# (exactly); a float64 `y0` with a float32 model is rounded to float32, which is what a
+# float32 model asks for. Non-real inputs (complex, bool, strings) are rejected.
+
+
+def _is_int(x):
+    return isinstance(x, (int, np.integer)) and not isinstance(x, (bool, np.bool_))
 
 
 def _check_model(model):
     if not isinstance(model, (RigidBody, LiePoissonSystem)):
-        raise TypeError(f"model must be a RigidBody or a LiePoissonSystem, got "
-                        f"{type(model).__name__}.")
+        raise TypeError(
+            f"model must be a RigidBody or a LiePoissonSystem, got {type(model).__name__}: "
+            f"build one with slps_jax.RigidBody(inertia, c).")
 
 
 def _check_pair(method, model):
@@ -137,22 +209,47 @@ def _check_method(method):
             f"method must be an instance such as LiePoisson(), got {method!r}"
             + (" (a class: call it)" if isinstance(method, type) else "") + "."
         )
+    check_options(method)  # again here: a dataclass can be built around its constructor
+
+
+def _as_real_array(name, x):
+    """`x` as a JAX array of a real (or integer) dtype, or a TypeError naming `name`."""
+    if isinstance(x, str):
+        raise TypeError(f"{name} must be an array of real numbers, got the string {x!r}.")
+    try:
+        arr = jnp.asarray(x)  # (also a list of tracers, inside jit)
+    except (TypeError, ValueError) as err:
+        raise TypeError(f"{name} must be an array of real numbers, got {x!r} ({err}).") \
+            from None
+    kind = np.dtype(arr.dtype).kind if not jax.dtypes.issubdtype(
+        arr.dtype, jax.dtypes.extended) else "V"
+    if kind not in "fiu":
+        raise TypeError(f"{name} must hold real numbers, got dtype {arr.dtype}.")
+    return arr
 
 
 def _check_y0(y0, method, model):
     _check_pair(method, model)
-    y0 = jnp.asarray(y0)
+    y0 = _as_real_array("y0", y0)
     if y0.shape != (3,):
-        raise ValueError(f"y0 must have shape (3,), got shape {y0.shape}.")
+        raise ValueError(
+            f"y0 must have shape (3,), got shape {y0.shape}"
+            + ("; for several initial values use jax.vmap over integrate." if y0.ndim == 2
+               and y0.shape[-1] == 3 else "."))
+    y0 = y0.astype(model.c.dtype)
     y_np = concrete(y0)
     if y_np is not None:
         if not np.all(np.isfinite(y_np)):
             raise ValueError(f"y0 must be finite, got {y_np}.")
         method.check_initial(model, y_np)
-    return y0.astype(model.c.dtype)
+    return y0
 
 
 def _check_positive(name, x):
+    """A positive finite scalar: its NumPy value, or `None` if traced."""
+    if isinstance(x, (bool, np.bool_)) or isinstance(x, str):
+        raise TypeError(f"{name} must be a positive number, got {x!r}.")
+    x = _as_real_array(name, x)
     x_np = concrete(x)
     if x_np is not None:
         if np.shape(x_np) != ():
@@ -162,26 +259,49 @@ def _check_positive(name, x):
     return x_np
 
 
+def _check_count(name, n, minimum=1):
+    if not _is_int(n) or n < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {n!r}"
+                         + (" (a float: pass int(...))" if isinstance(n, float) else "") + ".")
+    return int(n)
+
+
 def _check_save_every(save_every, n_steps):
     if save_every is None:
         return n_steps
-    if isinstance(save_every, bool) or not isinstance(save_every, (int, np.integer)) \
-            or save_every < 1:
+    if not _is_int(save_every) or save_every < 1:
         raise ValueError(f"save_every must be a positive integer or None, got {save_every!r}.")
     if n_steps % save_every:
+        divisors = [k for k in range(1, n_steps + 1) if n_steps % k == 0]
+        near = sorted(sorted(divisors, key=lambda k: abs(k - save_every))[:3])
         raise ValueError(
             f"save_every={save_every} must divide the number of steps {n_steps}; "
-            f"divisors near it: {[k for k in range(1, n_steps + 1) if n_steps % k == 0][-4:]}."
+            f"the nearest divisors are {near}."
         )
     return int(save_every)
+
+
+def _check_retry(retry_substeps):
+    if retry_substeps is None:
+        return None
+    if not _is_int(retry_substeps) or retry_substeps < 2:
+        raise ValueError(f"retry_substeps must be None or an integer >= 2 (the number of "
+                         f"substeps a failed step is split into), got {retry_substeps!r}.")
+    return int(retry_substeps)
+
+
+def _check_throw(throw):
+    if not isinstance(throw, (bool, np.bool_)):
+        raise TypeError(f"throw must be True or False, got {throw!r}.")
 
 
 def _raise_on_failure(fail_step):
     if fail_step >= 0:
         raise RuntimeError(
             f"integrate: step {int(fail_step)} could not be solved; the path is frozen at its "
-            f"last good state from there on. Pass throw=False to return it anyway, or use a "
-            f"smaller dt (or LiePoisson(scale=...) near |y| = 1)."
+            f"last good state from there on. Pass throw=False to return it anyway, "
+            f"retry_substeps=4 to split failing steps, or use a smaller dt "
+            f"(or LiePoisson(scale=...) near |y| = 1)."
         )
 
 
@@ -189,7 +309,8 @@ def _raise_on_failure(fail_step):
 # Public API.
 
 
-def integrate(model, y0, dW, dt, *, method=LiePoisson(), save_every=None, throw=True):
+def integrate(model, y0, dW, dt, *, method=LiePoisson(), save_every=None, throw=True,
+              retry_substeps=None):
     r"""Integrate one path of $dy = f(y)(dt + c \circ dW)$ with the given increments.
 
     Uses `dW` exactly as given (no truncation). Works under `jax.jit`, `jax.vmap` and
@@ -197,7 +318,8 @@ def integrate(model, y0, dW, dt, *, method=LiePoisson(), save_every=None, throw=
 
     **Arguments:**
 
-    - `model`: a `RigidBody` or a `LiePoissonSystem`.
+    - `model`: a `RigidBody` or a `LiePoissonSystem`; its dtype is the computation's (`y0`,
+      `dW` are cast to it).
     - `y0`: initial value, shape `(3,)`.
     - `dW`: Brownian increments, shape `(n_steps,)`.
     - `dt`: the step size.
@@ -206,24 +328,33 @@ def integrate(model, y0, dW, dt, *, method=LiePoisson(), save_every=None, throw=
       `0, k, 2k, ..., n_steps` (`k` must divide `n_steps`).
     - `throw`: raise `RuntimeError` if a step cannot be solved. With `throw=False` a failed
       path is frozen at its last good state.
+    - `retry_substeps`: `None` (default), or `k >= 2`: a step that fails is redone as `k`,
+      then `k^2`, then `k^3` equal substeps of `(dt, dW)` before the path is given up.
+      Steps that succeed are untouched, so results without failures are identical.
 
     **Returns:** the final state `(3,)`, or `(n_steps // save_every + 1, 3)`.
     """
     _check_model(model)
     _check_method(method)
+    _check_throw(throw)
     y0 = _check_y0(y0, method, model)
-    dW = jnp.asarray(dW)
+    dW = _as_real_array("dW", dW)
     if dW.ndim != 1 or dW.shape[0] < 1:
-        raise ValueError(f"dW must be a non-empty 1-D array of increments, got shape {dW.shape}.")
+        raise ValueError(
+            f"dW must be a non-empty 1-D array of increments, got shape {dW.shape}"
+            + ("; for several paths use jax.vmap over integrate." if dW.ndim == 2 else "."))
     dt_np = _check_positive("dt", dt)
     dW_np = concrete(dW)
     if dW_np is not None and not np.all(np.isfinite(dW_np)):
-        raise ValueError("dW must be finite.")
+        bad = np.flatnonzero(~np.isfinite(dW_np))
+        raise ValueError(f"dW must be finite; entries {bad[:5].tolist()} are not.")
     n_steps = dW.shape[0]
     k = _check_save_every(save_every, n_steps)
+    retry = _check_retry(retry_substeps)
     dtype = y0.dtype
     dt = jnp.asarray(dt if dt_np is None else float(dt_np), dtype)
-    ys, fail_step, _ = _integrate_jit(method, model, y0, dW.astype(dtype), dt, k, False)
+    ys, fail_step, _, _ = _integrate_jit(method, model, y0, dW.astype(dtype), dt, k, False,
+                                         retry)
     if throw:
         if isinstance(fail_step, jax.core.Tracer):
             jax.debug.callback(_raise_on_failure, fail_step)
@@ -235,7 +366,7 @@ def integrate(model, y0, dW, dt, *, method=LiePoisson(), save_every=None, throw=
 
 
 def simulate(model, y0, *, t1, dt, n_samples, key, method=LiePoisson(), save_every=None,
-             truncate_k=4, newton_stats=False, throw=True):
+             truncate_k=4, newton_stats=False, throw=True, retry_substeps=None):
     r"""Simulate an ensemble of paths of $dy = f(y)(dt + c \circ dW)$ on $[0, t_1]$.
 
     Sample `i` draws its increments from `fold_in(key, i)` inside the time loop, truncated as
@@ -245,42 +376,51 @@ def simulate(model, y0, *, t1, dt, n_samples, key, method=LiePoisson(), save_eve
 
     **Arguments:**
 
-    - `model`: a `RigidBody` or a `LiePoissonSystem`; `y0`: the initial value `(3,)`, shared by all samples.
+    - `model`: a `RigidBody` or a `LiePoissonSystem`, whose dtype is the computation's;
+      `y0`: the initial value `(3,)`, shared by all samples (cast to the model's dtype).
     - `t1`: final time, a multiple of `dt`; `dt`: step size.
-    - `n_samples`: number of Brownian samples; `key`: a `jax.random.key`.
+    - `n_samples`: number of Brownian samples; `key`: a `jax.random.key` (a legacy
+      `jax.random.PRNGKey`, `uint32[2]`, is accepted too; a plain integer is not).
     - `method`: default `LiePoisson()`.
     - `save_every`: `None` (final state only) or `k` (states at steps `0, k, ..., n`).
     - `truncate_k`: the `k` of the truncation (default 4, the paper's), `None` for none.
     - `newton_stats`: also report Newton iteration counts and residuals in `stats`.
     - `throw`: raise `RuntimeError` if any sample failed; with `throw=False` a warning is
       issued and `result`, `fail_step` say which samples failed and where.
+    - `retry_substeps`: `None` (default), or `k >= 2`: a step that fails is redone as `k`,
+      then `k^2`, then `k^3` equal substeps before the sample is given up; `stats` then has
+      `n_retried_steps`. Steps that succeed are untouched.
 
     **Returns:** a `Solution`.
     """
     _check_model(model)
     _check_method(method)
+    _check_throw(throw)
     y0 = _check_y0(y0, method, model)
     dt = _check_positive("dt", dt)
     t1 = _check_positive("t1", t1)
     if dt is None or t1 is None:
-        raise TypeError("simulate needs concrete t1 and dt (they fix the number of steps).")
+        raise TypeError("simulate needs concrete t1 and dt (they fix the number of steps): "
+                        "call it outside jax.jit, or use integrate inside.")
     dt, t1 = float(dt), float(t1)
     ratio = t1 / dt
     n_steps = int(round(ratio))
     if n_steps < 1 or abs(ratio - n_steps) > 1e-9 * max(1.0, ratio):
-        raise ValueError(f"t1={t1} must be a positive multiple of dt={dt} (t1/dt = {ratio}).")
-    if isinstance(n_samples, bool) or not isinstance(n_samples, (int, np.integer)) \
-            or n_samples < 1:
-        raise ValueError(f"n_samples must be a positive integer, got {n_samples!r}.")
+        near = max(1, n_steps)
+        raise ValueError(f"t1={t1} must be a positive multiple of dt={dt} (t1/dt = {ratio}); "
+                         f"for example dt={t1 / near!r}.")
+    n_samples = _check_count("n_samples", n_samples)
     key = _noise.check_key(key)
     _noise.check_truncation(dt, truncate_k)
     k = _check_save_every(save_every, n_steps)
+    retry = _check_retry(retry_substeps)
     dtype = y0.dtype
 
-    keys = _noise.sample_keys(key, int(n_samples))
+    keys = _noise.sample_keys(key, n_samples)
     bound = jnp.asarray(_noise.truncation_bound(dt, truncate_k), dtype)
-    ys, fail_step, acc = _ensemble_jit(method, model, y0, keys, jnp.asarray(dt, dtype), bound,
-                                       n_steps // k, k, bool(newton_stats))
+    ys, fail_step, n_retried, acc = _ensemble_jit(
+        method, model, y0, keys, jnp.asarray(dt, dtype), bound, n_steps // k, k,
+        bool(newton_stats), retry=retry)
     if save_every is None:
         ts = jnp.asarray([n_steps * dt], dtype)
     else:
@@ -288,6 +428,8 @@ def simulate(model, y0, *, t1, dt, n_samples, key, method=LiePoisson(), save_eve
         ts = jnp.arange(0, n_steps + 1, k, dtype=dtype) * dt
     failed = fail_step >= 0
     stats = {"n_failed": jnp.sum(failed)}
+    if retry is not None:
+        stats["n_retried_steps"] = jnp.sum(n_retried)
     if newton_stats:
         stats["newton_iterations_mean"] = jnp.sum(acc[0]) / (n_samples * n_steps)
         stats["newton_iterations_max"] = jnp.max(acc[1])
@@ -300,7 +442,8 @@ def simulate(model, y0, *, t1, dt, n_samples, key, method=LiePoisson(), save_eve
         first = int(np.min(np.where(np.asarray(failed), np.asarray(fail_step), n_steps)))
         msg = (f"simulate: {int(n_failed)} of {n_samples} samples failed (first at step "
                f"{first}); they are frozen at their last good state. See Solution.result and "
-               f"fail_step; a smaller dt usually helps.")
+               f"fail_step; a smaller dt usually helps"
+               + (", or retry_substeps=4 to split failing steps." if retry is None else "."))
         if throw:
             raise RuntimeError(msg + " Pass throw=False to get the other samples.")
         warnings.warn(msg, RuntimeWarning, stacklevel=2)

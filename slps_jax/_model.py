@@ -24,6 +24,19 @@ def float_dtype(*xs):
     return jnp.result_type(float, *xs)
 
 
+def _real_array(name, x):
+    """`x` as an array of real numbers, or a `TypeError` naming the argument."""
+    if isinstance(x, str):
+        raise TypeError(f"{name} must be real numbers, got the string {x!r}.")
+    try:
+        arr = jnp.asarray(x)
+    except (TypeError, ValueError) as err:
+        raise TypeError(f"{name} must be real numbers, got {x!r} ({err}).") from None
+    if np.dtype(arr.dtype).kind not in "fiu":
+        raise TypeError(f"{name} must be real numbers, got dtype {arr.dtype}.")
+    return arr
+
+
 @jax.tree_util.register_pytree_node_class
 class RigidBody:
     r"""The stochastic rigid body $dy = y \times I^{-1} y\,(dt + c \circ dW)$.
@@ -39,13 +52,17 @@ class RigidBody:
     - `inertia`: the principal moments $(I_1, I_2, I_3)$, shape `(3,)`, finite and positive.
     - `c`: the noise amplitude, a finite scalar (default 0, the deterministic free rigid body).
 
+    The model's floating dtype (the promoted dtype of `inertia` and `c`, at least the default
+    float) is the dtype of every computation with it: `simulate` and `integrate` cast `y0`
+    and the increments to it. For float32 work pass float32 `inertia`.
+
     Raises `ValueError` naming the argument if a concrete value is invalid. Traced values
     (inside `jit` or `grad`) are not checked.
     """
 
     def __init__(self, inertia, c=0.0):
-        inertia = jnp.asarray(inertia)
-        c = jnp.asarray(c)
+        inertia = _real_array("inertia", inertia)
+        c = _real_array("c", c)
         dtype = float_dtype(inertia, c)
         inertia, c = inertia.astype(dtype), c.astype(dtype)
         if inertia.shape != (3,):

@@ -15,20 +15,28 @@ import numpy as np
 
 
 def check_key(key, name="key"):
-    """A typed PRNG key (`jax.random.key`), or a legacy raw `uint32[2]` key, as a typed key."""
+    """A typed PRNG key (`jax.random.key`), or a legacy raw `uint32[2]` key
+    (`jax.random.PRNGKey`), as a typed key. Both give the same samples for the same seed.
+    Anything else (a plain integer, a batch of keys, a float array) is a `TypeError` or
+    `ValueError` that says what to pass."""
+    if isinstance(key, (bool, np.bool_)):
+        raise TypeError(f"{name} must be a JAX PRNG key, got {key!r}: pass jax.random.key(seed).")
     if isinstance(key, (int, np.integer)):
         raise TypeError(
             f"{name} must be a JAX PRNG key, got the integer {key!r}: "
             f"pass jax.random.key({key!r})."
         )
-    if not hasattr(key, "dtype"):
+    if not hasattr(key, "dtype") or not hasattr(key, "shape"):
         raise TypeError(f"{name} must be a JAX PRNG key (jax.random.key(seed)), got {type(key)}.")
     if jax.dtypes.issubdtype(key.dtype, jax.dtypes.prng_key):
         if key.shape != ():
-            raise ValueError(f"{name} must be a single key, got a key array of shape {key.shape}.")
+            raise ValueError(f"{name} must be a single key, got a key array of shape {key.shape}: "
+                             f"pass one key, for example {name}[0].")
         return key
     if key.dtype == jnp.uint32 and key.shape == (2,):
-        return jax.random.wrap_key_data(key)
+        return jax.random.wrap_key_data(jnp.asarray(key))
+    if key.dtype == jnp.uint32 and key.ndim == 2 and key.shape[-1] == 2:
+        raise ValueError(f"{name} must be a single key, got {key.shape[0]} legacy keys: pass one.")
     raise TypeError(
         f"{name} must be a JAX PRNG key: jax.random.key(seed) (or a legacy "
         f"jax.random.PRNGKey(seed)); got an array of dtype {key.dtype} and shape {key.shape}."
@@ -45,7 +53,9 @@ def truncation_bound(dt, truncate_k):
 def check_truncation(dt, truncate_k):
     if truncate_k is None:
         return
-    if not (isinstance(truncate_k, (int, float)) and truncate_k > 0 and math.isfinite(truncate_k)):
+    if isinstance(truncate_k, (bool, np.bool_)) or not (
+            isinstance(truncate_k, (int, float, np.integer, np.floating)) and truncate_k > 0
+            and math.isfinite(truncate_k)):
         raise ValueError(f"truncate_k must be a positive number or None, got {truncate_k!r}.")
     if dt >= 1.0:
         raise ValueError(
@@ -75,19 +85,38 @@ def brownian_increments(key, n_steps, dt, *, n_samples=None, truncate_k=4, dtype
     - `n_steps`, `dt`: number and size of the steps.
     - `n_samples`: `None` for one path (the path of sample 0), else that many paths.
     - `truncate_k`: the truncation parameter $k$ of $A_h = \\sqrt{2k|\\ln h|}$, `None` for none.
-    - `dtype`: defaults to the default float dtype.
+    - `dtype`: a floating dtype, by default the default float (float64 with
+      `jax_enable_x64`); use the model's dtype (`model.inertia.dtype`).
 
     **Returns:** `(n_steps,)`, or `(n_samples, n_steps)`; row `i` equals what `simulate` draws
     for sample `i` with the same key.
     """
     key = check_key(key)
-    dt = float(dt)
-    if not dt > 0:
-        raise ValueError(f"dt must be positive, got {dt}.")
-    if int(n_steps) != n_steps or n_steps < 1:
-        raise ValueError(f"n_steps must be a positive integer, got {n_steps!r}.")
+    if isinstance(dt, (bool, np.bool_, str)) or np.ndim(dt) != 0:
+        raise TypeError(f"dt must be a positive number, got {dt!r}.")
+    try:
+        dt = float(dt)
+    except (TypeError, ValueError):
+        raise TypeError(f"dt must be a positive number, got {dt!r}.") from None
+    if not (math.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt must be positive and finite, got {dt}.")
+    for name, n in (("n_steps", n_steps), ("n_samples", n_samples)):
+        if name == "n_samples" and n is None:
+            continue
+        if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 1:
+            raise ValueError(f"{name} must be a positive integer, got {n!r}.")
     check_truncation(dt, truncate_k)
-    dtype = jnp.result_type(float) if dtype is None else dtype
+    if dtype is None:
+        dtype = jnp.result_type(float)
+    else:
+        try:
+            ok = jnp.issubdtype(dtype, jnp.floating)
+        except TypeError:
+            ok = False
+        if not ok:
+            raise TypeError(f"dtype must be a floating dtype such as jnp.float64, got {dtype!r}.")
+        if jnp.dtype(dtype).itemsize == 8 and not jax.config.jax_enable_x64:
+            raise ValueError("dtype=float64 needs jax.config.update('jax_enable_x64', True).")
     bound = jnp.asarray(truncation_bound(dt, truncate_k), dtype)
     dt = jnp.asarray(dt, dtype)
     steps = jnp.arange(int(n_steps), dtype=jnp.uint32)

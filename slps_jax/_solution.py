@@ -26,7 +26,8 @@ class Solution:
     - `fail_step`: index of the step at which each sample failed, `-1` if it did not.
     - `stats`: a dict; `n_failed` always; with `newton_stats=True` also
       `newton_iterations_max`, `newton_iterations_mean` (per sample-step) and `residual_max`
-      (largest final Newton residual of any successful step).
+      (largest final Newton residual of any successful step); with `retry_substeps` also
+      `n_retried_steps` (steps redone as substeps, over all samples).
     """
 
     ts: jax.Array

@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import jax
 import jax.numpy as jnp
 
 from .. import _so3 as so3
+from ._checks import check_options
 from .base import AbstractMethod, StepInfo, default_tol, implicit_root, max_norm, newton
 
 
@@ -327,12 +327,7 @@ class LiePoisson(AbstractMethod):
     scale: float | None = None
 
     def __post_init__(self):
-        if self.tol is not None and not (math.isfinite(self.tol) and self.tol > 0):
-            raise ValueError(f"tol must be a positive number, got {self.tol!r}.")
-        if not (isinstance(self.max_iter, int) and self.max_iter >= 1):
-            raise ValueError(f"max_iter must be a positive integer, got {self.max_iter!r}.")
-        if self.scale is not None and not (math.isfinite(self.scale) and self.scale > 0):
-            raise ValueError(f"scale must be a positive number or None, got {self.scale!r}.")
+        check_options(self)
 
     def check_initial(self, model, y0):
         lam = 1.0 if self.scale is None else self.scale

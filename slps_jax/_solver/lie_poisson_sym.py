@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import jax
 import jax.numpy as jnp
@@ -11,6 +10,7 @@ import jax.numpy as jnp
 from .. import _so3 as so3
 from .._model import RigidBody
 from .._system import gradient_c, gradient_hessian_c
+from ._checks import check_options
 from .base import AbstractMethod, StepInfo, default_tol, newton
 from .composition import TRIPLE_JUMP, combine
 from .lie_poisson import _branch_start, _rotation_and_chain, branch_rotation, solve_in_map
@@ -118,10 +118,7 @@ class _SymmetricLiePoisson(AbstractMethod):
     general_hamiltonian = True  # works for RigidBody and LiePoissonSystem
 
     def __post_init__(self):
-        if self.tol is not None and not (math.isfinite(self.tol) and self.tol > 0):
-            raise ValueError(f"tol must be a positive number, got {self.tol!r}.")
-        if not (isinstance(self.max_iter, int) and self.max_iter >= 1):
-            raise ValueError(f"max_iter must be a positive integer, got {self.max_iter!r}.")
+        check_options(self)
 
     def check_initial(self, model, y0):
         _check_unit_ball(type(self).__name__, y0)

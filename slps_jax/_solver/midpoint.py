@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import dataclasses
-import math
-
 import jax.numpy as jnp
 
 from .. import _so3 as so3
 from .._model import RigidBody
 from .._system import gradient_c, gradient_hessian_c
+from ._checks import check_options
 from .base import AbstractMethod, StepInfo, default_tol, implicit_root, newton
 
 
@@ -33,10 +32,7 @@ class Midpoint(AbstractMethod):
     general_hamiltonian = True  # works for RigidBody and LiePoissonSystem
 
     def __post_init__(self):
-        if self.tol is not None and not (math.isfinite(self.tol) and self.tol > 0):
-            raise ValueError(f"tol must be a positive number, got {self.tol!r}.")
-        if not (isinstance(self.max_iter, int) and self.max_iter >= 1):
-            raise ValueError(f"max_iter must be a positive integer, got {self.max_iter!r}.")
+        check_options(self)
 
     def step(self, model, y, dt, dW):
         dtype = y.dtype
