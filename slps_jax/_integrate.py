@@ -70,7 +70,7 @@ def _retry_step(method, model, y, need, dt, dW, k):
 def _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats, retry=None):
     """Integrate one sample: `n_blocks` blocks of `block_len` steps, saving after each block.
 
-    `draw(n)` gives step n's increment. With a Python-int `block_len` the time loop is a
+    `draw(n)` gives step n's increment (`n` traced). With a Python-int `block_len` the time loop is a
     `lax.scan` (reverse-mode differentiable, checkpointed: see `_checkpointed_loop`); with a
     traced one it is a `while_loop`, so one compilation serves every step count
     (convergence studies). With `retry = k`, a step that fails is redone as `k`, then
@@ -87,9 +87,8 @@ def _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats, retry=No
     carry0 = (y0, jnp.array(True), jnp.array(-1, jnp.int32), jnp.array(0, jnp.int32),
               jnp.array(0, jnp.int32), acc0)
 
-    def step(_, carry):
+    def step(carry, dW):
         y, alive, fail_step, n, n_retried, acc = carry
-        dW = draw(n)
         # A failed sample idles at its last good state: with dt = dW = 0 every method's
         # step is trivial, so it costs no Newton iterations.
         y_new, info = method.step(model, y, jnp.where(alive, dt, 0.0).astype(dtype),
@@ -111,8 +110,17 @@ def _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats, retry=No
         y = jnp.where(alive & ok, y_new, y)
         return y, alive & ok, fail_step, n + 1, n_retried, acc
 
+    def steps(carry, length):
+        # `length` (a Python int) steps from the carry's step counter, their increments
+        # drawn first as one vector. Drawing inside the step instead lets XLA's CPU backend
+        # fuse the random-number generator into the method's arithmetic, which it then
+        # re-evaluates many times over (Strang in `simulate`: 150x slower).
+        n0 = carry[3]
+        dWs = jax.vmap(lambda j: draw(n0 + j))(jnp.arange(length, dtype=n0.dtype))
+        return jax.lax.fori_loop(0, length, lambda i, c: step(c, dWs[i]), carry)
+
     def block(carry, _):
-        carry = _checkpointed_loop(step, block_len, carry)
+        carry = _checkpointed_loop(steps, block_len, carry)
         return carry, carry[0]
 
     (_, _, fail_step, _, n_retried, acc), ys = jax.lax.scan(block, carry0, None,
@@ -120,8 +128,21 @@ def _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats, retry=No
     return ys, fail_step, n_retried, acc
 
 
-def _checkpointed_loop(step, n, carry):
-    """`fori_loop(0, n, step, carry)`, arranged so that reverse mode stores O(sqrt n) carries.
+_DRAW_BLOCK = 32  # steps whose increments are drawn together (memory: this many per sample)
+
+
+def _run(steps, n, carry):
+    """`n` steps as blocks of `_DRAW_BLOCK` (`steps(carry, length)` runs `length` steps)."""
+    n_blocks = n // _DRAW_BLOCK
+    carry = jax.lax.fori_loop(0, n_blocks, lambda _, c: steps(c, _DRAW_BLOCK), carry)
+    rest = n - n_blocks * _DRAW_BLOCK
+    if isinstance(rest, int):
+        return steps(carry, rest) if rest else carry
+    return jax.lax.fori_loop(0, rest, lambda _, c: steps(c, 1), carry)
+
+
+def _checkpointed_loop(steps, n, carry):
+    """`n` steps arranged so that reverse mode stores O(sqrt n) carries.
 
     With a Python-int `n` the loop runs as `n_outer` chunks of `n_inner ~ sqrt(n)` steps,
     each chunk under `jax.checkpoint`: the backward pass keeps the carry at chunk boundaries
@@ -131,12 +152,12 @@ def _checkpointed_loop(step, n, carry):
     mode.
     """
     if not isinstance(n, int):
-        return jax.lax.fori_loop(0, n, step, carry)
+        return _run(steps, n, carry)
     n_inner = max(1, math.isqrt(n))
     n_outer, rest = divmod(n, n_inner)
-    chunk = jax.checkpoint(lambda c: jax.lax.fori_loop(0, n_inner, step, c), prevent_cse=False)
+    chunk = jax.checkpoint(lambda c: _run(steps, n_inner, c), prevent_cse=False)
     carry = jax.lax.fori_loop(0, n_outer, lambda _, c: chunk(c), carry)
-    return jax.lax.fori_loop(0, rest, step, carry)
+    return _run(steps, rest, carry)
 
 
 @functools.partial(jax.jit, static_argnames=("method", "save_every", "want_stats", "retry"))
@@ -249,8 +270,10 @@ def _check_positive(name, x):
     """A positive finite scalar: its NumPy value, or `None` if traced."""
     if isinstance(x, (bool, np.bool_)) or isinstance(x, str):
         raise TypeError(f"{name} must be a positive number, got {x!r}.")
-    x = _as_real_array(name, x)
-    x_np = concrete(x)
+    if isinstance(x, (int, float, np.integer, np.floating)):
+        x_np = np.asarray(x)  # stays concrete inside jit, where jnp.asarray would trace
+    else:
+        x_np = concrete(_as_real_array(name, x))
     if x_np is not None:
         if np.shape(x_np) != ():
             raise ValueError(f"{name} must be a scalar, got shape {np.shape(x_np)}.")

@@ -206,7 +206,6 @@ BAD_INTEGRATE = [
     (dict(save_every=0), ValueError, "save_every"),
     (dict(save_every=7), ValueError, "nearest divisors"),
     (dict(y0=[0.1, 0.2, 0.3, 0.4]), ValueError, "y0"),
-    (dict(method=sj.LiePoisson(max_iter=True)), ValueError, "max_iter"),
     (dict(retry_substeps=0), ValueError, "retry_substeps"),
 ]
 
@@ -333,6 +332,9 @@ def test_rigid_body_rejects_more_bad_input(inertia, c, exc, match):
     (sj.LiePoisson, dict(scale=-2.0), ValueError, "scale"),
     (sj.LiePoisson, dict(scale=np.nan), ValueError, "scale"),
     (sj.LiePoisson, dict(max_iter=0), ValueError, "max_iter"),
+    (sj.LiePoisson, dict(max_iter=True), ValueError, "max_iter"),
+    (sj.LiePoisson, dict(tol="1e-9"), TypeError, "tol"),
+    (sj.LiePoissonSym2, dict(max_iter=np.int64(0)), ValueError, "max_iter"),
 ])
 def test_method_constructors_reject_bad_options(ctor, kwargs, exc, match):
     with pytest.raises(exc, match=match):

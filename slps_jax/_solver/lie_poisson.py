@@ -234,26 +234,36 @@ def solve_in_map(z, d, tau, kappa, *, tol, max_iter, feasible=True):
     """The root of the in-map at `z`, as the sine vector `v` of `A` (`A = branch_rotation(v)`).
 
     Fast path: `FAST_UPDATES` Newton updates in the sine chart from `v = z` and one residual
-    test, straight-line code. Fallback (samples still above `tol`, rare): more sine-chart
-    updates, then Newton in exponential and then Cayley coordinates from their tangent
-    predictors, accepting only the branch `tr A > 1`; under `vmap` it runs zero times when
-    no sample needs it. Derivatives follow the implicit function theorem (`implicit_root`).
+    test, straight-line code. Samples still above `tol` continue in the sine chart (a loop
+    whose body is one update), and those the sine chart cannot solve (its iterates leave
+    the branch) restart in exponential and then Cayley coordinates from their tangent
+    predictors, accepting only the branch `tr A > 1`. Under `vmap` each loop runs as long as
+    its slowest sample needs, zero times when none does. Derivatives follow the implicit
+    function theorem (`implicit_root`).
 
     **Returns:** `(v, ok, iterations, residual)`.
     """
 
-    def sine_system(v):
+    def sine_system(v, _):
         r, jac = sine_chart_in_map(v, z, d, tau, kappa)
-        return r, jac, so3.dot(v, v) < 1.0, v
+        return r, jac, so3.dot(v, v) < 1.0
 
-    def system(x, mode):
-        def chart(_):
-            a, chain = _rotation_and_chain(x, mode)
-            r, jac = in_map(a, z, d, tau, kappa)
-            # accept the branch theta < pi/2 only; report the root as its sine vector
-            return r, so3.mm(jac, chain), so3.trace(a) > 1.0, so3.vee_skew(a)
+    def chart_system(x, mode):
+        a, chain = _rotation_and_chain(x, mode + 1)  # mode 0: exponential, 1: Cayley
+        r, jac = in_map(a, z, d, tau, kappa)
+        # accept the branch theta < pi/2 only; report the root as its sine vector
+        return r, so3.mm(jac, chain), so3.trace(a) > 1.0, so3.vee_skew(a)
 
-        return jax.lax.cond(mode == 0, lambda _: sine_system(x), chart, None)
+    def charts(state):
+        # Runs at most once, and only if some sample needs it: exponential coordinates from
+        # their tangent predictor, then Cayley coordinates.
+        v, ok, iterations, residual, pending = state
+        starts = (_predictor(z, d, tau, kappa, 1), lambda: _predictor(z, d, tau, kappa, 2))
+        _, _, more, res, ok_c, v_c = newton(chart_system, starts, tol=tol, max_iter=max_iter,
+                                            active=pending, aux0=v)
+        v = tuple(jnp.where(pending, a, b) for a, b in zip(v_c, v))
+        return (v, ok | (pending & ok_c), iterations + more,
+                jnp.where(pending, res, residual), jnp.zeros_like(pending))
 
     def solve():
         # Fast path: Newton in the sine chart from v = z, the solution at tau = kappa = 0,
@@ -264,16 +274,17 @@ def solve_in_map(z, d, tau, kappa, *, tol, max_iter, feasible=True):
             v = tuple(vi - di for vi, di in zip(v, so3.solve3(jac, r)))
         rnorm = max_norm(sine_chart_in_map(v, z, d, tau, kappa, jacobian=False))
         done = (rnorm <= tol) & (so3.dot(v, v) < 1.0)
-        # The rest (rare): more Newton updates in the sine chart, then the exponential and
-        # the Cayley parameterisations from their own predictors. Zero iterations if all
-        # samples are done.
-        starts = (v, lambda: _predictor(z, d, tau, kappa, 1),
-                  lambda: _predictor(z, d, tau, kappa, 2))
-        _, _, more, res_more, ok_more, v = newton(
-            system, starts, tol=tol, max_iter=max_iter, active=feasible & ~done,
-            aux0=v)
-        ok = feasible & (done | ok_more)
-        return v, ok, (FAST_UPDATES + more, jnp.where(done, rnorm, res_more))
+        # Samples still above the tolerance (a few near the fold at large steps): more
+        # sine-chart updates, in a loop whose body costs one update; under vmap it runs as
+        # long as the slowest sample needs, zero times if all are done.
+        v_s, _, more, res_s, ok_s = newton(sine_system, (v,), tol=tol, max_iter=max_iter,
+                                           active=feasible & ~done)
+        v = tuple(jnp.where(done, a, b) for a, b in zip(v, v_s))
+        ok = feasible & (done | ok_s)
+        state = (v, ok, FAST_UPDATES + more, jnp.where(done, rnorm, res_s), feasible & ~ok)
+        # The rare rest: other parameterisations (a while_loop run at most once).
+        v, ok, iterations, residual, _ = jax.lax.while_loop(lambda s: s[4], charts, state)
+        return v, ok, (iterations, residual)
 
     # Derivatives (with respect to the inertia, c, y and dW) by the implicit function
     # theorem at the root, never through the iterations; v = 0 (A = Id) where it failed.

@@ -81,16 +81,15 @@ def _strang_flow(yc, inv_i, tau):
 def _composed_step(model, y, tau, weights):
     inv_i = model.inverse_inertia()
     yc = so3.vec(y)
-    if len(weights) == 1:
-        yc = _strang_flow(yc, inv_i, weights[0] * tau)
-    else:
-        # A loop, not an unrolled chain: each flow reads every component twice, and XLA's CPU
-        # backend fuses an unrolled chain of 15 flows into one elementwise kernel that
-        # re-evaluates the earlier flows exponentially often (~1000x slower at 32 samples;
-        # `optimization_barrier` does not stop it). The loop body is one Strang step.
-        gammas = jnp.asarray(weights, jnp.asarray(tau).dtype)
-        yc = jax.lax.fori_loop(0, len(weights),
-                               lambda i, u: _strang_flow(u, inv_i, gammas[i] * tau), yc)
+    # A loop, not an unrolled chain, even for one Strang step: each flow reads every
+    # component twice, and XLA's CPU backend fuses an unrolled chain of flows (with whatever
+    # computed tau, the random-number generator in `simulate`) into one elementwise kernel
+    # that re-evaluates the earlier flows exponentially often (~1000x slower for 15 flows,
+    # ~150x for Strang's 5 inside `simulate`; `optimization_barrier` does not stop it). The
+    # loop body is one Strang step.
+    gammas = jnp.asarray(weights, jnp.asarray(tau).dtype)
+    yc = jax.lax.fori_loop(0, len(weights),
+                           lambda i, u: _strang_flow(u, inv_i, gammas[i] * tau), yc)
     y_next = so3.unvec(yc).astype(y.dtype)
     return y_next, explicit_info(y_next)
 
