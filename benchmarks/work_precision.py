@@ -3,7 +3,8 @@
 
 The paper's setup (`RigidBody.paper()`, `PAPER_Y0`, c = 0.2), 500 samples, h = 2^-3 ... 2^-10.
 
-- slps_jax methods (LiePoisson, Midpoint, Strang, EulerMaruyama, Exact):
+- slps_jax methods (LiePoisson, LiePoissonSym2/4, Midpoint, Strang, Strang4, EulerMaruyama,
+  Exact):
   `jax.jit(jax.vmap(lambda dW: integrate(model, y0, dW, h, method=m, throw=False)))`.
 - diffrax `Heun`, `Midpoint`, `ReversibleHeun` on the Stratonovich SDE
   `MultiTerm(ODETerm(f), ControlTerm(g, path))`, f(t, y) = y x (y / I), g = c f, scalar
@@ -63,8 +64,11 @@ TARGET = 1e-6
 
 OURS = {
     "LiePoisson": sj.LiePoisson(),
+    "LiePoissonSym2": sj.LiePoissonSym2(),
+    "LiePoissonSym4": sj.LiePoissonSym4(),
     "Midpoint": sj.Midpoint(),
     "Strang": sj.Strang(),
+    "Strang4": sj.Strang4(),
     "EulerMaruyama": sj.EulerMaruyama(),
     "Exact": sj.Exact(),
 }

@@ -144,7 +144,8 @@ def _run(steps, n, carry):
 def _checkpointed_loop(steps, n, carry):
     """`n` steps arranged so that reverse mode stores O(sqrt n) carries.
 
-    With a Python-int `n` the loop runs as `n_outer` chunks of `n_inner ~ sqrt(n)` steps,
+    With a Python-int `n` the loop runs as `n_outer` chunks of `n_inner ~ sqrt(n)` steps
+    (a multiple of `_DRAW_BLOCK`),
     each chunk under `jax.checkpoint`: the backward pass keeps the carry at chunk boundaries
     and recomputes one chunk at a time, so the memory of `jax.grad` grows like
     `sqrt(n_steps)`, not `n_steps`. Without differentiation this is the plain loop. A traced
@@ -153,7 +154,8 @@ def _checkpointed_loop(steps, n, carry):
     """
     if not isinstance(n, int):
         return _run(steps, n, carry)
-    n_inner = max(1, math.isqrt(n))
+    # a multiple of the draw block, so the drawn increments take the same memory at any n
+    n_inner = _DRAW_BLOCK * max(1, round(math.sqrt(n) / _DRAW_BLOCK))
     n_outer, rest = divmod(n, n_inner)
     chunk = jax.checkpoint(lambda c: _run(steps, n_inner, c), prevent_cse=False)
     carry = jax.lax.fori_loop(0, n_outer, lambda _, c: chunk(c), carry)
