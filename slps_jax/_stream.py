@@ -195,8 +195,10 @@ def ensemble_statistics(model, y0, *, t1, dt, n_samples, key, chunk_size, method
     for c in range(n_chunks):
         state = _chunk(state, jnp.asarray(c * chunk_size, jnp.uint32),
                        jnp.asarray(n_samples, jnp.uint32), *args)
+        # One chunk in flight at a time: asynchronous dispatch would otherwise let the next
+        # chunk's buffers be allocated before this one's are freed.
+        jax.block_until_ready(state)
         if bar is not None:
-            jax.block_until_ready(state)
             bar.advance(f"{min((c + 1) * chunk_size, n_samples)}/{n_samples} samples")
     n_failed = int(state[0])
     n, mean, m2, m3, m4, cov = jax.tree_util.tree_map(np.asarray, state[1])
