@@ -86,9 +86,10 @@ def runner(name, model, y0):
     return run
 
 
-def device_name():
+def device_name(cpu_model):
     dev = jax.devices()[0]
-    return f"{dev.platform}: {getattr(dev, 'device_kind', str(dev))} x{len(jax.devices())}"
+    kind = cpu_model if dev.platform == "cpu" else getattr(dev, "device_kind", str(dev))
+    return f"{dev.platform}: {kind} x{len(jax.devices())}"
 
 
 def parse(argv):
@@ -113,7 +114,7 @@ def main(argv=None):
         methods = args.methods.split(",")
     os.makedirs(args.out, exist_ok=True)
     info = _common.machine_info()
-    info["device"] = device_name()
+    info["device"] = device_name(info["cpu_model"])
     print(f"throughput, {N_STEPS} steps of h = 2^-6, float64, on {info['device']} "
           f"(jax {info['jax']}, diffrax {info['diffrax']})")
     model, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
