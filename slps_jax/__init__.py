@@ -6,6 +6,7 @@ from ._exact import exact_flow as exact_flow, exact_solution as exact_solution
 from ._integrate import integrate as integrate, simulate as simulate
 from ._model import PAPER_Y0 as PAPER_Y0, RigidBody as RigidBody
 from ._noise import brownian_increments as brownian_increments
+from ._stream import EnsembleStatistics as EnsembleStatistics, ensemble_statistics as ensemble_statistics
 from ._solution import RESULTS as RESULTS, Solution as Solution
 from ._solver.base import AbstractMethod as AbstractMethod, StepInfo as StepInfo
 from ._solver.euler_maruyama import EulerMaruyama as EulerMaruyama

@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _noise
+from ._sharding import check_sharding
 from ._model import RigidBody, concrete
 from ._solution import RESULTS, Solution
 from ._solver._checks import check_options
@@ -391,7 +392,7 @@ def integrate(model, y0, dW, dt, *, method=LiePoisson(), save_every=None, throw=
 
 
 def simulate(model, y0, *, t1, dt, n_samples, key, method=LiePoisson(), save_every=None,
-             truncate_k=4, newton_stats=False, throw=True, retry_substeps=None):
+             truncate_k=4, newton_stats=False, throw=True, retry_substeps=None, sharding=None):
     r"""Simulate an ensemble of paths of $dy = f(y)(dt + c \circ dW)$ on $[0, t_1]$.
 
     Sample `i` draws its increments from `fold_in(key, i)` inside the time loop, truncated as
@@ -415,6 +416,12 @@ def simulate(model, y0, *, t1, dt, n_samples, key, method=LiePoisson(), save_eve
     - `retry_substeps`: `None` (default), or `k >= 2`: a step that fails is redone as `k`,
       then `k^2`, then `k^3` equal substeps before the sample is given up; `stats` then has
       `n_retried_steps`. Steps that succeed are untouched.
+    - `sharding`: `None` (default), `"auto"` (all local devices, when there are several),
+      or a `jax.sharding.Sharding` of the sample axis, such as
+      `NamedSharding(Mesh(jax.devices(), ("samples",)), PartitionSpec("samples"))`. The
+      samples are split over the devices by JAX's SPMD partitioner and the arrays of the
+      `Solution` come back sharded along their first axis; the paths are the same as
+      without. `n_samples` must be a multiple of the number of shards.
 
     **Returns:** a `Solution`.
     """
@@ -439,9 +446,12 @@ def simulate(model, y0, *, t1, dt, n_samples, key, method=LiePoisson(), save_eve
     _noise.check_truncation(dt, truncate_k)
     k = _check_save_every(save_every, n_steps)
     retry = _check_retry(retry_substeps)
+    sharding = check_sharding(sharding, n_samples)
     dtype = y0.dtype
 
     keys = _noise.sample_keys(key, n_samples)
+    if sharding is not None:
+        keys = jax.device_put(keys, sharding)
     bound = jnp.asarray(_noise.truncation_bound(dt, truncate_k), dtype)
     ys, fail_step, n_retried, acc = _ensemble_jit(
         method, model, y0, keys, jnp.asarray(dt, dtype), bound, n_steps // k, k,

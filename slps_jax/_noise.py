@@ -65,8 +65,9 @@ def check_truncation(dt, truncate_k):
 
 
 def sample_keys(key, n_samples, offset=0):
-    """Keys of samples `offset, ..., offset + n_samples - 1`."""
-    idx = jnp.arange(offset, offset + n_samples, dtype=jnp.uint32)
+    """Keys of samples `offset, ..., offset + n_samples - 1` (`offset` may be traced: one
+    compilation serves every chunk of a streamed ensemble)."""
+    idx = jnp.asarray(offset, jnp.uint32) + jnp.arange(n_samples, dtype=jnp.uint32)
     return jax.vmap(lambda i: jax.random.fold_in(key, i))(idx)
 
 

@@ -168,3 +168,24 @@ def test_long_time(tmp_path):
         heun = methods["diffrax Heun"]
         assert heun["casimir"]["verdict"] == "drifts" and heun["casimir"]["slope"] > 0.75
     assert "wrote" in stdout
+
+
+def test_throughput(tmp_path):
+    stdout = run_script("throughput.py", tmp_path, "--methods", "LiePoisson,lax.scan Heun")
+    rows = read_csv(tmp_path / "throughput.csv")
+    assert {r["method"] for r in rows} == {"LiePoisson", "lax.scan Heun"}
+    assert all(r["status"] == "ok" and r["finite"] == "True" for r in rows)
+    assert all(float(r["sample_steps_per_s"]) > 0 for r in rows)
+    summary = json.loads((tmp_path / "throughput.json").read_text())
+    assert summary["machine"]["device"].startswith(summary["machine"]["backend"])
+    assert "sample-steps/s" in stdout
+
+
+def test_streaming(tmp_path):
+    stdout = run_script("streaming.py", tmp_path)
+    summary = json.loads((tmp_path / "streaming.json").read_text())
+    rows = summary["rows"]
+    assert [r["n_chunks"] for r in rows] == [1, 2, 10]
+    assert all(r["n_samples"] == 1000 * r["n_chunks"] for r in rows)
+    assert all(r["ru_maxrss_mb"] > 50 for r in rows)
+    assert "peak RSS" in stdout

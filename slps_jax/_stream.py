@@ -1,0 +1,229 @@
+"""Streaming ensembles: ensembles larger than memory, run in chunks, kept as running moments.
+
+Chunk `c` integrates samples `offset, ..., offset + chunk_size - 1` with the keys
+`fold_in(key, i)`, exactly the samples of one big `simulate`, and folds their moments into
+the running ones with Chan, Golub & LeVeque's pairwise update (and Pébay's for the third and
+fourth moments). One compiled function serves every chunk: the offset is traced, and the last
+chunk is padded to the same shape and its padding masked out.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import sys
+import warnings
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import _noise
+from ._integrate import (_check_count, _check_method, _check_model, _check_positive,
+                         _check_retry, _check_save_every, _check_y0, _ensemble)
+from ._sharding import check_sharding
+from ._solver.lie_poisson import LiePoisson
+
+STATISTICS = ("mean", "var", "cov", "skewness", "kurtosis")
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class EnsembleStatistics:
+    """What `ensemble_statistics` returns: moments over the successful samples.
+
+    - `ts`: the saved times, shape `(n_saved,)`.
+    - `n`: the number of samples the moments are over (successful ones); `n_failed`: the
+      number of samples that failed (frozen paths, left out of the moments).
+    - `mean`: shape `(n_saved, *obs)`, where `obs` is the observable's shape (`(3,)` for the
+      state itself).
+    - `var`: the sample variance (divisor `n - 1`), same shape; `None` if not asked for.
+    - `cov`: the sample covariance over the observable's last axis, `(n_saved, *obs, d)`.
+    - `skewness`: $m_3 / m_2^{3/2}$; `kurtosis`: $m_4 / m_2^2$ (3 for a Gaussian), with the
+      central moments $m_k$ of divisor `n`.
+    - `n_chunks`: the number of chunks run.
+    """
+
+    ts: np.ndarray
+    n: int
+    n_failed: int
+    mean: np.ndarray
+    var: np.ndarray | None
+    cov: np.ndarray | None
+    skewness: np.ndarray | None
+    kurtosis: np.ndarray | None
+    n_chunks: int
+
+
+def _chunk_moments(x, w, want_cov):
+    """Count, mean and central sums `M2, M3, M4` (and the co-moment) of the rows of `x`
+    with weight `w` (0 or 1)."""
+    wb = w.reshape((-1,) + (1,) * (x.ndim - 1)).astype(x.dtype)
+    n = jnp.sum(w).astype(x.dtype)
+    # Shifted by the first row: less cancellation, and identical rows (t = 0) give exact
+    # zeros, so a degenerate skewness is NaN rather than round-off over round-off.
+    shifted = x - x[0]
+    mean_shifted = jnp.sum(wb * shifted, axis=0) / jnp.maximum(n, 1)
+    mean = x[0] + mean_shifted
+    d = jnp.where(wb > 0, shifted - mean_shifted, 0.0)
+    d2 = d * d
+    m = (n, mean, jnp.sum(d2, axis=0), jnp.sum(d2 * d, axis=0), jnp.sum(d2 * d2, axis=0))
+    cov = jnp.einsum("s...i,s...j->...ij", d, d) if want_cov else ()
+    return m + (cov,)
+
+
+def _merge(a, b):
+    """Chan et al. (1979) and Pébay (2008): moments of the union of two disjoint sets."""
+    na, ma, m2a, m3a, m4a, ca = a
+    nb, mb, m2b, m3b, m4b, cb = b
+    n = na + nb
+    safe = jnp.maximum(n, 1)
+    delta = mb - ma
+    mean = ma + delta * nb / safe
+    m2 = m2a + m2b + delta ** 2 * na * nb / safe
+    m3 = (m3a + m3b + delta ** 3 * na * nb * (na - nb) / safe ** 2
+          + 3.0 * delta * (na * m2b - nb * m2a) / safe)
+    m4 = (m4a + m4b + delta ** 4 * na * nb * (na * na - na * nb + nb * nb) / safe ** 3
+          + 6.0 * delta ** 2 * (na * na * m2b + nb * nb * m2a) / safe ** 2
+          + 4.0 * delta * (na * m3b - nb * m3a) / safe)
+    cov = (ca + cb + delta[..., :, None] * delta[..., None, :] * na * nb / safe
+           if not isinstance(ca, tuple) else ())
+    return n, mean, m2, m3, m4, cov
+
+
+@functools.partial(jax.jit, static_argnames=("method", "n_blocks", "block_len", "chunk_size",
+                                             "observable", "want_cov", "retry", "sharding"))
+def _chunk(state, offset, n_samples, method, model, y0, key, dt, bound, n_blocks, block_len,
+           chunk_size, observable, want_cov, retry, sharding):
+    idx = offset + jnp.arange(chunk_size, dtype=jnp.uint32)
+    keys = _noise.sample_keys(key, chunk_size, offset)
+    if sharding is not None:
+        keys = jax.lax.with_sharding_constraint(keys, sharding)
+    ys, fail_step, _, _ = _ensemble(method, model, y0, keys, dt, bound, n_blocks, block_len,
+                                    False, retry=retry)
+    ys = jnp.concatenate([jnp.broadcast_to(y0, (chunk_size, 1, 3)), ys], axis=1)
+    obs = _observe(observable, ys)
+    valid = idx < n_samples
+    ok = valid & (fail_step < 0)
+    n_failed = state[0] + jnp.sum(valid & ~ok, dtype=state[0].dtype)
+    return n_failed, _merge(state[1], _chunk_moments(obs, ok, want_cov))
+
+
+def ensemble_statistics(model, y0, *, t1, dt, n_samples, key, chunk_size, method=LiePoisson(),
+                        save_every=None, statistics=("mean", "var"), observable=None,
+                        truncate_k=4, retry_substeps=None, sharding=None, progress=True):
+    r"""Moments of an ensemble of $dy = f(y)(dt + c \circ dW)$, run in chunks of samples.
+
+    The same samples as `simulate(..., n_samples=n_samples, key=key)` (sample `i` draws from
+    `fold_in(key, i)`), but only `chunk_size` paths are held at a time, and only running
+    moments are kept: memory does not grow with `n_samples`. The moments are merged with the
+    pairwise update of Chan, Golub & LeVeque (1979) (third and fourth moments: Pébay 2008),
+    so the results do not depend on `chunk_size` beyond round-off. One compilation serves
+    every chunk (the last one is padded and masked).
+
+    **Arguments:**
+
+    - `model`, `y0`, `t1`, `dt`, `key`, `method`, `truncate_k`, `retry_substeps`: as for
+      `simulate`.
+    - `n_samples`: the total number of samples; `chunk_size`: samples per chunk (at most
+      `n_samples` are run).
+    - `save_every`: `None` (statistics of the final state, and of `y0` at `t = 0`) or `k`
+      (statistics at steps `0, k, 2k, ..., n`).
+    - `statistics`: which of `"mean"` (always computed), `"var"`, `"cov"`, `"skewness"`,
+      `"kurtosis"` to return.
+    - `observable`: `None` for the state itself, or a function of one sample's saved states
+      `(n_saved, 3)` giving an array `(n_saved, ...)` (for example
+      `lambda ys: model.hamiltonian(ys)` under `vmap`) whose moments are taken instead. It
+      must be hashable (a module-level function or a lambda kept alive by the caller) to be
+      compiled once.
+    - `sharding`: as for `simulate`, applied to each chunk (`chunk_size` must be a multiple
+      of the number of shards).
+    - `progress`: show a progress bar across chunks on stderr.
+
+    **Returns:** an `EnsembleStatistics` (NumPy arrays). Failed samples are left out of the
+    moments and counted in `n_failed`, with a `RuntimeWarning`.
+    """
+    _check_model(model)
+    _check_method(method)
+    y0 = _check_y0(y0, method, model)
+    dt = _check_positive("dt", dt)
+    t1 = _check_positive("t1", t1)
+    if dt is None or t1 is None:
+        raise TypeError("ensemble_statistics needs concrete t1 and dt.")
+    dt, t1 = float(dt), float(t1)
+    n_steps = int(round(t1 / dt))
+    if n_steps < 1 or abs(t1 / dt - n_steps) > 1e-9 * max(1.0, t1 / dt):
+        raise ValueError(f"t1={t1} must be a positive multiple of dt={dt} "
+                         f"(t1/dt = {t1 / dt}).")
+    n_samples = _check_count("n_samples", n_samples)
+    if n_samples >= 2 ** 32:
+        raise ValueError(f"n_samples must be below 2^32 (sample indices are uint32), "
+                         f"got {n_samples}.")
+    chunk_size = _check_count("chunk_size", chunk_size)
+    chunk_size = min(chunk_size, n_samples)
+    key = _noise.check_key(key)
+    _noise.check_truncation(dt, truncate_k)
+    k = _check_save_every(save_every, n_steps)
+    retry = _check_retry(retry_substeps)
+    sharding = check_sharding(sharding, chunk_size, name="chunk_size")
+    if isinstance(statistics, str):
+        statistics = (statistics,)
+    unknown = [s for s in statistics if s not in STATISTICS]
+    if unknown:
+        raise ValueError(f"statistics must be names among {STATISTICS}, got {unknown}.")
+    if observable is not None and not callable(observable):
+        raise TypeError(f"observable must be None or a function, got {observable!r}.")
+    want_cov = "cov" in statistics
+    dtype = y0.dtype
+
+    n_blocks = n_steps // k
+    ts = np.arange(0, n_steps + 1, k, dtype=np.float64) * dt
+    if save_every is None:
+        ts = np.array([0.0, n_steps * dt])
+    args = (method, model, y0, key, jnp.asarray(dt, dtype),
+            jnp.asarray(_noise.truncation_bound(dt, truncate_k), dtype), n_blocks, k,
+            chunk_size, observable, want_cov, retry, sharding)
+    # The zero state: its shapes from an abstract evaluation of one chunk's moments.
+    shapes = jax.eval_shape(
+        lambda: _chunk_moments(
+            _observe(observable, jnp.zeros((chunk_size, n_blocks + 1, 3), dtype)),
+            jnp.ones(chunk_size, bool), want_cov))
+    zero = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
+    state = (jnp.zeros((), jnp.int32), zero)
+    n_chunks = -(-n_samples // chunk_size)
+    bar = _progress(n_chunks) if progress else None
+    for c in range(n_chunks):
+        state = _chunk(state, jnp.asarray(c * chunk_size, jnp.uint32),
+                       jnp.asarray(n_samples, jnp.uint32), *args)
+        # One chunk in flight at a time: asynchronous dispatch would otherwise let the next
+        # chunk's buffers be allocated before this one's are freed.
+        jax.block_until_ready(state)
+        if bar is not None:
+            bar.advance(f"{min((c + 1) * chunk_size, n_samples)}/{n_samples} samples")
+    n_failed = int(state[0])
+    n, mean, m2, m3, m4, cov = jax.tree_util.tree_map(np.asarray, state[1])
+    n = int(n)
+    if n_failed:
+        warnings.warn(f"ensemble_statistics: {n_failed} of {n_samples} samples failed and are "
+                      f"left out of the moments; a smaller dt or retry_substeps=4 usually "
+                      f"helps.", RuntimeWarning, stacklevel=2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        var = m2 / (n - 1) if n > 1 else np.full_like(m2, np.nan)
+        mom2 = m2 / n
+        return EnsembleStatistics(
+            ts=ts, n=n, n_failed=n_failed, mean=mean,
+            var=var if "var" in statistics else None,
+            cov=(cov / (n - 1) if n > 1 else np.full_like(cov, np.nan)) if want_cov else None,
+            skewness=(m3 / n) / mom2 ** 1.5 if "skewness" in statistics else None,
+            kurtosis=(m4 / n) / mom2 ** 2 if "kurtosis" in statistics else None,
+            n_chunks=n_chunks)
+
+
+def _observe(observable, ys):
+    return ys if observable is None else jax.vmap(observable)(ys)
+
+
+def _progress(total):
+    from ._paper import Progress
+
+    return Progress(total, stream=sys.stderr)
