@@ -249,8 +249,10 @@ def _check_positive(name, x):
     """A positive finite scalar: its NumPy value, or `None` if traced."""
     if isinstance(x, (bool, np.bool_)) or isinstance(x, str):
         raise TypeError(f"{name} must be a positive number, got {x!r}.")
-    x = _as_real_array(name, x)
-    x_np = concrete(x)
+    if isinstance(x, (int, float, np.integer, np.floating)):
+        x_np = np.asarray(x)  # stays concrete inside jit, where jnp.asarray would trace
+    else:
+        x_np = concrete(_as_real_array(name, x))
     if x_np is not None:
         if np.shape(x_np) != ():
             raise ValueError(f"{name} must be a scalar, got shape {np.shape(x_np)}.")
