@@ -1,0 +1,48 @@
+"""Every notebook in notebooks/ runs top to bottom at the small size (SLPS_NOTEBOOK_SIZE=small).
+
+The kernel is this interpreter's (`python3` from the environment running pytest), with this
+checkout first on PYTHONPATH, so the notebooks import the slps_jax under test even where an
+editable install of another checkout is on the path. A cell that raises fails the test
+(nbclient raises CellExecutionError, which names the cell).
+"""
+
+import os
+import pathlib
+
+import pytest
+
+nbformat = pytest.importorskip("nbformat")
+nbclient = pytest.importorskip("nbclient")
+pytest.importorskip("ipykernel")
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
+
+
+def test_there_are_notebooks():
+    assert [p.name for p in NOTEBOOKS] == [
+        "01_paper.ipynb", "02_accuracy_and_speed.ipynb", "03_gradients_and_calibration.ipynb"]
+
+
+def test_notebooks_are_committed_without_outputs():
+    for path in NOTEBOOKS:
+        nb = nbformat.read(path, as_version=4)
+        for cell in nb.cells:
+            if cell.cell_type == "code":
+                assert not cell.outputs and cell.execution_count is None, (
+                    f"{path.name}: clear the outputs before committing "
+                    "(jupyter nbconvert --clear-output --inplace notebooks/*.ipynb)")
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
+def test_notebook_runs(path, monkeypatch):
+    # The kernel inherits this process's environment.
+    monkeypatch.setenv("SLPS_NOTEBOOK_SIZE", "small")
+    monkeypatch.setenv("MPLBACKEND", "Agg")
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(
+        [str(ROOT)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
+    nb = nbformat.read(path, as_version=4)
+    # kernel "python3": jupyter_client starts it with sys.executable, this environment's python
+    client = nbclient.NotebookClient(nb, timeout=600, kernel_name="python3",
+                                     resources={"metadata": {"path": str(path.parent)}})
+    client.execute()
