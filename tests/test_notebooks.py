@@ -45,9 +45,10 @@ def test_notebook_runs(path, monkeypatch, request):
     # Compilation is most of a small run's time (LiePoisson ~3 s per step size, calibrate's
     # L-BFGS step ~10 s); JAX's persistent cache in pytest's cache folder makes reruns fast.
     # Delete .pytest_cache (or run with -p no:cacheprovider) for a cold run.
-    if request.config.cache is not None:
+    cache = getattr(request.config, "cache", None)  # absent under -p no:cacheprovider
+    if cache is not None:
         monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR",
-                           str(request.config.cache.mkdir("jax-compilation-cache")))
+                           str(cache.mkdir("jax-compilation-cache")))
         monkeypatch.setenv("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
     nb = nbformat.read(path, as_version=4)
     # kernel "python3": jupyter_client starts it with sys.executable, this environment's python
