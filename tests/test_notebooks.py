@@ -1,0 +1,57 @@
+"""Every notebook in notebooks/ runs top to bottom at the small size (SLPS_NOTEBOOK_SIZE=small).
+
+The kernel is this interpreter's (`python3` from the environment running pytest), with this
+checkout first on PYTHONPATH, so the notebooks import the slps_jax under test even where an
+editable install of another checkout is on the path. A cell that raises fails the test
+(nbclient raises CellExecutionError, which names the cell).
+"""
+
+import os
+import pathlib
+
+import pytest
+
+nbformat = pytest.importorskip("nbformat")
+nbclient = pytest.importorskip("nbclient")
+pytest.importorskip("ipykernel")
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
+
+
+def test_there_are_notebooks():
+    assert [p.name for p in NOTEBOOKS] == [
+        "01_paper.ipynb", "02_accuracy_and_speed.ipynb", "03_gradients_and_calibration.ipynb"]
+
+
+def test_notebooks_are_committed_without_outputs():
+    for path in NOTEBOOKS:
+        nb = nbformat.read(path, as_version=4)
+        for cell in nb.cells:
+            if cell.cell_type == "code":
+                assert not cell.outputs and cell.execution_count is None, (
+                    f"{path.name}: clear the outputs before committing "
+                    "(jupyter nbconvert --clear-output --inplace notebooks/*.ipynb)")
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
+def test_notebook_runs(path, monkeypatch, request):
+    # The kernel inherits this process's environment. The inline backend draws every figure,
+    # so a bad label (mathtext) fails here too.
+    monkeypatch.setenv("SLPS_NOTEBOOK_SIZE", "small")
+    monkeypatch.delenv("MPLBACKEND", raising=False)
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(
+        [str(ROOT)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
+    # Compilation is most of a small run's time (LiePoisson ~3 s per step size, calibrate's
+    # L-BFGS step ~10 s); JAX's persistent cache in pytest's cache folder makes reruns fast.
+    # Delete .pytest_cache (or run with -p no:cacheprovider) for a cold run.
+    cache = getattr(request.config, "cache", None)  # absent under -p no:cacheprovider
+    if cache is not None:
+        monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR",
+                           str(cache.mkdir("jax-compilation-cache")))
+        monkeypatch.setenv("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
+    nb = nbformat.read(path, as_version=4)
+    # kernel "python3": jupyter_client starts it with sys.executable, this environment's python
+    client = nbclient.NotebookClient(nb, timeout=600, kernel_name="python3",
+                                     resources={"metadata": {"path": str(path.parent)}})
+    client.execute()
