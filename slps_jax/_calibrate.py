@@ -152,7 +152,10 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
         updates, state = opt.update(grad, state, theta, value=value, grad=grad, value_fn=loss)
         return optax.apply_updates(theta, updates), state, value
 
-    state = opt.init(theta)
+    # Strong types from the start: optax's initial state has weakly typed scalars that the
+    # first update makes strong, which would compile `opt_step` a second time.
+    state = jax.tree_util.tree_map(lambda x: jnp.array(x, dtype=jnp.result_type(x)),
+                                   opt.init(theta))
     history = []
     for i in range(steps):
         new_theta, state, value = opt_step(theta, state)
