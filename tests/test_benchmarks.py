@@ -189,3 +189,30 @@ def test_streaming(tmp_path):
     assert all(r["n_samples"] == 1000 * r["n_chunks"] for r in rows)
     assert all(r["ru_maxrss_mb"] > 50 for r in rows)
     assert "peak RSS" in stdout
+
+
+def test_newton_iterations(tmp_path):
+    stdout = run_script("newton_iterations.py", tmp_path)
+    assert is_png(tmp_path / "newton_iterations.png")
+    summary = json.loads((tmp_path / "newton_iterations.json").read_text())
+    fast = summary["fast_updates"]
+    for entry in summary["per_h"]:
+        # every step solved, to the tolerance, with at least the fast path's updates
+        assert entry["max_residual"] <= summary["tol"]
+        assert fast <= entry["mean"] <= entry["max"]
+        assert 0 < entry["fraction_fast_path_only"] <= 1
+    # the fast path alone solves more steps as h shrinks
+    fractions = [e["fraction_fast_path_only"] for e in summary["per_h"]]
+    assert fractions == sorted(fractions)
+    assert "fast path" in stdout
+
+
+def test_gradients(tmp_path):
+    run_script("gradients.py", tmp_path)
+    summary = json.loads((tmp_path / "gradients.json").read_text())
+    for row in summary["timing"]:
+        assert row["forward_s"] > 0 and row["reverse_s"] > 0 and row["jacfwd_s"] > 0
+    mem = sorted(summary["memory"], key=lambda r: r["n_steps"])
+    # reverse-mode memory grows far slower than the number of steps (sqrt(n) checkpoints)
+    growth = mem[-1]["temp_bytes"] / mem[0]["temp_bytes"]
+    assert growth < 0.5 * mem[-1]["n_steps"] / mem[0]["n_steps"], mem
