@@ -17,8 +17,11 @@ import time
 class Progress:
     """A one-line progress bar on stderr for the long parts of a run."""
 
-    def __init__(self, total, stream=sys.stderr, width=28):
-        self.total, self.done, self.stream, self.width = total, 0, stream, width
+    def __init__(self, total, stream=None, width=28):
+        # sys.stderr looked up now, not when this module was imported (it may be replaced,
+        # e.g. by pytest's capture, in between)
+        self.total, self.done, self.width = total, 0, width
+        self.stream = sys.stderr if stream is None else stream
         self.start = time.perf_counter()
 
     def advance(self, label):
@@ -56,8 +59,10 @@ def _exact_path(model, y0, dW, dt, every):
     return jax.vmap(lambda ti, wi: sj.exact_solution(model, y0, ti, wi))(t, w)
 
 
-def run(out_dir="paper-output", fast=False, seed=0, stream=sys.stdout):
-    """Reproduce Figures 4.1-4.4 into `out_dir`; write `results.json` and `results.md`."""
+def run(out_dir="paper-output", fast=False, seed=0, stream=None):
+    """Reproduce Figures 4.1-4.4 into `out_dir`; write `results.json` and `results.md`
+    (and print the table to `stream`, default `sys.stdout` at call time)."""
+    stream = sys.stdout if stream is None else stream
     import jax
     import jax.numpy as jnp
     import matplotlib
