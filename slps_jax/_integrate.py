@@ -12,7 +12,7 @@ import numpy as np
 
 from . import _noise
 from ._sharding import check_sharding
-from ._model import RigidBody, concrete
+from ._model import RigidBody, _real_array, concrete
 from ._solution import RESULTS, Solution
 from ._solver._checks import check_options
 from ._solver.base import AbstractMethod
@@ -68,6 +68,45 @@ def _retry_step(method, model, y, need, dt, dW, k):
     return y_out, need & done, its, res
 
 
+@functools.partial(jax.jit, static_argnames=("method", "want_stats", "retry"))
+def _step(method, model, dt, carry, dW, live, *, want_stats, retry):
+    """One step of one sample, with the failure bookkeeping of `_path`.
+
+    `live = False` marks a padding slot of the loop layout (`_layout`): the sample idles
+    there like a failed one (no state change, no step counted, no failure).
+
+    A jitted function of its own, so that it is traced once per method, dtype and options
+    and reused: `_path` calls it from up to three loops (the checkpointed chunks, the draw
+    blocks, the remainder), studies call `_path` once per step size, and `vmap` batches the
+    cached jaxpr once. Tracing LiePoisson's solver takes seconds (thousands of scalar
+    operations); XLA inlines the call, so the compiled loop is unchanged.
+    """
+    y, alive, fail_step, n, n_retried, acc = carry
+    dtype = y.dtype
+    live = jnp.asarray(live)  # (a Python bool under jax.disable_jit)
+    act = alive & live
+    # A failed sample idles at its last good state: with dt = dW = 0 every method's
+    # step is trivial, so it costs no Newton iterations.
+    y_new, info = method.step(model, y, jnp.where(act, dt, 0.0).astype(dtype),
+                              jnp.where(act, dW, 0.0).astype(dtype))
+    ok = info.ok & jnp.all(jnp.isfinite(y_new))
+    it = jnp.where(act, info.iterations, 0)
+    res = jnp.where(act & ok, info.residual, 0.0)
+    if retry is not None:
+        need = act & ~ok
+        y_re, ok_re, it_re, res_re = _retry_step(method, model, y, need, dt, dW, retry)
+        y_new = jnp.where(need, y_re, y_new)
+        ok = ok | ok_re
+        it = it + it_re
+        res = jnp.maximum(res, res_re)
+        n_retried = n_retried + need.astype(jnp.int32)
+    fail_step = jnp.where(act & ~ok, n, fail_step)
+    if want_stats:
+        acc = (acc[0] + it, jnp.maximum(acc[1], it), jnp.maximum(acc[2], res))
+    y = jnp.where(act & ok, y_new, y)
+    return y, alive & (ok | ~live), fail_step, n + live.astype(n.dtype), n_retried, acc
+
+
 def _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats, retry=None):
     """Integrate one sample: `n_blocks` blocks of `block_len` steps, saving after each block.
 
@@ -88,37 +127,17 @@ def _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats, retry=No
     carry0 = (y0, jnp.array(True), jnp.array(-1, jnp.int32), jnp.array(0, jnp.int32),
               jnp.array(0, jnp.int32), acc0)
 
-    def step(carry, dW):
-        y, alive, fail_step, n, n_retried, acc = carry
-        # A failed sample idles at its last good state: with dt = dW = 0 every method's
-        # step is trivial, so it costs no Newton iterations.
-        y_new, info = method.step(model, y, jnp.where(alive, dt, 0.0).astype(dtype),
-                                  jnp.where(alive, dW, 0.0).astype(dtype))
-        ok = info.ok & jnp.all(jnp.isfinite(y_new))
-        it = jnp.where(alive, info.iterations, 0)
-        res = jnp.where(alive & ok, info.residual, 0.0)
-        if retry is not None:
-            need = alive & ~ok
-            y_re, ok_re, it_re, res_re = _retry_step(method, model, y, need, dt, dW, retry)
-            y_new = jnp.where(need, y_re, y_new)
-            ok = ok | ok_re
-            it = it + it_re
-            res = jnp.maximum(res, res_re)
-            n_retried = n_retried + need.astype(jnp.int32)
-        fail_step = jnp.where(alive & ~ok, n, fail_step)
-        if want_stats:
-            acc = (acc[0] + it, jnp.maximum(acc[1], it), jnp.maximum(acc[2], res))
-        y = jnp.where(alive & ok, y_new, y)
-        return y, alive & ok, fail_step, n + 1, n_retried, acc
-
-    def steps(carry, length):
-        # `length` (a Python int) steps from the carry's step counter, their increments
-        # drawn first as one vector. Drawing inside the step instead lets XLA's CPU backend
-        # fuse the random-number generator into the method's arithmetic, which it then
-        # re-evaluates many times over (Strang in `simulate`: 150x slower).
+    def steps(carry, length, n_live):
+        # `length` (a Python int) slots from the carry's step counter, the first `n_live`
+        # of them steps, their increments drawn first as one vector. Drawing inside the
+        # step instead lets XLA's CPU backend fuse the random-number generator into the
+        # method's arithmetic, which it then re-evaluates many times over (Strang in
+        # `simulate`: 150x slower).
         n0 = carry[3]
         dWs = jax.vmap(lambda j: draw(n0 + j))(jnp.arange(length, dtype=n0.dtype))
-        return jax.lax.fori_loop(0, length, lambda i, c: step(c, dWs[i]), carry)
+        return jax.lax.fori_loop(
+            0, length, lambda i, c: _step(method, model, dt, c, dWs[i], i < n_live,
+                                          want_stats=want_stats, retry=retry), carry)
 
     def block(carry, _):
         carry = _checkpointed_loop(steps, block_len, carry)
@@ -129,38 +148,59 @@ def _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats, retry=No
     return ys, fail_step, n_retried, acc
 
 
-_DRAW_BLOCK = 32  # steps whose increments are drawn together (memory: this many per sample)
+_DRAW_BLOCK = 32  # most steps whose increments are drawn together (memory per sample)
 
 
-def _run(steps, n, carry):
-    """`n` steps as blocks of `_DRAW_BLOCK` (`steps(carry, length)` runs `length` steps)."""
-    n_blocks = n // _DRAW_BLOCK
-    carry = jax.lax.fori_loop(0, n_blocks, lambda _, c: steps(c, _DRAW_BLOCK), carry)
-    rest = n - n_blocks * _DRAW_BLOCK
-    if isinstance(rest, int):
-        return steps(carry, rest) if rest else carry
-    return jax.lax.fori_loop(0, rest, lambda _, c: steps(c, 1), carry)
+@functools.lru_cache(maxsize=None)
+def _layout(n):
+    """`(n_chunks, m, b)`: `n` steps as `n_chunks` chunks of `m` draw blocks of `b` steps.
+
+    The slots `n_chunks m b >= n` are as few as the constraints allow (usually exactly
+    `n`); the steps fill the first `n` slots and the rest are padding (`_step`'s `live`).
+    A draw block holds at most `_DRAW_BLOCK` steps (its increments are held in memory) and at
+    least half that; a chunk holds about `sqrt(n)` steps, the unit of reverse-mode
+    checkpointing (`_checkpointed_loop`). One layout, not a main loop and a remainder loop,
+    keeps a single copy of the step in the compiled program: LiePoisson's step takes
+    seconds to compile.
+    """
+    if n <= _DRAW_BLOCK:
+        return 1, 1, n
+    root = math.sqrt(n)
+    best = None
+    for b in range(_DRAW_BLOCK // 2, _DRAW_BLOCK + 1):
+        for m in range(max(1, math.floor(root / (2 * b))), math.ceil(2 * root / b) + 1):
+            n_chunks = -(-n // (m * b))
+            # fewest slots; then the larger draw block (the same memory at every n that
+            # allows it); then chunks closest to sqrt(n)
+            key = (n_chunks * m * b - n, -b, abs(math.log(m * b / root)))
+            if best is None or key < best[0]:
+                best = key, (n_chunks, m, b)
+    return best[1]
 
 
 def _checkpointed_loop(steps, n, carry):
     """`n` steps arranged so that reverse mode stores O(sqrt n) carries.
 
-    With a Python-int `n` the loop runs as `n_outer` chunks of `n_inner ~ sqrt(n)` steps
-    (a multiple of `_DRAW_BLOCK`),
-    each chunk under `jax.checkpoint`: the backward pass keeps the carry at chunk boundaries
-    and recomputes one chunk at a time, so the memory of `jax.grad` grows like
-    `sqrt(n_steps)`, not `n_steps`. Without differentiation this is the plain loop. A traced
-    `n` (one compilation for every step count) gives a `while_loop`, which has no reverse
-    mode.
+    With a Python-int `n` the loop runs as chunks of about `sqrt(n)` steps (`_layout`), each
+    under `jax.checkpoint`: the backward pass keeps the carry at chunk boundaries and
+    recomputes one chunk at a time, so the memory of `jax.grad` grows like `sqrt(n_steps)`,
+    not `n_steps`. Without differentiation this is the plain loop. A traced `n` (one
+    compilation for every step count) gives a `while_loop` over draw blocks of
+    `_DRAW_BLOCK` slots, the last one padded, which has no reverse mode.
+    `steps(carry, length, n_live)` runs `length` slots of which the first `n_live` are steps.
     """
     if not isinstance(n, int):
-        return _run(steps, n, carry)
-    # a multiple of the draw block, so the drawn increments take the same memory at any n
-    n_inner = _DRAW_BLOCK * max(1, round(math.sqrt(n) / _DRAW_BLOCK))
-    n_outer, rest = divmod(n, n_inner)
-    chunk = jax.checkpoint(lambda c: _run(steps, n_inner, c), prevent_cse=False)
-    carry = jax.lax.fori_loop(0, n_outer, lambda _, c: chunk(c), carry)
-    return _run(steps, rest, carry)
+        n_blocks = (n + _DRAW_BLOCK - 1) // _DRAW_BLOCK
+        return jax.lax.fori_loop(
+            0, n_blocks, lambda k, c: steps(c, _DRAW_BLOCK, n - k * _DRAW_BLOCK), carry)
+    n_chunks, m, b = _layout(n)
+
+    def chunk(i, c):
+        return jax.lax.fori_loop(0, m, lambda k, c: steps(c, b, n - (i * m + k) * b), c)
+
+    if n_chunks == 1:
+        return chunk(0, carry)
+    return jax.lax.fori_loop(0, n_chunks, jax.checkpoint(chunk, prevent_cse=False), carry)
 
 
 @functools.partial(jax.jit, static_argnames=("method", "save_every", "want_stats", "retry"))
@@ -236,25 +276,9 @@ def _check_method(method):
     check_options(method)  # again here: a dataclass can be built around its constructor
 
 
-def _as_real_array(name, x):
-    """`x` as a JAX array of a real (or integer) dtype, or a TypeError naming `name`."""
-    if isinstance(x, str):
-        raise TypeError(f"{name} must be an array of real numbers, got the string {x!r}.")
-    try:
-        arr = jnp.asarray(x)  # (also a list of tracers, inside jit)
-    except (TypeError, ValueError) as err:
-        raise TypeError(f"{name} must be an array of real numbers, got {x!r} ({err}).") \
-            from None
-    kind = np.dtype(arr.dtype).kind if not jax.dtypes.issubdtype(
-        arr.dtype, jax.dtypes.extended) else "V"
-    if kind not in "fiu":
-        raise TypeError(f"{name} must hold real numbers, got dtype {arr.dtype}.")
-    return arr
-
-
 def _check_y0(y0, method, model):
     _check_pair(method, model)
-    y0 = _as_real_array("y0", y0)
+    y0 = _real_array("y0", y0)
     if y0.shape != (3,):
         raise ValueError(
             f"y0 must have shape (3,), got shape {y0.shape}"
@@ -276,7 +300,7 @@ def _check_positive(name, x):
     if isinstance(x, (int, float, np.integer, np.floating)):
         x_np = np.asarray(x)  # stays concrete inside jit, where jnp.asarray would trace
     else:
-        x_np = concrete(_as_real_array(name, x))
+        x_np = concrete(_real_array(name, x))
     if x_np is not None:
         if np.shape(x_np) != ():
             raise ValueError(f"{name} must be a scalar, got shape {np.shape(x_np)}.")
@@ -321,10 +345,33 @@ def _check_throw(throw):
         raise TypeError(f"throw must be True or False, got {throw!r}.")
 
 
+@jax.custom_batching.custom_vmap
+def _report_failures(fail_step):
+    """Raise (through a host callback) if any entry of `fail_step` is a failure (`>= 0`).
+
+    Under `vmap` the callback gets the whole batch, once: `jax.debug.callback`'s own rule
+    unrolls the batch into one host call per sample, which made a `vmap`ped `integrate`
+    3-4x slower and its compilation 2.5x longer (500 samples x 512 steps).
+    """
+    jax.debug.callback(_raise_on_failure, fail_step)
+    return fail_step
+
+
+@_report_failures.def_vmap
+def _report_failures_batched(axis_size, in_batched, fail_step):
+    return _report_failures(fail_step), in_batched[0]
+
+
 def _raise_on_failure(fail_step):
-    if fail_step >= 0:
+    """`fail_step`: one path's step of failure (-1: none), or a batch of them under `vmap`."""
+    fail_step = np.asarray(fail_step)
+    failed = fail_step >= 0
+    if np.any(failed):
+        first = int(np.min(fail_step[failed]))
+        which = (f" (first failure; {int(np.sum(failed))} of {fail_step.size} paths failed)"
+                 if fail_step.size > 1 else "")
         raise RuntimeError(
-            f"integrate: step {int(fail_step)} could not be solved; the path is frozen at its "
+            f"integrate: step {first} could not be solved{which}; the path is frozen at its "
             f"last good state from there on. Pass throw=False to return it anyway, "
             f"retry_substeps=4 to split failing steps, or use a smaller dt "
             f"(or LiePoisson(scale=...) near |y| = 1)."
@@ -364,7 +411,7 @@ def integrate(model, y0, dW, dt, *, method=LiePoisson(), save_every=None, throw=
     _check_method(method)
     _check_throw(throw)
     y0 = _check_y0(y0, method, model)
-    dW = _as_real_array("dW", dW)
+    dW = _real_array("dW", dW)
     if dW.ndim != 1 or dW.shape[0] < 1:
         raise ValueError(
             f"dW must be a non-empty 1-D array of increments, got shape {dW.shape}"
@@ -383,12 +430,29 @@ def integrate(model, y0, dW, dt, *, method=LiePoisson(), save_every=None, throw=
                                          retry)
     if throw:
         if isinstance(fail_step, jax.core.Tracer):
-            jax.debug.callback(_raise_on_failure, fail_step)
+            _report_failures(fail_step)
         else:
             _raise_on_failure(fail_step)
     if save_every is None:
         return ys[-1]
     return jnp.concatenate([y0[None], ys], axis=0)
+
+
+def _check_grid(caller, t1, dt):
+    """`(dt, n_steps)` as Python numbers, for concrete positive `t1 = n_steps dt`."""
+    dt = _check_positive("dt", dt)
+    t1 = _check_positive("t1", t1)
+    if dt is None or t1 is None:
+        raise TypeError(f"{caller} needs concrete t1 and dt (they fix the number of steps): "
+                        "call it outside jax.jit, or use integrate inside.")
+    dt, t1 = float(dt), float(t1)
+    ratio = t1 / dt
+    n_steps = int(round(ratio))
+    if n_steps < 1 or abs(ratio - n_steps) > 1e-9 * max(1.0, ratio):
+        near = max(1, n_steps)
+        raise ValueError(f"t1={t1} must be a positive multiple of dt={dt} (t1/dt = {ratio}); "
+                         f"for example dt={t1 / near!r}.")
+    return dt, n_steps
 
 
 def simulate(model, y0, *, t1, dt, n_samples, key, method=LiePoisson(), save_every=None,
@@ -429,18 +493,7 @@ def simulate(model, y0, *, t1, dt, n_samples, key, method=LiePoisson(), save_eve
     _check_method(method)
     _check_throw(throw)
     y0 = _check_y0(y0, method, model)
-    dt = _check_positive("dt", dt)
-    t1 = _check_positive("t1", t1)
-    if dt is None or t1 is None:
-        raise TypeError("simulate needs concrete t1 and dt (they fix the number of steps): "
-                        "call it outside jax.jit, or use integrate inside.")
-    dt, t1 = float(dt), float(t1)
-    ratio = t1 / dt
-    n_steps = int(round(ratio))
-    if n_steps < 1 or abs(ratio - n_steps) > 1e-9 * max(1.0, ratio):
-        near = max(1, n_steps)
-        raise ValueError(f"t1={t1} must be a positive multiple of dt={dt} (t1/dt = {ratio}); "
-                         f"for example dt={t1 / near!r}.")
+    dt, n_steps = _check_grid("simulate", t1, dt)
     n_samples = _check_count("n_samples", n_samples)
     key = _noise.check_key(key)
     _noise.check_truncation(dt, truncate_k)

@@ -29,10 +29,12 @@ def _real_array(name, x):
     if isinstance(x, str):
         raise TypeError(f"{name} must be real numbers, got the string {x!r}.")
     try:
-        arr = jnp.asarray(x)
+        arr = jnp.asarray(x)  # (also a list of tracers, inside jit)
     except (TypeError, ValueError) as err:
         raise TypeError(f"{name} must be real numbers, got {x!r} ({err}).") from None
-    if np.dtype(arr.dtype).kind not in "fiu":
+    # (a key array has an extended dtype, which NumPy cannot describe)
+    if jax.dtypes.issubdtype(arr.dtype, jax.dtypes.extended) or \
+            np.dtype(arr.dtype).kind not in "fiu":
         raise TypeError(f"{name} must be real numbers, got dtype {arr.dtype}.")
     return arr
 

@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _noise
-from ._integrate import (_check_count, _check_method, _check_model, _check_positive,
+from ._integrate import (_check_count, _check_grid, _check_method, _check_model,
                          _check_retry, _check_save_every, _check_y0, _ensemble)
 from ._sharding import check_sharding
 from ._solver.lie_poisson import LiePoisson
@@ -146,15 +146,7 @@ def ensemble_statistics(model, y0, *, t1, dt, n_samples, key, chunk_size, method
     _check_model(model)
     _check_method(method)
     y0 = _check_y0(y0, method, model)
-    dt = _check_positive("dt", dt)
-    t1 = _check_positive("t1", t1)
-    if dt is None or t1 is None:
-        raise TypeError("ensemble_statistics needs concrete t1 and dt.")
-    dt, t1 = float(dt), float(t1)
-    n_steps = int(round(t1 / dt))
-    if n_steps < 1 or abs(t1 / dt - n_steps) > 1e-9 * max(1.0, t1 / dt):
-        raise ValueError(f"t1={t1} must be a positive multiple of dt={dt} "
-                         f"(t1/dt = {t1 / dt}).")
+    dt, n_steps = _check_grid("ensemble_statistics", t1, dt)
     n_samples = _check_count("n_samples", n_samples)
     if n_samples >= 2 ** 32:
         raise ValueError(f"n_samples must be below 2^32 (sample indices are uint32), "

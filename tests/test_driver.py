@@ -115,6 +115,50 @@ def test_failed_sample_is_flagged_frozen_and_does_not_poison_others(paper):
         sj.integrate(model, y0, dW[1], 0.01)
 
 
+def test_vmapped_integrate_raises_once_for_the_batch(paper):
+    # throw=True under jit(vmap(...)) reports through one host callback for the whole batch:
+    # jax.debug.callback's own vmap rule would compile one callback per sample.
+    model, y0 = paper
+    dW = sj.brownian_increments(jax.random.key(11), 40, 0.01, n_samples=6)
+    run = jax.jit(jax.vmap(lambda w: sj.integrate(model, y0 * 0.99, w, 0.01)))
+    assert run.lower(dW).as_text().count("callback") <= 2  # (the call and its declaration)
+    assert np.all(np.isfinite(np.asarray(run(dW))))
+    bad = dW.at[1, 20].set(400.0).at[4, 30].set(400.0)
+    with pytest.raises(Exception, match=r"step 20 could not be solved \(first failure; 2 of 6"):
+        jax.block_until_ready(run(bad))
+    nested = jax.jit(jax.vmap(jax.vmap(lambda w: sj.integrate(model, y0 * 0.99, w, 0.01))))
+    with pytest.raises(Exception, match="2 of 6 paths failed"):
+        jax.block_until_ready(nested(bad.reshape(2, 3, 40)))
+
+
+@pytest.mark.parametrize("n", [33, 65, 101, 500])
+def test_loop_layout_takes_exactly_n_steps(paper, n):
+    # Step counts that are not multiples of the draw block run with padding slots
+    # (_integrate._layout); the final state must be that of n plain steps (one save per
+    # step: no padding at all), and a failure must be reported at its own step.
+    model, y0 = paper
+    dW = sj.brownian_increments(jax.random.key(n), n, 1.0 / n)
+    final = sj.integrate(model, y0, dW, 1.0 / n)
+    every = sj.integrate(model, y0, dW, 1.0 / n, save_every=1)
+    assert every.shape == (n + 1, 3)
+    np.testing.assert_array_equal(final, every[-1])
+    with pytest.raises(RuntimeError, match=f"step {n - 1} could not"):
+        sj.integrate(model, y0 * 0.99, dW.at[n - 1].set(400.0), 1.0 / n)
+
+
+def test_the_step_is_compiled_once_whatever_the_step_count(paper):
+    # A main loop plus a remainder loop would put the method's step (LiePoisson's takes
+    # seconds to compile) into the program two or three times; the padded layout keeps one.
+    model, y0 = paper
+
+    def size(n):
+        fn = jax.jit(lambda w: sj.integrate(model, y0, w, 0.01, method=sj.Midpoint()))
+        return fn.lower(jnp.zeros(n)).compile().as_text().count(" multiply(")
+
+    sizes = {n: size(n) for n in (32, 64, 65, 101, 1000)}
+    assert max(sizes.values()) < 1.2 * min(sizes.values()), sizes
+
+
 def test_simulate_reports_failures(paper):
     model, y0 = paper
     # Three Newton updates per parameterisation are too few for some steps at this size.
