@@ -76,10 +76,9 @@ def _step(method, model, dt, carry, dW, live, *, want_stats, retry):
     there like a failed one (no state change, no step counted, no failure).
 
     A jitted function of its own, so that it is traced once per method, dtype and options
-    and reused: `_path` calls it from up to three loops (the checkpointed chunks, the draw
-    blocks, the remainder), studies call `_path` once per step size, and `vmap` batches the
-    cached jaxpr once. Tracing LiePoisson's solver takes seconds (thousands of scalar
-    operations); XLA inlines the call, so the compiled loop is unchanged.
+    and reused (studies call `_path` once per step size), and `vmap` batches the cached
+    jaxpr once. Tracing LiePoisson's solver takes over a second
+    (thousands of scalar operations); XLA inlines the call, so the compiled loop is unchanged.
     """
     y, alive, fail_step, n, n_retried, acc = carry
     dtype = y.dtype
@@ -351,7 +350,7 @@ def _report_failures(fail_step):
 
     Under `vmap` the callback gets the whole batch, once: `jax.debug.callback`'s own rule
     unrolls the batch into one host call per sample, which made a `vmap`ped `integrate`
-    3-4x slower and its compilation 2.5x longer (500 samples x 512 steps).
+    3x slower and its compilation about twice as long (500 samples x 512 steps).
     """
     jax.debug.callback(_raise_on_failure, fail_step)
     return fail_step
