@@ -17,19 +17,20 @@ def check_options(method):
     (where the method has them) are not valid. The options are static (hashed into the
     compiled code), so they must be Python or NumPy numbers, not JAX arrays."""
     name = type(method).__name__
-    tol = getattr(method, "tol", None)
-    if tol is not None:
-        if not _is_real(tol):
-            raise TypeError(f"{name}: tol must be a positive number or None, got {tol!r}.")
-        if not (math.isfinite(tol) and tol > 0):
-            raise ValueError(f"{name}: tol must be a positive number, got {tol!r}.")
+
+    def positive_or_none(option, value_error):
+        value = getattr(method, option, None)
+        if value is None:
+            return
+        if not _is_real(value):
+            raise TypeError(f"{name}: {option} must be a positive number or None, got "
+                            f"{value!r}.")
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError(f"{name}: {option} must be {value_error}, got {value!r}.")
+
+    positive_or_none("tol", "a positive number")
     if hasattr(method, "max_iter"):
         it = method.max_iter
         if isinstance(it, (bool, np.bool_)) or not isinstance(it, (int, np.integer)) or it < 1:
             raise ValueError(f"{name}: max_iter must be a positive integer, got {it!r}.")
-    scale = getattr(method, "scale", None)
-    if scale is not None:
-        if not _is_real(scale):
-            raise TypeError(f"{name}: scale must be a positive number or None, got {scale!r}.")
-        if not (math.isfinite(scale) and scale > 0):
-            raise ValueError(f"{name}: scale must be a positive number or None, got {scale!r}.")
+    positive_or_none("scale", "a positive number or None")
