@@ -2,7 +2,7 @@
 failures, float32.
 
 References are independent of the code under test: autodiff of the generating function
-(scheme.md), scipy's DOP853, the exact time-change solution (itself checked against scipy in
+(docs/scheme.md), scipy's DOP853, the exact time-change solution (itself checked against scipy in
 test_exact.py), and theorems (adjoint, symmetry, order of a composition).
 """
 
@@ -35,7 +35,7 @@ def one_step(method, model, y, tau):
 
 
 def s_bar(a, inertia, tau):
-    """S-bar(A) = tr(A)/2 - tau H(v(A)), kappa = 0, straight from scheme.md."""
+    """S-bar(A) = tr(A)/2 - tau H(v(A)), kappa = 0, straight from docs/scheme.md."""
     v = so3.vee(a)
     return 0.5 * jnp.trace(a) - tau * 0.5 * jnp.dot(v, v / inertia)
 

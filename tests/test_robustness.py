@@ -1,7 +1,7 @@
 """Robustness: behaviour at the edges, retrying failed steps, bad input, properties, determinism.
 
 References are independent of the code under test: scipy's DOP853 flow (`reference.py`), a
-NumPy transcription of the in-map of `scheme.md` solved by `scipy.optimize.root`, and
+NumPy transcription of the in-map of `docs/scheme.md` solved by `scipy.optimize.root`, and
 values known by construction (an injected increment, a fixed point).
 """
 
@@ -370,7 +370,7 @@ def test_dtype_policy_model_dtype_wins(paper):
 
 
 def inmap_residual_numpy(a, y, inertia, tau, kappa):
-    """The in-map of scheme.md, transcribed to NumPy from the formulas (not from the code)."""
+    """The in-map of docs/scheme.md, transcribed to NumPy from the formulas (not from the code)."""
     def vee(m):
         return np.array([m[2, 1], m[0, 2], m[1, 0]])
 

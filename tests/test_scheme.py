@@ -1,4 +1,4 @@
-"""Scheme (42) against its definition: the generating function S-bar of scheme.md."""
+"""Scheme (42) against its definition: the generating function S-bar of docs/scheme.md."""
 
 import jax
 import jax.numpy as jnp
@@ -20,7 +20,7 @@ lie_poisson_step = jit_step(sj.LiePoisson())
 
 
 def s_bar(a, inertia, tau, kappa):
-    """S-bar(A) = tr(A)/2 - tau H(v(A)) + kappa S11(A)/2, straight from scheme.md."""
+    """S-bar(A) = tr(A)/2 - tau H(v(A)) + kappa S11(A)/2, straight from docs/scheme.md."""
     v = so3.vee(a)
     w = v / inertia
     h = 0.5 * jnp.dot(v, w)
@@ -117,7 +117,7 @@ def test_step_solves_in_map_and_out_map_equals_rotation(paper, dW):
     tau, kappa = dt + model.c * dW, (model.c * dW) ** 2
     # Recover A from y1 = A y0 by solving the in-map once more (independently of the step's
     # parameterisation): the in-map residual at the returned A is at round-off, and the
-    # out-map of scheme.md gives the same y1.
+    # out-map of docs/scheme.md gives the same y1.
     a = _solve_rotation(model, y0, tau, kappa)
     np.testing.assert_allclose(in_map_by_autodiff(a, y0, model.inertia, tau, kappa), 0,
                                atol=1e-13)

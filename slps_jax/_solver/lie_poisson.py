@@ -19,7 +19,7 @@ def in_map(a, y, d, tau, kappa, jacobian=True):
             - \kappa\, \mathrm{vee}(\mathrm{skew}(A^T G(A))) - y_n$,
     with $v = \mathrm{vee}(\mathrm{skew} A)$, $\omega = I^{-1} v$, $W = \hat\omega$ and $G$ the
     Frobenius gradient of $S_{11}(A) = \tfrac12(\omega^T A \omega - |\omega|^2 \operatorname{tr} A)$
-    (`scheme.md`). Written out with $T = \operatorname{tr} A$, $p = A^T\omega$,
+    (`docs/scheme.md`). Written out with $T = \operatorname{tr} A$, $p = A^T\omega$,
     $m = (\mathrm{sym} A - T)\omega$, $Q = \tfrac12(T - A)$:
 
     $\mathrm{vee}(\mathrm{skew}(A^T W)) = Q\omega$,
@@ -301,7 +301,7 @@ class LiePoisson(AbstractMethod):
     Each step solves the in-map for $A_n \in SO(3)$ and sets $y_{n+1} = A_n y_n$:
 
     $y_n = v(A) + \tau\,\mathrm{vee}(\mathrm{skew}(A^T W)) - \kappa\,\mathrm{vee}(\mathrm{skew}(A^T G(A)))$,
-    $\tau = h + c\Delta W_n$, $\kappa = c^2 \Delta W_n^2$ (conventions of `scheme.md`).
+    $\tau = h + c\Delta W_n$, $\kappa = c^2 \Delta W_n^2$ (conventions of `docs/scheme.md`).
 
     Newton's method with the analytic residual and Jacobian, in two stages.
 
@@ -327,7 +327,7 @@ class LiePoisson(AbstractMethod):
     - `max_iter`: Newton updates allowed per parameterisation (default 12).
     - `scale`: $\lambda > 0$ to integrate $z = y/\lambda$ (time scaled by $\lambda$): needed when
       $|y_0| \ge 1$, where the in-map has no solution; choose $\lambda > |y_0|$. It moves the
-      solve away from the fold at $|y| = 1$ but costs accuracy (`scheme.md`).
+      solve away from the fold at $|y| = 1$ but costs accuracy (`docs/scheme.md`).
 
     Reference: Q. Liu and L. Wang, *Lie–Poisson numerical method for a class of stochastic
     Lie–Poisson systems*, scheme (42).
