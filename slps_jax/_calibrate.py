@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import sys
+import warnings
 
 import jax
 import jax.numpy as jnp
@@ -93,6 +94,14 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
     - `progress`: print the loss and parameters as it goes (to stderr).
 
     **Returns:** a `CalibrationResult`.
+
+    **Raises:** `RuntimeError` if any sample's Newton solve fails at a point the fit evaluates
+    (`init`, each accepted iterate, the fitted parameters): a failed sample is frozen at its
+    last good state by `simulate`, and such states are never used as data, so the fit
+    refuses rather than leaving the sample out (which would bias the statistics towards the
+    samples that survive). The message says how many samples failed and where; a smaller
+    `dt`, a method without Newton solves such as `Strang()`, or parameters / `y0` away from
+    the failing region avoid it.
     """
     if not isinstance(init, RigidBody):
         raise TypeError(f"init must be a RigidBody, got {type(init).__name__}.")
@@ -125,44 +134,71 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
         return theta_all.at[np.flatnonzero(free)].set(theta)
 
     def statistics(theta):
-        sol = simulate(_unpack(full(theta)), y0, t1=float(ts[-1]), dt=dt, n_samples=n_samples,
-                       key=key, method=method, save_every=every, truncate_k=truncate_k,
-                       throw=False)
+        """The statistics at `theta`, and (aux) the number of failed samples."""
+        with warnings.catch_warnings():
+            # failures are counted here and raised by `check` with calibrate's own advice
+            warnings.filterwarnings("ignore", "simulate: .* samples failed", RuntimeWarning)
+            sol = simulate(_unpack(full(theta)), y0, t1=float(ts[-1]), dt=dt,
+                           n_samples=n_samples, key=key, method=method, save_every=every,
+                           truncate_k=truncate_k, throw=False)
         ys = sol.ys[:, idx // every]  # (n_samples, len(ts), 3)
-        return jax.vmap(statistic, in_axes=1)(ys)
+        return jax.vmap(statistic, in_axes=1)(ys), jnp.sum(sol.fail_step >= 0)
 
     def residuals(theta):
-        return ((statistics(theta) - observed) * weight).ravel()
+        stats, n_failed = statistics(theta)
+        return ((stats - observed) * weight).ravel(), n_failed
 
-    def loss(theta):
-        r = residuals(theta)
-        return 0.5 * jnp.dot(r, r)
+    def loss_aux(theta):
+        r, n_failed = residuals(theta)
+        return 0.5 * jnp.dot(r, r), n_failed
+
+    def check(n_failed, theta, where):
+        n_failed = int(n_failed)
+        if n_failed > 0:
+            m = _unpack(full(theta))
+            raise RuntimeError(
+                f"calibrate: {n_failed} of {n_samples} samples failed (Newton solve) {where}, "
+                f"at inertia {np.asarray(m.inertia)}, c {float(m.c)}. Failed samples are "
+                "frozen at their last good state and are never used as data, so the fit "
+                "stops. Use a smaller dt, a method without Newton solves such as "
+                "method=Strang(), or an init / y0 away from the failing region.")
 
     theta = theta_all[free]
-    sv = _check_identifiable(jax.jacfwd(residuals)(theta), names, np.asarray(init.inertia))
+    jac, n_failed = jax.jacfwd(residuals, has_aux=True)(theta)
+    check(n_failed, theta, "at init")
+    sv = _check_identifiable(jac, names, np.asarray(init.inertia))
 
     opt = optax.with_extra_args_support(optax.lbfgs() if optimizer is None else optimizer)
-    loss = jax.jit(loss)
-    value_and_grad = jax.value_and_grad(loss)
+    loss_aux = jax.jit(loss_aux)
+    value_and_grad = jax.value_and_grad(loss_aux, has_aux=True)
+
+    def loss(theta):
+        # scalar-only view for line searches (`value_fn`), the same traced function
+        return loss_aux(theta)[0]
 
     @jax.jit
     def opt_step(theta, state):
-        # one compiled step: the line search of L-BFGS evaluates `loss` inside it
-        value, grad = value_and_grad(theta)
+        # One compiled step: the line search of L-BFGS evaluates `loss` inside it. The failure
+        # count returned is that at `theta`, the accepted point of the previous step; trial
+        # points the line search rejects are not checked (they are not used as data).
+        (value, n_failed), grad = value_and_grad(theta)
         updates, state = opt.update(grad, state, theta, value=value, grad=grad, value_fn=loss)
-        return optax.apply_updates(theta, updates), state, value
+        return optax.apply_updates(theta, updates), state, value, n_failed
 
     # Strong types from the start: optax's initial state has weakly typed scalars that the
     # first update makes strong, which would compile `opt_step` a second time.
     state = jax.tree_util.tree_map(lambda x: jnp.array(x, dtype=jnp.result_type(x)),
                                    opt.init(theta))
     history = []
+    checked = True  # whether the failure count at `theta` has been checked
     for i in range(steps):
-        new_theta, state, value = opt_step(theta, state)
+        new_theta, state, value, n_failed = opt_step(theta, state)
+        check(n_failed, theta, f"after optimiser step {i}" if i else "at init")
+        checked = True
         history.append(float(value))  # the loss at theta, before this step
         if i > 0 and abs(history[-2] - history[-1]) <= rtol * max(history[-2], 1e-300):
             break
-        theta = new_theta
+        theta, checked = new_theta, False
         if progress:
             m = _unpack(full(theta))
             print(f"calibrate: step {i + 1:3d}  loss {history[-1]:.6e}  inertia "
@@ -173,12 +209,18 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
     if observed_stderr is not None:
         # Delta method: Cov(theta) = (J^T J)^{-1} with the weighted Jacobian; then the chain
         # rule d exp(theta) = exp(theta) d theta.
-        jac = np.asarray(jax.jacfwd(residuals)(theta))
+        jac, n_failed = jax.jacfwd(residuals, has_aux=True)(theta)
+        check(n_failed, theta, "at the fitted parameters")
+        checked = True
+        jac = np.asarray(jac)
         cov = np.linalg.pinv(jac.T @ jac)
         stderr = np.zeros(len(_NAMES))
         stderr[free] = np.sqrt(np.diag(cov)) * np.exp(np.asarray(theta))
         if observed_n_samples is not None:
             stderr *= math.sqrt(1.0 + observed_n_samples / n_samples)
+    if not checked:
+        # the last step's result (steps ran out): evaluated only inside its line search
+        check(loss_aux(theta)[1], theta, "at the fitted parameters")
     return CalibrationResult(model, np.asarray(history), stderr, sv)
 
 
