@@ -3,10 +3,11 @@
 
 For each h = 2^-5 ... 2^-9 (500 samples, T = 1, the paper's truncated increments), the
 ensemble is simulated with `save_every=1`, and every step is solved again from its saved
-state and increment to read its `StepInfo`: updates used (3 = the fast path alone), the
-final residual, and which steps needed the fallback. Under `vmap` the fallback loop runs for
-the whole batch when any sample of a step needs it, so the fraction of *time steps* in which
-some sample fell back is reported too: that is what the fallback costs.
+state and increment to read its `StepInfo`: updates used (usually 3, then the fourth
+residual passes the test), the final residual, and which steps needed more. Under `vmap` the
+Newton loop runs for the whole batch as long as its slowest sample needs, so the fraction of
+*time steps* in which some sample needed more than 3 updates is reported too: that is what
+the slow samples cost.
 
 Writes `newton_iterations.csv` (one row per h and iteration count), `newton_iterations.json`
 and `newton_iterations.png`.
@@ -31,7 +32,8 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import _common  # noqa: E402
 
 import slps_jax as sj  # noqa: E402
-from slps_jax._solver.lie_poisson import FAST_UPDATES  # noqa: E402
+
+USUAL = 3  # Newton updates that solve almost every step of the paper's setup
 
 
 def step_infos(model, method, ys, dW, dt):
@@ -56,10 +58,10 @@ def main(argv=None):
     key = jax.random.key(0)
     tol = 64 * float(jnp.finfo(y0.dtype).eps)
     rows, summary = [], {"machine": _common.machine_info(), "n_samples": n_samples,
-                         "fast_updates": FAST_UPDATES, "tol": tol, "per_h": []}
+                         "usual_updates": USUAL, "tol": tol, "per_h": []}
     print(f"LiePoisson Newton updates per sample-step, paper's setup, {n_samples} samples, "
-          f"T = 1 (fast path = {FAST_UPDATES} updates + one residual test)\n")
-    print("| h | mean | max | fast path alone | steps with any fallback | max residual |\n"
+          f"T = 1 (usually {USUAL} updates, the fourth residual passing the test)\n")
+    print("| h | mean | max | at most 3 updates | time steps where some sample needed more | max residual |\n"
           "|---|---|---|---|---|---|")
     for k in levels:
         dt = 2.0 ** -k
@@ -73,19 +75,19 @@ def main(argv=None):
         it = np.asarray(info.iterations).reshape(n_samples, n_steps)
         res = np.asarray(info.residual)
         assert np.all(np.asarray(info.ok))
-        fallback_steps = float(np.mean(np.any(it > FAST_UPDATES, axis=0)))
+        fallback_steps = float(np.mean(np.any(it > USUAL, axis=0)))
         counts = np.bincount(it.ravel())
         for n_it, count in enumerate(counts):
             if count:
                 rows.append({"h": dt, "log2_h": -k, "iterations": n_it, "count": int(count),
                              "fraction": count / it.size})
         entry = {"h": dt, "log2_h": -k, "mean": float(it.mean()), "max": int(it.max()),
-                 "fraction_fast_path_only": float(np.mean(it == FAST_UPDATES)),
-                 "fraction_time_steps_with_fallback": fallback_steps,
+                 "fraction_at_most_usual": float(np.mean(it <= USUAL)),
+                 "fraction_time_steps_with_more": fallback_steps,
                  "max_residual": float(res.max())}
         summary["per_h"].append(entry)
         print(f"| 2^-{k} | {entry['mean']:.4f} | {entry['max']} | "
-              f"{100 * entry['fraction_fast_path_only']:.3f} % | {100 * fallback_steps:.1f} % | "
+              f"{100 * entry['fraction_at_most_usual']:.3f} % | {100 * fallback_steps:.1f} % | "
               f"{entry['max_residual']:.1e} |")
 
     _common.write_csv(os.path.join(args.out, "newton_iterations.csv"), rows)
@@ -98,7 +100,7 @@ def main(argv=None):
         ax.bar([r["iterations"] + (i - len(levels) / 2) * width for r in pts],
                [r["fraction"] for r in pts], width=width, label=f"h = 2^-{k}")
     ax.set_yscale("log")
-    ax.set_xlabel("Newton updates in one step (fast path = %d)" % FAST_UPDATES)
+    ax.set_xlabel("Newton updates in one step")
     ax.set_ylabel("fraction of sample-steps")
     ax.set_title("LiePoisson: Newton updates per step, paper's setup")
     ax.legend()

@@ -13,9 +13,10 @@ import numpy as np
 
 from . import _noise
 from ._exact import exact_solution
-from ._integrate import (_check_count, _check_method, _check_model, _check_positive,
-                         _check_retry, _check_y0, _ensemble_dynamic_jit)
-from ._model import RigidBody
+from ._checks import (check_count, check_method, check_model, check_positive, check_retry,
+                      check_y0)
+from ._integrate import _ensemble_dynamic_jit, _failure_message
+from ._system import RIGID_BODY
 from ._solver.midpoint import Midpoint
 
 
@@ -106,16 +107,16 @@ def strong_convergence(model, y0, *, t1, dts, n_samples, key, methods, reference
 
     **Returns:** a `ConvergenceResult`.
     """
-    _check_model(model)
+    check_model(model)
     if isinstance(methods, dict):
         if not methods:
             raise ValueError("methods must name at least one method, got an empty dict.")
     else:
         methods = {type(methods).__name__: methods}
     for m in methods.values():
-        _check_method(m)
-        y0 = _check_y0(y0, m, model)
-    t1_np = _check_positive("t1", t1)
+        check_method(m)
+        y0 = check_y0(y0, m, model)
+    t1_np = check_positive("t1", t1)
     if t1_np is None:
         raise TypeError("strong_convergence needs a concrete t1: call it outside jax.jit.")
     t1 = float(t1_np)
@@ -131,15 +132,15 @@ def strong_convergence(model, y0, *, t1, dts, n_samples, key, methods, reference
     if not callable(reference) and reference not in ("exact", "midpoint"):
         raise ValueError(f"reference must be 'exact', 'midpoint' or a callable, got "
                          f"{reference!r}.")
-    if isinstance(reference, str) and reference == "exact" and not isinstance(model, RigidBody):
+    if isinstance(reference, str) and reference == "exact" and RIGID_BODY not in model.structure:
         raise ValueError("reference='exact' needs a RigidBody (the closed-form flow); for a "
                          "LiePoissonSystem pass a deterministic flow as reference (a callable) "
                          "or reference='midpoint'.")
     if reference_dt is not None:
-        _check_positive("reference_dt", reference_dt)
-    n_samples = _check_count("n_samples", n_samples, minimum=2)
-    n_bootstrap = _check_count("n_bootstrap", n_bootstrap, minimum=2)
-    retry = _check_retry(retry_substeps)
+        check_positive("reference_dt", reference_dt)
+    n_samples = check_count("n_samples", n_samples, minimum=2)
+    n_bootstrap = check_count("n_bootstrap", n_bootstrap, minimum=2)
+    retry = check_retry(retry_substeps)
     key = _noise.check_key(key)
     fine_dt = float(dts[-1])
     if reference == "midpoint":
@@ -152,13 +153,13 @@ def strong_convergence(model, y0, *, t1, dts, n_samples, key, methods, reference
 
     def final_states(method, dt):
         s = _substeps(dt, fine_dt, "dt")
-        ys, fail_step, _, _ = _ensemble_dynamic_jit(
+        ys, fail_step, result, _, _ = _ensemble_dynamic_jit(
             method, model, y0, keys, jnp.asarray(dt, dtype), bound, 1, jnp.asarray(n_fine // s),
             False, jnp.asarray(s), retry=retry)
-        n_failed = int(jnp.sum(fail_step >= 0))
-        if n_failed:
-            raise RuntimeError(f"{type(method).__name__} at dt={dt}: {n_failed} samples failed; "
-                               f"use smaller dts or retry_substeps=4.")
+        msg = _failure_message(f"strong_convergence ({type(method).__name__} at dt={dt})",
+                               fail_step, result)
+        if msg is not None:
+            raise RuntimeError(msg + " Use smaller dts.")
         return ys[:, -1]
 
     if callable(reference):

@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from ._model import _real_array
+from ._checks import real_array
 
 # Descending Landen steps. Each step squares the nome, so the moduli k_n = c_n / a_n fall
 # doubly exponentially; the slowest case is the largest m the AGM branch sees, 1 − eps²
@@ -157,7 +157,7 @@ def _reduced_flow(b, z, t):
 
 def _check_real(name, x, shape, hint=""):
     """`x` as an array of real numbers with `shape`, finite where concrete."""
-    x = _real_array(name, x)
+    x = real_array(name, x)
     if x.shape != shape:
         raise ValueError(f"{name} must have shape {shape}, got shape {x.shape}{hint}.")
     if not isinstance(x, jax.core.Tracer) and not np.all(np.isfinite(np.asarray(x))):

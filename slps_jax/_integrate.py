@@ -12,12 +12,11 @@ import numpy as np
 
 from . import _noise
 from ._sharding import check_sharding
-from ._model import RigidBody, _real_array, concrete
+from ._checks import (check_grid, check_count, check_method, check_model, check_positive,
+                      check_retry, check_save_every, check_throw, check_y0, concrete, real_array)
 from ._solution import RESULTS, Solution
-from ._solver._checks import check_options
-from ._solver.base import AbstractMethod
+from ._solver.base import finite_result
 from ._solver.lie_poisson import LiePoisson
-from ._system import LiePoissonSystem
 
 
 # Split a failed step into k, k^2, ..., k^_RETRY_LEVELS equal parts before giving up.
@@ -48,7 +47,7 @@ def _retry_step(method, model, y, need, dt, dW, k):
             i, ys, ok, its, res = state
             y2, info = method.step(model, ys, jnp.where(ok, sub_dt, 0.0).astype(dtype),
                                    jnp.where(ok, sub_dW, 0.0).astype(dtype))
-            ok2 = ok & info.ok & jnp.all(jnp.isfinite(y2))
+            ok2 = ok & (finite_result(y2, info.result) == RESULTS.successful)
             its = its + jnp.where(ok, info.iterations, 0)
             res = jnp.maximum(res, jnp.where(ok2, info.residual, 0.0).astype(dtype))
             return i + 1, jnp.where(ok2, y2, ys), ok2, its, res
@@ -80,15 +79,16 @@ def _step(method, model, dt, carry, dW, live, *, want_stats, retry):
     jaxpr once. Tracing LiePoisson's solver takes over a second
     (thousands of scalar operations); XLA inlines the call, so the compiled loop is unchanged.
     """
-    y, alive, fail_step, n, n_retried, acc = carry
+    y, result, fail_step, n, n_retried, acc = carry
     dtype = y.dtype
     live = jnp.asarray(live)  # (a Python bool under jax.disable_jit)
-    act = alive & live
+    act = (result == RESULTS.successful) & live
     # A failed sample idles at its last good state: with dt = dW = 0 every method's
     # step is trivial, so it costs no Newton iterations.
     y_new, info = method.step(model, y, jnp.where(act, dt, 0.0).astype(dtype),
                               jnp.where(act, dW, 0.0).astype(dtype))
-    ok = info.ok & jnp.all(jnp.isfinite(y_new))
+    code = finite_result(y_new, info.result)
+    ok = code == RESULTS.successful
     it = jnp.where(act, info.iterations, 0)
     res = jnp.where(act & ok, info.residual, 0.0)
     if retry is not None:
@@ -100,10 +100,11 @@ def _step(method, model, dt, carry, dW, live, *, want_stats, retry):
         res = jnp.maximum(res, res_re)
         n_retried = n_retried + need.astype(jnp.int32)
     fail_step = jnp.where(act & ~ok, n, fail_step)
+    result = jnp.where(act & ~ok, code, result)
     if want_stats:
         acc = (acc[0] + it, jnp.maximum(acc[1], it), jnp.maximum(acc[2], res))
     y = jnp.where(act & ok, y_new, y)
-    return y, alive & (ok | ~live), fail_step, n + live.astype(n.dtype), n_retried, acc
+    return y, result, fail_step, n + live.astype(n.dtype), n_retried, acc
 
 
 def _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats, retry=None):
@@ -123,7 +124,8 @@ def _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats, retry=No
     dtype = y0.dtype
     zero = jnp.zeros((), dtype)
     acc0 = (zero, jnp.zeros((), jnp.int32), zero) if want_stats else ()
-    carry0 = (y0, jnp.array(True), jnp.array(-1, jnp.int32), jnp.array(0, jnp.int32),
+    carry0 = (y0, jnp.array(RESULTS.successful, jnp.int32), jnp.array(-1, jnp.int32),
+              jnp.array(0, jnp.int32),
               jnp.array(0, jnp.int32), acc0)
 
     def steps(carry, length, n_live):
@@ -142,9 +144,9 @@ def _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats, retry=No
         carry = _checkpointed_loop(steps, block_len, carry)
         return carry, carry[0]
 
-    (_, _, fail_step, _, n_retried, acc), ys = jax.lax.scan(block, carry0, None,
-                                                             length=n_blocks)
-    return ys, fail_step, n_retried, acc
+    (_, result, fail_step, _, n_retried, acc), ys = jax.lax.scan(block, carry0, None,
+                                                                  length=n_blocks)
+    return ys, fail_step, result, n_retried, acc
 
 
 _DRAW_BLOCK = 32  # most steps whose increments are drawn together (memory per sample)
@@ -237,144 +239,64 @@ _ensemble_dynamic_jit = jax.jit(_ensemble, static_argnames=("method", "n_blocks"
                                                            "retry"))
 
 
-# --------------------------------------------------------------------------------------
-# Validation: every check runs in Python on concrete values, before anything compiles.
-# Dtype policy: the model's dtype (that of `inertia` and `c`) is the dtype of the
-# computation. `y0` and `dW` are cast to it: a float32 `y0` with a float64 model is promoted
-# (exactly); a float64 `y0` with a float32 model is rounded to float32, which is what a
-# float32 model asks for. Non-real inputs (complex, bool, strings) are rejected.
-
-
-def _is_int(x):
-    return isinstance(x, (int, np.integer)) and not isinstance(x, (bool, np.bool_))
-
-
-def _check_model(model):
-    if not isinstance(model, (RigidBody, LiePoissonSystem)):
-        raise TypeError(
-            f"model must be a RigidBody or a LiePoissonSystem, got {type(model).__name__}: "
-            f"build one with slps_jax.RigidBody(inertia, c).")
-
-
-def _check_pair(method, model):
-    # Methods built on the rigid body's structure (I^{-1}, its axis splitting, the kappa
-    # term of scheme (42)) say nothing about a general Hamiltonian.
-    if isinstance(model, LiePoissonSystem) and not getattr(method, "general_hamiltonian",
-                                                           False):
-        raise TypeError(
-            f"{type(method).__name__} works for a RigidBody only; for a LiePoissonSystem use "
-            f"LiePoissonSym2, LiePoissonSym4, Midpoint or EulerMaruyama.")
-
-
-def _check_method(method):
-    if not isinstance(method, AbstractMethod):
-        raise TypeError(
-            f"method must be an instance such as LiePoisson(), got {method!r}"
-            + (" (a class: call it)" if isinstance(method, type) else "") + "."
-        )
-    check_options(method)  # again here: a dataclass can be built around its constructor
-
-
-def _check_y0(y0, method, model):
-    _check_pair(method, model)
-    y0 = _real_array("y0", y0)
-    if y0.shape != (3,):
-        raise ValueError(
-            f"y0 must have shape (3,), got shape {y0.shape}"
-            + ("; for several initial values use jax.vmap over integrate." if y0.ndim == 2
-               and y0.shape[-1] == 3 else "."))
-    y0 = y0.astype(model.c.dtype)
-    y_np = concrete(y0)
-    if y_np is not None:
-        if not np.all(np.isfinite(y_np)):
-            raise ValueError(f"y0 must be finite, got {y_np}.")
-        method.check_initial(model, y_np)
-    return y0
-
-
-def _check_positive(name, x):
-    """A positive finite scalar: its NumPy value, or `None` if traced."""
-    if isinstance(x, (bool, np.bool_)) or isinstance(x, str):
-        raise TypeError(f"{name} must be a positive number, got {x!r}.")
-    if isinstance(x, (int, float, np.integer, np.floating)):
-        x_np = np.asarray(x)  # stays concrete inside jit, where jnp.asarray would trace
-    else:
-        x_np = concrete(_real_array(name, x))
-    if x_np is not None:
-        if np.shape(x_np) != ():
-            raise ValueError(f"{name} must be a scalar, got shape {np.shape(x_np)}.")
-        if not (np.isfinite(x_np) and x_np > 0):
-            raise ValueError(f"{name} must be positive and finite, got {x_np}.")
-    return x_np
-
-
-def _check_count(name, n, minimum=1):
-    if not _is_int(n) or n < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {n!r}"
-                         + (" (a float: pass int(...))" if isinstance(n, float) else "") + ".")
-    return int(n)
-
-
-def _check_save_every(save_every, n_steps):
-    if save_every is None:
-        return n_steps
-    if not _is_int(save_every) or save_every < 1:
-        raise ValueError(f"save_every must be a positive integer or None, got {save_every!r}.")
-    if n_steps % save_every:
-        divisors = [k for k in range(1, n_steps + 1) if n_steps % k == 0]
-        near = sorted(sorted(divisors, key=lambda k: abs(k - save_every))[:3])
-        raise ValueError(
-            f"save_every={save_every} must divide the number of steps {n_steps}; "
-            f"the nearest divisors are {near}."
-        )
-    return int(save_every)
-
-
-def _check_retry(retry_substeps):
-    if retry_substeps is None:
+def _failure_message(caller, fail_step, result):
+    """What failed, where and why, for the error or warning of `caller`; `None` if nothing
+    failed. `fail_step`, `result`: per path (any shape), `-1` / `successful` where none."""
+    fail_step, result = np.ravel(fail_step), np.ravel(result)
+    failed = fail_step >= 0
+    if not np.any(failed):
         return None
-    if not _is_int(retry_substeps) or retry_substeps < 2:
-        raise ValueError(f"retry_substeps must be None or an integer >= 2 (the number of "
-                         f"substeps a failed step is split into), got {retry_substeps!r}.")
-    return int(retry_substeps)
+    first = int(np.argmin(np.where(failed, fail_step, np.iinfo(fail_step.dtype).max)))
+    codes, counts = np.unique(result[failed], return_counts=True)
+    why = "; ".join(f"{int(n)} x {RESULTS.message(c)}" for c, n in zip(codes, counts))
+    n_failed, n = int(np.sum(failed)), fail_step.size
+    if caller == "integrate":
+        which = f" (first failure; {n_failed} of {n} paths failed)" if n > 1 else ""
+        return (f"integrate: step {int(fail_step[first])} could not be solved{which}: {why}. "
+                f"The path is frozen at its last good state from there on. Pass throw=False "
+                f"to return it anyway, retry_substeps=4 to split failing steps, or use a "
+                f"smaller dt (or LiePoisson(scale=...) near |y| = 1).")
+    return (f"{caller}: {n_failed} of {n} samples failed (first at step "
+            f"{int(fail_step[first])}): {why}. They are frozen at their last good state; see "
+            f"Solution.result and fail_step. A smaller dt usually helps, or retry_substeps=4 "
+            f"to split failing steps.")
 
 
-def _check_throw(throw):
-    if not isinstance(throw, (bool, np.bool_)):
-        raise TypeError(f"throw must be True or False, got {throw!r}.")
+def _raise_on_failure(caller, fail_step, result):
+    msg = _failure_message(caller, fail_step, result)
+    if msg is not None:
+        raise RuntimeError(msg + (" Pass throw=False to get the other samples."
+                                  if caller != "integrate" else ""))
 
 
-@jax.custom_batching.custom_vmap
-def _report_failures(fail_step):
-    """Raise (through a host callback) if any entry of `fail_step` is a failure (`>= 0`).
+@functools.cache
+def _reporter(caller):
+    """Raise (through a host callback) if any path failed: for `throw=True` under `jit`,
+    `vmap` or `grad`, where the failures are not known in Python.
 
     Under `vmap` the callback gets the whole batch, once: `jax.debug.callback`'s own rule
     unrolls the batch into one host call per sample, which made a `vmap`ped `integrate`
     3x slower and its compilation about twice as long (500 samples x 512 steps).
     """
-    jax.debug.callback(_raise_on_failure, fail_step)
-    return fail_step
+
+    @jax.custom_batching.custom_vmap
+    def report(fail_step, result):
+        jax.debug.callback(functools.partial(_raise_on_failure, caller), fail_step, result)
+        return fail_step
+
+    @report.def_vmap
+    def _batched(axis_size, in_batched, fail_step, result):
+        return report(fail_step, result), in_batched[0]
+
+    return report
 
 
-@_report_failures.def_vmap
-def _report_failures_batched(axis_size, in_batched, fail_step):
-    return _report_failures(fail_step), in_batched[0]
-
-
-def _raise_on_failure(fail_step):
-    """`fail_step`: one path's step of failure (-1: none), or a batch of them under `vmap`."""
-    fail_step = np.asarray(fail_step)
-    failed = fail_step >= 0
-    if np.any(failed):
-        first = int(np.min(fail_step[failed]))
-        which = (f" (first failure; {int(np.sum(failed))} of {fail_step.size} paths failed)"
-                 if fail_step.size > 1 else "")
-        raise RuntimeError(
-            f"integrate: step {first} could not be solved{which}; the path is frozen at its "
-            f"last good state from there on. Pass throw=False to return it anyway, "
-            f"retry_substeps=4 to split failing steps, or use a smaller dt "
-            f"(or LiePoisson(scale=...) near |y| = 1)."
-        )
+def _throw(caller, fail_step, result):
+    """Raise now if the failures are concrete, or through a callback if they are traced."""
+    if isinstance(fail_step, jax.core.Tracer):
+        _reporter(caller)(fail_step, result)
+    else:
+        _raise_on_failure(caller, fail_step, result)
 
 
 # --------------------------------------------------------------------------------------
@@ -406,52 +328,32 @@ def integrate(model, y0, dW, dt, *, method=LiePoisson(), save_every=None, throw=
 
     **Returns:** the final state `(3,)`, or `(n_steps // save_every + 1, 3)`.
     """
-    _check_model(model)
-    _check_method(method)
-    _check_throw(throw)
-    y0 = _check_y0(y0, method, model)
-    dW = _real_array("dW", dW)
+    check_model(model)
+    check_method(method)
+    check_throw(throw)
+    y0 = check_y0(y0, method, model)
+    dW = real_array("dW", dW)
     if dW.ndim != 1 or dW.shape[0] < 1:
         raise ValueError(
             f"dW must be a non-empty 1-D array of increments, got shape {dW.shape}"
             + ("; for several paths use jax.vmap over integrate." if dW.ndim == 2 else "."))
-    dt_np = _check_positive("dt", dt)
+    dt_np = check_positive("dt", dt)
     dW_np = concrete(dW)
     if dW_np is not None and not np.all(np.isfinite(dW_np)):
         bad = np.flatnonzero(~np.isfinite(dW_np))
         raise ValueError(f"dW must be finite; entries {bad[:5].tolist()} are not.")
     n_steps = dW.shape[0]
-    k = _check_save_every(save_every, n_steps)
-    retry = _check_retry(retry_substeps)
+    k = check_save_every(save_every, n_steps)
+    retry = check_retry(retry_substeps)
     dtype = y0.dtype
     dt = jnp.asarray(dt if dt_np is None else float(dt_np), dtype)
-    ys, fail_step, _, _ = _integrate_jit(method, model, y0, dW.astype(dtype), dt, k, False,
-                                         retry)
+    ys, fail_step, result, _, _ = _integrate_jit(method, model, y0, dW.astype(dtype), dt, k,
+                                                 False, retry)
     if throw:
-        if isinstance(fail_step, jax.core.Tracer):
-            _report_failures(fail_step)
-        else:
-            _raise_on_failure(fail_step)
+        _throw("integrate", fail_step, result)
     if save_every is None:
         return ys[-1]
     return jnp.concatenate([y0[None], ys], axis=0)
-
-
-def _check_grid(caller, t1, dt):
-    """`(dt, n_steps)` as Python numbers, for concrete positive `t1 = n_steps dt`."""
-    dt = _check_positive("dt", dt)
-    t1 = _check_positive("t1", t1)
-    if dt is None or t1 is None:
-        raise TypeError(f"{caller} needs concrete t1 and dt (they fix the number of steps): "
-                        "call it outside jax.jit, or use integrate inside.")
-    dt, t1 = float(dt), float(t1)
-    ratio = t1 / dt
-    n_steps = int(round(ratio))
-    if n_steps < 1 or abs(ratio - n_steps) > 1e-9 * max(1.0, ratio):
-        near = max(1, n_steps)
-        raise ValueError(f"t1={t1} must be a positive multiple of dt={dt} (t1/dt = {ratio}); "
-                         f"for example dt={t1 / near!r}.")
-    return dt, n_steps
 
 
 def simulate(model, y0, *, t1, dt, n_samples, key, method=LiePoisson(), save_every=None,
@@ -488,16 +390,16 @@ def simulate(model, y0, *, t1, dt, n_samples, key, method=LiePoisson(), save_eve
 
     **Returns:** a `Solution`.
     """
-    _check_model(model)
-    _check_method(method)
-    _check_throw(throw)
-    y0 = _check_y0(y0, method, model)
-    dt, n_steps = _check_grid("simulate", t1, dt)
-    n_samples = _check_count("n_samples", n_samples)
+    check_model(model)
+    check_method(method)
+    check_throw(throw)
+    y0 = check_y0(y0, method, model)
+    dt, n_steps = check_grid("simulate", t1, dt)
+    n_samples = check_count("n_samples", n_samples)
     key = _noise.check_key(key)
     _noise.check_truncation(dt, truncate_k)
-    k = _check_save_every(save_every, n_steps)
-    retry = _check_retry(retry_substeps)
+    k = check_save_every(save_every, n_steps)
+    retry = check_retry(retry_substeps)
     sharding = check_sharding(sharding, n_samples)
     dtype = y0.dtype
 
@@ -505,7 +407,7 @@ def simulate(model, y0, *, t1, dt, n_samples, key, method=LiePoisson(), save_eve
     if sharding is not None:
         keys = jax.device_put(keys, sharding)
     bound = jnp.asarray(_noise.truncation_bound(dt, truncate_k), dtype)
-    ys, fail_step, n_retried, acc = _ensemble_jit(
+    ys, fail_step, result, n_retried, acc = _ensemble_jit(
         method, model, y0, keys, jnp.asarray(dt, dtype), bound, n_steps // k, k,
         bool(newton_stats), retry=retry)
     if save_every is None:
@@ -521,17 +423,12 @@ def simulate(model, y0, *, t1, dt, n_samples, key, method=LiePoisson(), save_eve
         stats["newton_iterations_mean"] = jnp.sum(acc[0]) / (n_samples * n_steps)
         stats["newton_iterations_max"] = jnp.max(acc[1])
         stats["residual_max"] = jnp.max(acc[2])
-    sol = Solution(ts=ts, ys=ys, result=jnp.where(failed, RESULTS.step_failed,
-                                                   RESULTS.successful).astype(jnp.int8),
-                   fail_step=fail_step, stats=stats)
-    n_failed = concrete(stats["n_failed"])
-    if n_failed is not None and n_failed > 0:
-        first = int(np.min(np.where(np.asarray(failed), np.asarray(fail_step), n_steps)))
-        msg = (f"simulate: {int(n_failed)} of {n_samples} samples failed (first at step "
-               f"{first}); they are frozen at their last good state. See Solution.result and "
-               f"fail_step; a smaller dt usually helps"
-               + (", or retry_substeps=4 to split failing steps." if retry is None else "."))
-        if throw:
-            raise RuntimeError(msg + " Pass throw=False to get the other samples.")
-        warnings.warn(msg, RuntimeWarning, stacklevel=2)
+    sol = Solution(ts=ts, ys=ys, result=result.astype(jnp.int8), fail_step=fail_step,
+                   stats=stats)
+    if throw:
+        _throw("simulate", fail_step, result)
+    elif not isinstance(fail_step, jax.core.Tracer):
+        msg = _failure_message("simulate", fail_step, result)
+        if msg is not None:
+            warnings.warn(msg, RuntimeWarning, stacklevel=2)
     return sol

@@ -9,45 +9,27 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _so3
+from ._checks import concrete, float_dtype, real_array
+from ._system import NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY, LiePoissonSystem
 
 
-def concrete(x):
-    """`x` as a NumPy array, or `None` if it is traced (inside `jit`, `vmap`, `grad`)."""
-    if isinstance(x, jax.core.Tracer):
-        return None
-    return np.asarray(x)
-
-
-def float_dtype(*xs):
-    """The floating dtype the computation runs in: the inputs' promoted dtype, at least the
-    default float (float32, or float64 with `jax_enable_x64`)."""
-    return jnp.result_type(float, *xs)
-
-
-def _real_array(name, x):
-    """`x` as an array of real numbers, or a `TypeError` naming the argument."""
-    if isinstance(x, str):
-        raise TypeError(f"{name} must be real numbers, got the string {x!r}.")
-    try:
-        arr = jnp.asarray(x)  # (also a list of tracers, inside jit)
-    except (TypeError, ValueError) as err:
-        raise TypeError(f"{name} must be real numbers, got {x!r} ({err}).") from None
-    # (a key array has an extended dtype, which NumPy cannot describe)
-    if jax.dtypes.issubdtype(arr.dtype, jax.dtypes.extended) or \
-            np.dtype(arr.dtype).kind not in "fiu":
-        raise TypeError(f"{name} must be real numbers, got dtype {arr.dtype}.")
-    return arr
+def _rigid_body_hamiltonian(y, inertia):
+    return 0.5 * jnp.sum(y ** 2 / inertia, axis=-1)
 
 
 @jax.tree_util.register_pytree_node_class
-class RigidBody:
+class RigidBody(LiePoissonSystem):
     r"""The stochastic rigid body $dy = y \times I^{-1} y\,(dt + c \circ dW)$.
 
     In the paper's notation a stochastic Lie–Poisson system on so(3)* with structure matrix
     $B(y) = \hat y$, Hamiltonian $H(y) = \tfrac12 y^T I^{-1} y$ and Casimir
     $C(y) = \tfrac12 |y|^2$ (Liu & Wang, system (10)).
 
-    A pytree whose leaves are `inertia` and `c`, so `jax.grad` reaches both.
+    The analytic special case of `LiePoissonSystem` (Hamiltonian
+    $H(y) = \tfrac12 y^T I^{-1} y$, `params` the inertia): its gradient and Hessian are
+    written out, and it offers the rigid body's structure (`inverse_inertia`) that some
+    methods need (`LiePoisson`, `Strang`, `Exact`). A pytree whose leaves are `inertia` and
+    `c`, so `jax.grad` reaches both.
 
     **Arguments:**
 
@@ -62,9 +44,12 @@ class RigidBody:
     (inside `jit` or `grad`) are not checked.
     """
 
+    structure = frozenset({NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY})
+    hamiltonian_fn = staticmethod(_rigid_body_hamiltonian)
+
     def __init__(self, inertia, c=0.0):
-        inertia = _real_array("inertia", inertia)
-        c = _real_array("c", c)
+        inertia = real_array("inertia", inertia)
+        c = real_array("c", c)
         dtype = float_dtype(inertia, c)
         inertia, c = inertia.astype(dtype), c.astype(dtype)
         if inertia.shape != (3,):
@@ -99,22 +84,30 @@ class RigidBody:
     def __repr__(self):
         return f"RigidBody(inertia={self.inertia!r}, c={self.c!r})"
 
+    @property
+    def params(self):
+        """The inertia: the parameters of the Hamiltonian, as for a `LiePoissonSystem`."""
+        return self.inertia
+
     def hamiltonian(self, y):
         """$H(y) = \\tfrac12 \\sum_i y_i^2 / I_i$, over the last axis of `y`."""
-        return 0.5 * jnp.sum(jnp.asarray(y) ** 2 / self.inertia, axis=-1)
+        return _rigid_body_hamiltonian(jnp.asarray(y), self.inertia)
 
-    def casimir(self, y):
-        """$C(y) = \\tfrac12 |y|^2$, over the last axis of `y`."""
-        return 0.5 * jnp.sum(jnp.asarray(y) ** 2, axis=-1)
-
-    def vector_field(self, y):
-        """$f(y) = y \\times I^{-1} y$, so that $dy = f(y)(dt + c \\circ dW)$."""
-        y = jnp.asarray(y)
-        return jnp.cross(y, y / self.inertia)
+    def gradient(self, y):
+        """$\\nabla H(y) = I^{-1} y$, over the last axis of `y`."""
+        return jnp.asarray(y) / self.inertia
 
     def inverse_inertia(self):
         """$I^{-1}$ as component tuple (private helper for the integrators)."""
         return _so3.vec(1.0 / self.inertia)
+
+    def gradient_c(self, v):
+        return _so3.mul(self.inverse_inertia(), v)
+
+    def gradient_hessian_c(self, v):
+        d = self.inverse_inertia()
+        z = jnp.zeros_like(d[0])
+        return _so3.mul(d, v), ((d[0], z, z), (z, d[1], z), (z, z, d[2]))
 
 
 PAPER_Y0 = (0.7, 0.7, 0.0)

@@ -8,10 +8,32 @@ import jax
 
 
 class RESULTS:
-    """Per-sample outcome codes of `Solution.result`."""
+    """Per-sample outcome codes of `Solution.result`, and what each means.
+
+    As diffrax's `RESULTS`: a failed sample's code says why its step failed, and
+    `RESULTS.message(code)` says it in words (the failure messages of `simulate` and
+    `integrate` quote it).
+    """
 
     successful = 0
-    step_failed = 1  # a step could not be solved (or gave a non-finite state)
+    max_iterations_reached = 1  # Newton's method used its updates without converging
+    nonfinite = 2  # a non-finite residual or state
+    off_branch = 3  # a Newton iterate left the admissible branch of roots
+    outside_domain = 4  # the state left the method's domain (for example |y| >= 1)
+
+    _messages = {
+        0: "successful",
+        1: "Newton's method reached max_iter updates without converging",
+        2: "a non-finite residual or state appeared",
+        3: "a Newton iterate left the admissible branch of roots (theta < pi/2)",
+        4: "the state is outside the method's domain (|y| >= 1 for the generating-function "
+           "methods)",
+    }
+
+    @classmethod
+    def message(cls, code):
+        """The meaning of a code, in words."""
+        return cls._messages.get(int(code), f"unknown result code {int(code)}")
 
 
 @jax.tree_util.register_dataclass

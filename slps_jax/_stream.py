@@ -19,8 +19,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _noise
-from ._integrate import (_check_count, _check_grid, _check_method, _check_model,
-                         _check_retry, _check_save_every, _check_y0, _ensemble)
+from ._checks import (check_count, check_grid, check_method, check_model, check_retry,
+                      check_save_every, check_y0)
+from ._integrate import _ensemble
 from ._sharding import check_sharding
 from ._solver.lie_poisson import LiePoisson
 
@@ -99,8 +100,8 @@ def _chunk(state, offset, n_samples, method, model, y0, key, dt, bound, n_blocks
     keys = _noise.sample_keys(key, chunk_size, offset)
     if sharding is not None:
         keys = jax.lax.with_sharding_constraint(keys, sharding)
-    ys, fail_step, _, _ = _ensemble(method, model, y0, keys, dt, bound, n_blocks, block_len,
-                                    False, retry=retry)
+    ys, fail_step, _, _, _ = _ensemble(method, model, y0, keys, dt, bound, n_blocks,
+                                       block_len, False, retry=retry)
     ys = jnp.concatenate([jnp.broadcast_to(y0, (chunk_size, 1, 3)), ys], axis=1)
     obs = _observe(observable, ys)
     valid = idx < n_samples
@@ -143,20 +144,20 @@ def ensemble_statistics(model, y0, *, t1, dt, n_samples, key, chunk_size, method
     **Returns:** an `EnsembleStatistics` (NumPy arrays). Failed samples are left out of the
     moments and counted in `n_failed`, with a `RuntimeWarning`.
     """
-    _check_model(model)
-    _check_method(method)
-    y0 = _check_y0(y0, method, model)
-    dt, n_steps = _check_grid("ensemble_statistics", t1, dt)
-    n_samples = _check_count("n_samples", n_samples)
+    check_model(model)
+    check_method(method)
+    y0 = check_y0(y0, method, model)
+    dt, n_steps = check_grid("ensemble_statistics", t1, dt)
+    n_samples = check_count("n_samples", n_samples)
     if n_samples >= 2 ** 32:
         raise ValueError(f"n_samples must be below 2^32 (sample indices are uint32), "
                          f"got {n_samples}.")
-    chunk_size = _check_count("chunk_size", chunk_size)
+    chunk_size = check_count("chunk_size", chunk_size)
     chunk_size = min(chunk_size, n_samples)
     key = _noise.check_key(key)
     _noise.check_truncation(dt, truncate_k)
-    k = _check_save_every(save_every, n_steps)
-    retry = _check_retry(retry_substeps)
+    k = check_save_every(save_every, n_steps)
+    retry = check_retry(retry_substeps)
     sharding = check_sharding(sharding, chunk_size, name="chunk_size")
     if isinstance(statistics, str):
         statistics = (statistics,)

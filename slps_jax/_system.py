@@ -7,7 +7,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _so3
-from ._model import RigidBody, concrete, float_dtype
+from ._algebra import SO3
+from ._checks import concrete, float_dtype
+
+
+# What a system offers, which methods may declare they need (`AbstractMethod.requires`).
+NOISE_PROPORTIONAL_TO_DRIFT = "noise proportional to the drift"  # one noise, H_1 = c H_0
+RIGID_BODY = "rigid body"  # H_0 = y^T I^{-1} y / 2 on so(3)*, `inverse_inertia()` available
 
 
 @jax.tree_util.register_pytree_node_class
@@ -38,6 +44,10 @@ class LiePoissonSystem:
     **Reference:** Liu & Wang, *Lie–Poisson numerical method for a class of stochastic
     Lie–Poisson systems*, system (1) with $B(y) = \hat y$, $H_0 = H$ and $H_1 = cH$.
     """
+
+    algebra = SO3
+    n_noises = 1
+    structure = frozenset({NOISE_PROPORTIONAL_TO_DRIFT})
 
     def __init__(self, hamiltonian, params=None, c=0.0):
         if not callable(hamiltonian):
@@ -81,31 +91,27 @@ class LiePoissonSystem:
 
     def casimir(self, y):
         """$C(y) = \\tfrac12 |y|^2$, over the last axis of `y`."""
-        return 0.5 * jnp.sum(jnp.asarray(y) ** 2, axis=-1)
+        return self.algebra.casimirs(y)[..., 0]
 
     def gradient(self, y):
         """$\\nabla H(y)$ over the last axis of `y`."""
         return jnp.vectorize(jax.grad(self._h), signature="(3)->(3)")(jnp.asarray(y))
 
     def vector_field(self, y):
-        """$f(y) = y \\times \\nabla H(y)$, so that $dy = f(y)(dt + c \\circ dW)$."""
+        """$f(y) = B(y)\\nabla H(y) = y \\times \\nabla H(y)$, so that
+        $dy = f(y)(dt + c \\circ dW)$."""
         y = jnp.asarray(y)
-        return jnp.cross(y, self.gradient(y))
+        return self.algebra.bracket(y, self.gradient(y))
 
+    # Component forms for the integrators (tuples of arrays: see `_so3`). Subclasses with a
+    # closed form override them.
 
-def gradient_c(model, v):
-    """$\\nabla H(v)$ on components (private helper for the integrators)."""
-    if isinstance(model, RigidBody):
-        return _so3.mul(model.inverse_inertia(), v)
-    return _so3.vec(jax.grad(model._h)(_so3.unvec(v)))
+    def gradient_c(self, v):
+        """$\\nabla H(v)$ on components."""
+        return _so3.vec(jax.grad(self._h)(_so3.unvec(v)))
 
-
-def gradient_hessian_c(model, v):
-    """$(\\nabla H(v), \\nabla^2 H(v))$ on components, in one forward-mode pass."""
-    if isinstance(model, RigidBody):
-        d = model.inverse_inertia()
-        z = jnp.zeros_like(d[0])
-        return _so3.mul(d, v), ((d[0], z, z), (z, d[1], z), (z, z, d[2]))
-    grad = jax.grad(model._h)
-    hess, g = jax.jacfwd(lambda u: (grad(u), grad(u)), has_aux=True)(_so3.unvec(v))
-    return _so3.vec(g), _so3.mat(hess)
+    def gradient_hessian_c(self, v):
+        """$(\\nabla H(v), \\nabla^2 H(v))$ on components, in one forward-mode pass."""
+        grad = jax.grad(self._h)
+        hess, g = jax.jacfwd(lambda u: (grad(u), grad(u)), has_aux=True)(_so3.unvec(v))
+        return _so3.vec(g), _so3.mat(hess)

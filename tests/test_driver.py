@@ -170,7 +170,7 @@ def test_simulate_reports_failures(paper):
         warnings.simplefilter("always")
         sol = sj.simulate(model, y0, throw=False, **kwargs)
     assert any("samples failed" in str(w.message) for w in caught)
-    failed = np.asarray(sol.result) == sj.RESULTS.step_failed
+    failed = np.asarray(sol.result) != sj.RESULTS.successful
     assert 0 < failed.sum() < 50 and int(sol.stats["n_failed"]) == failed.sum()
     assert np.all(np.isfinite(sol.ys))
     assert np.all(np.asarray(sol.fail_step)[failed] >= 0)

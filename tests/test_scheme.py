@@ -7,7 +7,11 @@ import pytest
 
 import slps_jax as sj
 from slps_jax import _so3, so3
-from slps_jax._solver.lie_poisson import FAST_UPDATES, branch_rotation, in_map, sine_chart_in_map
+from slps_jax._solver.lie_poisson import branch_rotation, in_map, sine_chart_in_map
+
+# Newton updates in the sine chart from v = y_n that solve a step of the paper's setup at
+# small h (benchmarks/newton_iterations.py): the loop's fourth residual passes the test.
+USUAL_UPDATES = 3
 
 rng = np.random.default_rng(2)
 
@@ -95,16 +99,16 @@ def test_sine_chart_residual_and_jacobian_match_autodiff_of_generating_function(
 
 
 def test_fast_path_reaches_the_tolerance_on_the_paper_setup(paper):
-    """Three sine-chart updates and one residual test solve almost every step at h = 2^-9:
-    the residual of every step is within the tolerance, and at most 0.1 % of sample-steps
-    needed the fallback (each of those counts at least one more update)."""
+    """At most three sine-chart updates solve almost every step at h = 2^-9: the residual
+    of every step is within the tolerance, and at most 0.1 % of sample-steps needed more
+    (each of those counts at least one more update)."""
     model, y0 = paper
     sol = sj.simulate(model, y0, t1=0.25, dt=2.0 ** -9, n_samples=200, key=jax.random.key(3),
                       newton_stats=True)
     tol = 64 * np.finfo(np.float64).eps
     assert int(sol.stats["n_failed"]) == 0
     assert float(sol.stats["residual_max"]) <= tol
-    assert FAST_UPDATES <= float(sol.stats["newton_iterations_mean"]) < FAST_UPDATES + 1e-3
+    assert USUAL_UPDATES - 0.5 <= float(sol.stats["newton_iterations_mean"]) < USUAL_UPDATES + 1e-3
 
 
 @pytest.mark.parametrize("dW", [0.0, 0.15, -0.4])
@@ -171,14 +175,14 @@ def test_euler_maruyama_step(paper):
 
 def test_large_increment_near_the_fold_converges(paper):
     """|y| = 0.99 and a 4.5-sigma increment at h = 2^-5: the sine-chart updates leave the
-    branch here, and the fallback (exponential coordinates from the tangent predictor)
-    solves it; Newton from the plain arcsin start would diverge."""
+    branch here, and the continuation in the step (lam = 1/2, then 1) solves it; Newton
+    from the plain start v = y_n alone leaves the chart."""
     model, _ = paper
     y = jnp.array([0.69566237, 0.66189641, 0.24072184])
     dW, dt = 0.7981970294584523, 2.0 ** -5
     y1, info = lie_poisson_step(model, y, dt, dW)
     assert bool(info.ok)
-    assert int(info.iterations) > FAST_UPDATES  # solved by the fallback, not the fast path
+    assert int(info.iterations) > USUAL_UPDATES + 1  # solved by the continuation
     tau, kappa = dt + model.c * dW, (model.c * dW) ** 2
     # Independent solution by continuation in tau with an autodiff Newton.
     r = jnp.linalg.norm(y)

@@ -1,0 +1,12 @@
+"""The methods: one module each, and `METHODS`, the registry the driver's check names
+alternatives from."""
+
+from .euler_maruyama import EulerMaruyama
+from .exact import Exact
+from .lie_poisson import LiePoisson
+from .lie_poisson_sym import LiePoissonSym2, LiePoissonSym4
+from .midpoint import Midpoint
+from .strang import Strang, Strang4
+
+METHODS = (LiePoisson, LiePoissonSym2, LiePoissonSym4, Midpoint, Strang, Strang4, Exact,
+           EulerMaruyama)

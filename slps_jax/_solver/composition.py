@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
+from .._solution import RESULTS
 from .base import StepInfo
 
 # gamma1 = 1/(2 - 2^(1/3)), gamma0 = 1 - 2 gamma1: Phi_{g1 t} o Phi_{g0 t} o Phi_{g1 t} of a
@@ -14,11 +15,11 @@ TRIPLE_JUMP = (GAMMA1, GAMMA0, GAMMA1)
 
 
 def combine(infos):
-    """One `StepInfo` for consecutive solves: ok if all are, iterations summed, worst
-    residual."""
-    ok, iterations, residual = infos[0]
+    """One `StepInfo` for consecutive solves: the first failure's result (successful if
+    none failed), iterations summed, worst residual."""
+    result, iterations, residual = infos[0]
     for info in infos[1:]:
-        ok = ok & info.ok
+        result = jnp.where(result == RESULTS.successful, info.result, result)
         iterations = iterations + info.iterations
         residual = jnp.maximum(residual, info.residual)
-    return StepInfo(ok, iterations, residual)
+    return StepInfo(result, iterations, residual)

@@ -5,7 +5,6 @@ from __future__ import annotations
 import dataclasses
 
 from .. import _so3 as so3
-from .._system import gradient_c
 from .base import AbstractMethod, explicit_info
 
 
@@ -18,11 +17,9 @@ class EulerMaruyama(AbstractMethod):
     Works for the `RigidBody` and any `LiePoissonSystem` ($f(y) = y \times \nabla H(y)$).
     """
 
-    general_hamiltonian = True
-
     def step(self, model, y, dt, dW):
         tau = dt + model.c * dW
         yc = so3.vec(y)
-        f = so3.cross(yc, gradient_c(model, yc))
+        f = so3.cross(yc, model.gradient_c(yc))
         y_next = so3.unvec(tuple(yi + tau * fi for yi, fi in zip(yc, f))).astype(y.dtype)
         return y_next, explicit_info(y_next)

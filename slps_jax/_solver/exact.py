@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 
 from .._exact import exact_flow
+from .._system import NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
 from .base import AbstractMethod, explicit_info
 
 
@@ -18,6 +19,8 @@ class Exact(AbstractMethod):
     which grows like the flow's conditioning). A reference for the other methods and a fast
     exact sampler of the rigid body; it has no Newton solve. See `exact_flow`.
     """
+
+    requires = frozenset({RIGID_BODY, NOISE_PROPORTIONAL_TO_DRIFT})
 
     def step(self, model, y, dt, dW):
         y_next = exact_flow(model, y, dt + model.c * dW).astype(y.dtype)

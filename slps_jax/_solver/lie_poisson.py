@@ -8,8 +8,11 @@ import jax
 import jax.numpy as jnp
 
 from .. import _so3 as so3
-from ._checks import check_options
-from .base import AbstractMethod, StepInfo, default_tol, implicit_root, max_norm, newton
+from .._checks import check_options
+from .._solution import RESULTS
+from .._system import NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
+from .base import AbstractMethod, StepInfo, default_tol, finite_result
+from .newton import implicit_root, newton
 
 
 def in_map(a, y, d, tau, kappa, jacobian=True):
@@ -167,131 +170,41 @@ def sine_chart_in_map(v, y, d, tau, kappa, jacobian=True):
     return r, jac
 
 
-def _branch_start(y):
-    """Exponential and Cayley coordinates of the rotation about `y` by `arcsin|y|`.
+# Continuation levels of the sine-chart Newton: a failed solve restarts along
+# lam = 1/2, 1, then quarters, eighths and sixteenths of the step (see `newton`).
+CONTINUATION = 4
 
-    It solves the in-map exactly at `tau = kappa = 0` on the branch `theta < pi/2`.
+
+def solve_on_branch(sine_fn, z, *, tol, max_iter, feasible=True):
+    """The root `A` on the branch `theta < pi/2` of an in-map at `z`, as its sine vector `v`
+    (`A = branch_rotation(v)`).
+
+    `sine_fn(v, lam, jacobian=True)` is the residual in the sine chart (and `dR/dv`) of the
+    in-map with its step scaled by `lam` (`tau -> lam tau`, `kappa -> lam^2 kappa`), whose
+    root at `lam = 0` is `v = z`. Newton in the sine chart from `v = z`: one loop whose body
+    is one update, usually three updates and a fourth residual that passes the test.
+    A sample whose iterates would leave the chart (`|v| >= 1`, near the fold at large
+    steps) or that does not converge starts again and follows the roots from `lam = 0` to
+    `lam = 1` in two, then four stages (`newton`'s continuation: data in the same loop, so
+    the residual is compiled once). Derivatives follow the implicit function theorem
+    (`implicit_root`).
+
+    **Returns:** `(v, result, iterations, residual)`.
     """
-    r2 = so3.dot(y, y)
-    small = r2 < 1e-8
-    r2s = jnp.where(small, 0.25, r2)
-    r = jnp.sqrt(r2s)
-    # arcsin(r)/r -> 1 + r^2/6; the double where keeps gradients finite at y = 0.
-    f_exp = jnp.where(small, 1.0 + r2 / 6.0, jnp.arcsin(jnp.minimum(r, 1.0)) / r)
-    # 2 tan(theta/2)/sin(theta) = 2/(1 + cos theta)
-    f_cay = 2.0 / (1.0 + jnp.sqrt(jnp.maximum(1.0 - r2, 0.0)))
-    return so3.scale(f_exp, y), so3.scale(f_cay, y)
-
-
-def _predictor(y, d, tau, kappa, mode):
-    """Newton's start in the exponential (`mode` 1) or Cayley (`mode` 2) coordinates.
-
-    `A0`, the rotation about `y` by `arcsin|y|`, solves the in-map at `tau = kappa = 0`.
-    One linearised step `x0 - J0^{-1} R(A0)` follows the solution branch to the actual
-    `tau, kappa`, with `J0 = P(A0) chain` the Jacobian at `tau = kappa = 0`. Near the fold
-    (`|y|` close to 1) the Jacobian at the actual `tau` can be nearly singular at `A0` even
-    when the solution itself is well conditioned; `J0` is not (its small eigenvalue is
-    `cos theta > 0`), so this start converges where a plain Newton step from `A0` diverges.
-    """
-    x0 = _branch_start(y)[mode - 1]
-    a0, chain = _rotation_and_chain(x0, mode)
-    r, _ = in_map(a0, y, d, tau, kappa, jacobian=False)
-    t = so3.trace(a0)
-    p0 = so3.mscale(0.5, so3.shift(so3.mscale(-1.0, so3.transpose(a0)), t))
-    dx = so3.solve3(so3.mm(p0, chain), r)
-    return tuple(xi - di for xi, di in zip(x0, dx))
-
-
-def _rotation_and_chain(x, mode):
-    """`A` and the right-trivialised derivative `dA = A hat(chain dx)` of the parameterisation.
-
-    mode 1: `A = exp(hat x)`, chain = the right Jacobian of exp;
-    mode 2: `A = cay(hat x)`, chain = `4/(4+|x|^2) (Id - hat(x)/2)`.
-    Both are `Id + a X + b X^2` and `e Id - f X + g X^2` with `X = hat x`: one set of matrix
-    products, only the scalar coefficients differ.
-    """
-    theta2 = so3.dot(x, x)
-    sa, sb, sc = so3.exp_coefficients(theta2)
-    s = 4.0 / (4.0 + theta2)
-    cay = mode == 2
-    a_coef, b_coef = jnp.where(cay, s, sa), jnp.where(cay, 0.5 * s, sb)
-    e_coef, f_coef, g_coef = jnp.where(cay, s, 1.0), jnp.where(cay, 0.5 * s, sb), \
-        jnp.where(cay, 0.0, sc)
-    xm = so3.hat_c(x)
-    x2 = so3.mm(xm, xm)
-    a = so3.shift(so3.madd(so3.mscale(a_coef, xm), so3.mscale(b_coef, x2)), 1.0)
-    chain = so3.shift(so3.madd(so3.mscale(-f_coef, xm), so3.mscale(g_coef, x2)), e_coef)
-    return a, chain
-
-
-# Newton updates in the sine chart done unconditionally before the first convergence test.
-# From the start v = y_n they reach the tolerance on the paper's setup for almost every
-# sample-step (see benchmarks/newton_iterations.py); the rest continue in the loop.
-FAST_UPDATES = 3
-
-
-def solve_in_map(z, d, tau, kappa, *, tol, max_iter, feasible=True):
-    """The root of the in-map at `z`, as the sine vector `v` of `A` (`A = branch_rotation(v)`).
-
-    Fast path: `FAST_UPDATES` Newton updates in the sine chart from `v = z` and one residual
-    test, straight-line code. Samples still above `tol` continue in the sine chart (a loop
-    whose body is one update), and those the sine chart cannot solve (its iterates leave
-    the branch) restart in exponential and then Cayley coordinates from their tangent
-    predictors, accepting only the branch `tr A > 1`. Under `vmap` each loop runs as long as
-    its slowest sample needs, zero times when none does. Derivatives follow the implicit
-    function theorem (`implicit_root`).
-
-    **Returns:** `(v, ok, iterations, residual)`.
-    """
-
-    def sine_system(v, _):
-        r, jac = sine_chart_in_map(v, z, d, tau, kappa)
-        return r, jac, so3.dot(v, v) < 1.0
-
-    def chart_system(x, mode):
-        a, chain = _rotation_and_chain(x, mode + 1)  # mode 0: exponential, 1: Cayley
-        r, jac = in_map(a, z, d, tau, kappa)
-        # accept the branch theta < pi/2 only; report the root as its sine vector
-        return r, so3.mm(jac, chain), so3.trace(a) > 1.0, so3.vee_skew(a)
-
-    def charts(state):
-        # Runs at most once, and only if some sample needs it: exponential coordinates from
-        # their tangent predictor, then Cayley coordinates.
-        v, ok, iterations, residual, pending = state
-        starts = (_predictor(z, d, tau, kappa, 1), lambda: _predictor(z, d, tau, kappa, 2))
-        _, _, more, res, ok_c, v_c = newton(chart_system, starts, tol=tol, max_iter=max_iter,
-                                            active=pending, aux0=v)
-        v = tuple(jnp.where(pending, a, b) for a, b in zip(v_c, v))
-        return (v, ok | (pending & ok_c), iterations + more,
-                jnp.where(pending, res, residual), jnp.zeros_like(pending))
 
     def solve():
-        # Fast path: Newton in the sine chart from v = z, the solution at tau = kappa = 0,
-        # a fixed number of updates, then one residual test. Straight-line code.
-        v = z
-        for _ in range(FAST_UPDATES):
-            r, jac = sine_chart_in_map(v, z, d, tau, kappa)
-            v = tuple(vi - di for vi, di in zip(v, so3.solve3(jac, r)))
-        rnorm = max_norm(sine_chart_in_map(v, z, d, tau, kappa, jacobian=False))
-        done = (rnorm <= tol) & (so3.dot(v, v) < 1.0)
-        # Samples still above the tolerance (a few near the fold at large steps): more
-        # sine-chart updates, in a loop whose body costs one update; under vmap it runs as
-        # long as the slowest sample needs, zero times if all are done.
-        v_s, _, more, res_s, ok_s = newton(sine_system, (v,), tol=tol, max_iter=max_iter,
-                                           active=feasible & ~done)
-        v = tuple(jnp.where(done, a, b) for a, b in zip(v, v_s))
-        ok = feasible & (done | ok_s)
-        state = (v, ok, FAST_UPDATES + more, jnp.where(done, rnorm, res_s), feasible & ~ok)
-        # The rare rest: other parameterisations (a while_loop run at most once).
-        v, ok, iterations, residual, _ = jax.lax.while_loop(lambda s: s[4], charts, state)
-        return v, ok, (iterations, residual)
+        s = newton(lambda v, lam: sine_fn(v, lam), z, tol=tol, max_iter=max_iter,
+                   active=feasible, admissible=lambda v: so3.dot(v, v) < 1.0,
+                   continuation=CONTINUATION)
+        return s.x, s.result == RESULTS.successful, (s.result, s.iterations, s.residual)
 
-    # Derivatives (with respect to the inertia, c, y and dW) by the implicit function
-    # theorem at the root, never through the iterations; v = 0 (A = Id) where it failed.
+    # Derivatives (with respect to the model's parameters, y and dW) by the implicit
+    # function theorem at the root, never through the iterations; v = 0 (A = Id) where it
+    # failed.
     zero = so3.scale(0.0, z)
-    v, ok, (iterations, residual) = implicit_root(
-        lambda v: sine_chart_in_map(v, z, d, tau, kappa, jacobian=False), solve, zero)
-    return v, ok, iterations.astype(jnp.int32), residual
+    v, _, (result, iterations, residual) = implicit_root(
+        lambda v: sine_fn(v, 1.0, jacobian=False), solve, zero)
+    return v, result.astype(jnp.int32), iterations.astype(jnp.int32), residual
 
 
 @dataclasses.dataclass(frozen=True)
@@ -303,28 +216,26 @@ class LiePoisson(AbstractMethod):
     $y_n = v(A) + \tau\,\mathrm{vee}(\mathrm{skew}(A^T W)) - \kappa\,\mathrm{vee}(\mathrm{skew}(A^T G(A)))$,
     $\tau = h + c\Delta W_n$, $\kappa = c^2 \Delta W_n^2$ (conventions of `docs/scheme.md`).
 
-    Newton's method with the analytic residual and Jacobian, in two stages.
+    Newton's method with the analytic residual and Jacobian in the *sine chart* of the
+    branch $\theta < \pi/2$, $A = A(v)$ with $v = \mathrm{vee}(\mathrm{skew} A)$ (see
+    `branch_rotation`), started from $v = y_n$ (the exact solution at $\tau = \kappa = 0$).
+    In this chart $v(A)$ is the unknown itself, so the Jacobian is $\mathrm{Id} + O(\tau)$
+    and the fold at $|y| = 1$ only enters through the small terms; the chart is algebraic
+    (no trigonometry) and lies on the branch by construction. On the paper's setup three
+    updates reach the tolerance for almost every sample-step. A sample whose iterates would
+    leave the chart (near the fold at large steps) starts again and follows the roots along
+    the step, $\lambda\tau$ and $\lambda^2\kappa$ for $\lambda = 1/2, 1$, then
+    $1/4, \dots, 1$: data in the same loop, so the solver is compiled once
+    (`solve_on_branch`).
 
-    1. *Fast path* (almost every sample-step): three Newton updates in the *sine chart* of the
-       branch $\theta < \pi/2$, $A = A(v)$ with $v = \mathrm{vee}(\mathrm{skew} A)$ (see
-       `branch_rotation`), started from $v = y_n$ (the exact solution at $\tau = \kappa = 0$),
-       then one residual test. In this chart $v(A)$ is the unknown itself, so the Jacobian
-       is $\mathrm{Id} + O(\tau)$ and the fold at $|y| = 1$ only enters through the small
-       terms; the chart is algebraic (no trigonometry) and lies on the branch by
-       construction. Straight-line code, no loop.
-    2. *Fallback* (samples whose residual is still above `tol`): more sine-chart updates,
-       then Newton on $\xi$ with $A = \exp(\hat\xi)$ from a tangent predictor, then with the
-       Cayley parameterisation $A = \mathrm{cay}(\hat\xi)$, accepting only roots with
-       $\operatorname{tr} A > 1$. Under `vmap` it runs only when some sample needs it.
-
-    A sample that none of them solves is flagged (`StepInfo.ok = False`); the driver keeps
-    its last good state. Every parameterisation gives an orthogonal $A$, so $|y|$ (the
+    A sample it cannot solve is flagged with the reason (`StepInfo.result`, a `RESULTS`
+    code); the driver keeps its last good state. The chart gives an orthogonal $A$, so $|y|$ (the
     Casimir) is kept to round-off. Strong order 1 on the paper's setup (measured).
 
     **Arguments:**
 
     - `tol`: max-norm residual tolerance; default `64 eps` of the dtype.
-    - `max_iter`: Newton updates allowed per parameterisation (default 12).
+    - `max_iter`: Newton updates allowed per continuation stage (default 12).
     - `scale`: $\lambda > 0$ to integrate $z = y/\lambda$ (time scaled by $\lambda$): needed when
       $|y_0| \ge 1$, where the in-map has no solution; choose $\lambda > |y_0|$. It moves the
       solve away from the fold at $|y| = 1$ but costs accuracy (`docs/scheme.md`).
@@ -332,6 +243,8 @@ class LiePoisson(AbstractMethod):
     Reference: Q. Liu and L. Wang, *Lie–Poisson numerical method for a class of stochastic
     Lie–Poisson systems*, scheme (42).
     """
+
+    requires = frozenset({RIGID_BODY, NOISE_PROPORTIONAL_TO_DRIFT})
 
     tol: float | None = None
     max_iter: int = 12
@@ -368,8 +281,12 @@ class LiePoisson(AbstractMethod):
         z = so3.scale(1.0 / lam, so3.vec(y))
         feasible = so3.dot(z, z) < 1.0
 
-        v, ok, iterations, residual = solve_in_map(z, d, tau, kappa, tol=tol,
-                                                   max_iter=self.max_iter, feasible=feasible)
+        def sine_fn(v, lam, jacobian=True):
+            return sine_chart_in_map(v, z, d, lam * tau, lam * lam * kappa, jacobian)
+
+        v, result, iterations, residual = solve_on_branch(
+            sine_fn, z, tol=tol, max_iter=self.max_iter, feasible=feasible)
         a, _, _ = branch_rotation(v)
         y_next = so3.unvec(so3.mv(a, so3.vec(y))).astype(dtype)
-        return y_next, StepInfo(ok, iterations.astype(jnp.int32), residual.astype(dtype))
+        return y_next, StepInfo(finite_result(y_next, result), iterations,
+                                residual.astype(dtype))

@@ -8,16 +8,15 @@ import jax
 import jax.numpy as jnp
 
 from .. import _so3 as so3
-from .._model import RigidBody
-from .._system import gradient_c, gradient_hessian_c
-from ._checks import check_options
-from .base import AbstractMethod, StepInfo, default_tol, newton
+from .._solution import RESULTS
+from .._checks import check_options
+from .base import AbstractMethod, StepInfo, default_tol, finite_result
 from .composition import TRIPLE_JUMP, combine
-from .lie_poisson import _branch_start, _rotation_and_chain, branch_rotation, solve_in_map
+from .lie_poisson import branch_rotation, solve_on_branch
 
 
 def in_map_general(a, y, model, tau, jacobian=True):
-    r"""Residual of the $\kappa = 0$ in-map for a general Hamiltonian, and its Jacobian.
+    r"""Residual of the $\kappa = 0$ in-map for any Hamiltonian, and its Jacobian.
 
     $R(A) = v(A) + \tau\,\mathrm{vee}(\mathrm{skew}(A^T \hat\omega)) - y$ with
     $v = \mathrm{vee}(\mathrm{skew} A)$ and $\omega = \nabla H(v)$: the in-map of the generating
@@ -33,9 +32,9 @@ def in_map_general(a, y, model, tau, jacobian=True):
     t = so3.trace(a)
     v = so3.vee_skew(a)
     if jacobian:
-        w, hess = gradient_hessian_c(model, v)
+        w, hess = model.gradient_hessian_c(v)
     else:
-        w = gradient_c(model, v)
+        w = model.gradient_c(v)
     qw = so3.scale(0.5, so3.sub(so3.scale(t, w), so3.mv(a, w)))
     r = tuple(vi + tau * qi - yi for vi, qi, yi in zip(v, qw, y))
     if not jacobian:
@@ -47,61 +46,75 @@ def in_map_general(a, y, model, tau, jacobian=True):
     return r, jac
 
 
-def _tangent_starts(y, residual):
-    """The tangent predictor of `LiePoisson` (see `_predictor`) for any in-map residual: from
-    the rotation about `y` by `arcsin|y|`, one step with the `tau = 0` Jacobian `P`."""
-    starts = []
-    for mode, x0 in enumerate(_branch_start(y), start=1):  # 1: exponential, 2: Cayley
-        a0, chain = _rotation_and_chain(x0, mode)
-        r, _ = residual(a0)
-        t = so3.trace(a0)
-        p0 = so3.mscale(0.5, so3.shift(so3.mscale(-1.0, so3.transpose(a0)), t))
-        dx = so3.solve3(so3.mm(p0, chain), r)
-        starts.append(tuple(xi - di for xi, di in zip(x0, dx)))
-    return tuple(starts)
+def sine_chart_in_map_general(v, y, model, tau, jacobian=True):
+    r"""`in_map_general` in the sine chart $A = A(v)$ of `branch_rotation`, and $dR/dv$.
+
+    $R(v) = v + \tau\, Q\,\omega - y$ with $\omega = \nabla H(v)$,
+    $Q x = \tfrac12((1+c)x - v\times x - g(v\cdot x)v)$, $c = \sqrt{1-|v|^2}$, $g = 1/(1+c)$
+    (`docs/scheme.md`), and
+    $dR/dv = \mathrm{Id} + \tau(\partial_v(Q)\,\omega + Q\,\nabla^2 H(v))$, where
+    $\partial_v(Qx) = \tfrac12(x\,\nabla c^T + \hat x - v\,\nabla(g\,v\cdot x)^T
+    - g(v\cdot x)\mathrm{Id})$ at fixed $x$, $\nabla c = -v/c$, $\nabla g = g^2 v/c$.
+    For the rigid body this is `sine_chart_in_map` with $\kappa = 0$.
+    """
+    s2 = so3.dot(v, v)
+    c = jnp.sqrt(jnp.maximum(1.0 - s2, 0.0))
+    opc = 1.0 + c
+    g = 1.0 / opc
+    if jacobian:
+        w, hess = model.gradient_hessian_c(v)
+    else:
+        w = model.gradient_c(v)
+    s = so3.dot(v, w)
+    vxw = so3.cross(v, w)
+    qw = tuple(0.5 * (opc * wi - ci - g * s * vi) for wi, ci, vi in zip(w, vxw, v))
+    r = tuple(vi + tau * qi - yi for vi, qi, yi in zip(v, qw, y))
+    if not jacobian:
+        return r
+    ic = 1.0 / jnp.maximum(c, jnp.finfo(c.dtype).tiny)
+    grad_c = so3.scale(-ic, v)
+    grad_gs = tuple(s * g * g * ic * vi + g * wi for vi, wi in zip(v, w))
+    dq = so3.mscale(0.5, so3.shift(so3.madd(
+        so3.outer(w, grad_c), so3.hat_c(w), so3.mscale(-1.0, so3.outer(v, grad_gs))), -g * s))
+    qm = so3.mscale(0.5, so3.madd(so3.shift(so3.mscale(-1.0, so3.hat_c(v)), opc),
+                                  so3.mscale(-g, so3.outer(v, v))))
+    jac = so3.shift(so3.mscale(tau, so3.madd(dq, so3.mm(qm, hess))), 1.0)
+    return r, jac
 
 
 def _solve_rotation(model, y, tau, tol, max_iter, active):
-    """The rotation `A` (branch `tr A > 1`) that solves the `kappa = 0` in-map at `y`, `tau`.
+    """The rotation `A` (branch `theta < pi/2`) that solves the `kappa = 0` in-map at `y`,
+    `tau`, by `LiePoisson`'s solver (`solve_on_branch`: Newton in the sine chart with
+    continuation, implicit derivatives), with $\nabla H$ and $\nabla^2 H$ from the model."""
+    def sine_fn(v, lam, jacobian=True):
+        return sine_chart_in_map_general(v, y, model, lam * tau, jacobian)
 
-    The rigid body uses `LiePoisson`'s solver (`solve_in_map` with `kappa = 0`: the sine
-    chart, exp and Cayley fallbacks, implicit derivatives). Other Hamiltonians: Newton on
-    `A = exp(hat x)` with the Cayley fallback, on `in_map_general`.
-    """
-    if isinstance(model, RigidBody):
-        v, ok, iterations, res = solve_in_map(y, model.inverse_inertia(), tau, 0.0, tol=tol,
-                                              max_iter=max_iter, feasible=active)
-        return branch_rotation(v)[0], StepInfo(ok, iterations, res)
-
-    def residual(a, jacobian=True):
-        return in_map_general(a, y, model, tau, jacobian)
-
-    starts = _tangent_starts(y, lambda a: residual(a, jacobian=False))
-
-    def system(x, mode):
-        a, chain = _rotation_and_chain(x, mode + 1)  # mode 0: exponential, 1: Cayley
-        r, jac = residual(a)
-        return r, so3.mm(jac, chain), so3.trace(a) > 1.0  # the branch theta < pi/2
-
-    x, mode, iterations, res, ok = newton(system, starts, tol=tol, max_iter=max_iter,
-                                          active=active)
-    a, _ = _rotation_and_chain(x, mode + 1)
-    return a, StepInfo(ok, iterations, res)
+    v, result, iterations, res = solve_on_branch(sine_fn, y, tol=tol, max_iter=max_iter,
+                                                 feasible=active)
+    return branch_rotation(v)[0], StepInfo(result, iterations, res)
 
 
-def _sym2(model, y, tau, tol, max_iter, active):
-    """`psi_{tau/2} o psi*_{tau/2}` on components.
+def _composition(model, y, tau, weights, tol, max_iter, info):
+    """`Phi_{w_k tau} o ... o Phi_{w_1 tau}` with `Phi_s = psi_{s/2} o psi*_{s/2}`, on
+    components, for samples whose `info` is ok.
 
     psi*_s(z) = (psi_{-s})^{-1}(z) = A^T z with A solving the out-map `z = out(A; -s)`.
     With `B = A^T` the kappa = 0 out-map is minus the in-map of `B` (the `v` and `tau`
     terms both change sign under transposition), so `B` solves the in-map at `-z`, `-s`
-    (branch `tr B = tr A > 1`), and psi*_s(z) = B z.
+    (branch `tr B = tr A > 1`), and psi*_s(z) = B z. Every solve is one round of one loop
+    (`u <- R u`, `R` solving the in-map at `sign u`, `sign w_k tau / 2`, the sign `-` for the
+    adjoint half), so the solver is compiled once whatever the number of substeps.
     """
-    half = 0.5 * tau
-    b, info_adj = _solve_rotation(model, so3.scale(-1.0, y), -half, tol, max_iter, active)
-    z = so3.mv(b, y)
-    a, info = _solve_rotation(model, z, half, tol, max_iter, active & info_adj.ok)
-    return so3.mv(a, z), combine([info_adj, info])
+    gammas = jnp.asarray(weights, jnp.asarray(tau).dtype)
+
+    def body(k, carry):
+        u, info = carry
+        sign = jnp.where(k % 2 == 0, -1.0, 1.0)
+        s = sign * 0.5 * gammas[k // 2] * tau
+        r, new = _solve_rotation(model, so3.scale(sign, u), s, tol, max_iter, info.ok)
+        return so3.mv(r, u), combine([info, new])
+
+    return jax.lax.fori_loop(0, 2 * len(weights), body, (y, info))
 
 
 def _check_unit_ball(name, y0):
@@ -115,8 +128,6 @@ def _check_unit_ball(name, y0):
 
 
 class _SymmetricLiePoisson(AbstractMethod):
-    general_hamiltonian = True  # works for RigidBody and LiePoissonSystem
-
     def __post_init__(self):
         check_options(self)
 
@@ -130,25 +141,13 @@ class _SymmetricLiePoisson(AbstractMethod):
         tol = default_tol(dtype) if self.tol is None else self.tol
         tau = dt + model.c * dW
         yc = so3.vec(y)
-        active = so3.dot(yc, yc) < 1.0
-        if len(self._substeps) == 1:
-            yc, info = _sym2(model, yc, tau, tol, self.max_iter, active)
-        else:
-            # A loop over the substeps rather than three inlined copies: one Sym2 to
-            # compile (a third of the compile time), the same numbers.
-            gammas = jnp.asarray(self._substeps, jnp.asarray(tau).dtype)
-
-            def body(i, carry):
-                u, info = carry
-                u, new = _sym2(model, u, gammas[i] * tau, tol, self.max_iter, info.ok)
-                return u, combine([info, new])
-
-            zero = jnp.zeros((), dtype)
-            info0 = StepInfo(active, jnp.zeros((), jnp.int32), zero)
-            yc, info = jax.lax.fori_loop(0, len(self._substeps), body, (yc, info0))
+        inside = jnp.where(so3.dot(yc, yc) < 1.0, RESULTS.successful, RESULTS.outside_domain)
+        info0 = StepInfo(inside.astype(jnp.int32), jnp.zeros((), jnp.int32),
+                         jnp.zeros((), dtype))
+        yc, info = _composition(model, yc, tau, self._substeps, tol, self.max_iter, info0)
         y_next = so3.unvec(yc).astype(dtype)
-        ok = info.ok & jnp.all(jnp.isfinite(y_next))
-        return y_next, StepInfo(ok, info.iterations, info.residual.astype(dtype))
+        return y_next, StepInfo(finite_result(y_next, info.result), info.iterations,
+                                info.residual.astype(dtype))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -167,9 +166,9 @@ class LiePoissonSym2(_SymmetricLiePoisson):
     step applied with $\tau_n$ has strong order $\lfloor p/2 \rfloor$ (Cohen, Debrabant &
     Rößler): here 1, with no $\kappa$ term needed.
 
-    Each half step is one Newton solve on $SO(3)$ (exponential coordinates, Cayley fallback,
-    tangent predictor), as in `LiePoisson`. Works for the `RigidBody` (analytic Jacobian) and
-    any `LiePoissonSystem` (Jacobian from the Hessian of $H$ by autodiff). Needs $|y_0| < 1$.
+    Each half step is one Newton solve in the sine chart of $SO(3)$ with continuation in the
+    step, as in `LiePoisson`. Works for the `RigidBody` (analytic Jacobian) and any
+    `LiePoissonSystem` (Jacobian from the Hessian of $H$ by autodiff). Needs $|y_0| < 1$.
     A step that does not converge is reported through `StepInfo`, never as NaN.
 
     **Arguments:** `tol` (max-norm residual tolerance, default `64 eps`), `max_iter` (Newton

@@ -8,6 +8,7 @@ import jax
 import jax.numpy as jnp
 
 from .. import _so3 as so3
+from .._system import NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
 from .base import AbstractMethod, explicit_info
 from .composition import TRIPLE_JUMP
 
@@ -67,6 +68,8 @@ class Strang(AbstractMethod):
     Phys. Rev. Lett. 71 (1993), 3043–3046.
     """
 
+    requires = frozenset({RIGID_BODY, NOISE_PROPORTIONAL_TO_DRIFT})
+
     def step(self, model, y, dt, dW):
         return _composed_step(model, y, dt + model.c * dW, (1.0,))
 
@@ -113,6 +116,8 @@ class Strang4(AbstractMethod):
     Phys. Lett. A 150 (1990), 262–268; R. I. McLachlan (1993), see `Strang`;
     D. Cohen, K. Debrabant, A. Rößler, arXiv:2004.12887.
     """
+
+    requires = frozenset({RIGID_BODY, NOISE_PROPORTIONAL_TO_DRIFT})
 
     def step(self, model, y, dt, dW):
         return _composed_step(model, y, dt + model.c * dW, TRIPLE_JUMP)

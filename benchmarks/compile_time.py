@@ -1,0 +1,131 @@
+"""Compile time of every method: trace+lower, XLA compile, StableHLO size.
+
+For `jax.jit(jax.vmap(integrate))` on shared increments and for `simulate` (increments drawn
+inside), paper setup, float64; diffrax Heun on the same increments is the reference, measured
+in the same run. Each case runs in a fresh process (`--isolate`, default) so that no tracing
+cache of an earlier case helps a later one: what a notebook user pays for a new method.
+
+    python benchmarks/compile_time.py                 # all methods, 500 samples x 512 steps
+    python benchmarks/compile_time.py --methods LiePoisson --fast
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+METHODS = ["LiePoisson", "LiePoissonSym2", "LiePoissonSym4", "Midpoint", "Strang", "Strang4",
+           "EulerMaruyama", "Exact"]
+REFERENCE = "diffrax Heun"
+SCAN_HEUN = "lax.scan Heun"
+
+
+def _lines(lowered):
+    return lowered.as_text().count("\n")
+
+
+def measure(name, how, n_samples, n_steps):
+    """Seconds to trace+lower and to compile, and StableHLO lines, of one case."""
+    import jax
+    import jax.numpy as jnp
+
+    jax.config.update("jax_enable_x64", True)
+    import slps_jax as sj
+
+    model = sj.RigidBody.paper()
+    y0 = jnp.asarray(sj.PAPER_Y0)
+    dt = 2.0 ** -9
+    dW = jax.random.normal(jax.random.key(0), (n_samples, n_steps)) * dt ** 0.5
+    if name in (REFERENCE, SCAN_HEUN):
+        if how == "simulate":
+            return None
+        import work_precision as wp
+
+        if name == SCAN_HEUN:
+            fn = jax.vmap(lambda dw: wp.scan_heun(model, y0, dw, dt))
+            args = (dW,)
+        else:
+            w = jnp.concatenate([jnp.zeros((n_samples, 1)), jnp.cumsum(dW, axis=1)], axis=1)
+            fn = jax.vmap(lambda wi: wp.diffrax_final(model, y0, wp.IncrementPath(wi, dt),
+                                                      wp.dfx.Heun(), dt, n_steps))
+            args = (w,)
+    else:
+        method = getattr(sj, name)()
+        if how == "integrate":
+            fn = jax.vmap(lambda dw: sj.integrate(model, y0, dw, dt, method=method,
+                                                  throw=False))
+            args = (dW,)
+        else:
+            def fn(key):
+                return sj.simulate(model, y0, t1=n_steps * dt, dt=dt, n_samples=n_samples,
+                                   key=key, method=method, throw=False).ys
+            args = (jax.random.key(1),)
+    start = time.perf_counter()
+    lowered = jax.jit(fn).lower(*args)
+    t_lower = time.perf_counter() - start
+    start = time.perf_counter()
+    compiled = lowered.compile()
+    t_compile = time.perf_counter() - start
+    start = time.perf_counter()
+    jax.block_until_ready(compiled(*args))
+    t_run = time.perf_counter() - start
+    return {"method": name, "how": how, "lower_s": t_lower, "compile_s": t_compile,
+            "total_s": t_lower + t_compile, "first_run_s": t_run,
+            "stablehlo_lines": _lines(lowered)}
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--methods", default=",".join(METHODS + [REFERENCE, SCAN_HEUN]))
+    parser.add_argument("--how", default="integrate,simulate")
+    parser.add_argument("--samples", type=int, default=500)
+    parser.add_argument("--steps", type=int, default=512)
+    parser.add_argument("--fast", action="store_true", help="50 samples x 64 steps")
+    parser.add_argument("--one", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--out", default=None)
+    args = parser.parse_args(argv)
+    if args.fast:
+        args.samples, args.steps = 50, 64
+    if args.one:  # a child process: one case, JSON on stdout
+        row = measure(args.methods, args.how, args.samples, args.steps)
+        print(json.dumps(row))
+        return
+    from _common import DEFAULT_OUT, machine_info, write_csv
+
+    rows = []
+    for how in args.how.split(","):
+        for name in args.methods.split(","):
+            out = subprocess.run(
+                [sys.executable, os.path.abspath(__file__), "--one", "--methods", name,
+                 "--how", how, "--samples", str(args.samples), "--steps", str(args.steps)],
+                capture_output=True, text=True, check=True).stdout.strip().splitlines()[-1]
+            row = json.loads(out)
+            if row is None:
+                continue
+            rows.append(row)
+            print(f"{how:9s} {name:16s} lower {row['lower_s']:6.2f} s  compile "
+                  f"{row['compile_s']:6.2f} s  total {row['total_s']:6.2f} s  "
+                  f"{row['stablehlo_lines']:6d} lines", flush=True)
+    ref = {r["how"]: r["total_s"] for r in rows if r["method"] == REFERENCE}
+    ref_total = ref.get("integrate")
+    print("\n| method | how | trace+lower s | compile s | total s | x diffrax Heun | StableHLO lines |")
+    print("|---|---|---|---|---|---|---|")
+    for r in rows:
+        ratio = f"{r['total_s'] / ref_total:.2f}" if ref_total else "-"
+        print(f"| {r['method']} | {r['how']} | {r['lower_s']:.2f} | {r['compile_s']:.2f} | "
+              f"{r['total_s']:.2f} | {ratio} | {r['stablehlo_lines']} |")
+    out_dir = args.out or DEFAULT_OUT
+    os.makedirs(out_dir, exist_ok=True)
+    with open(os.path.join(out_dir, "compile_time.json"), "w") as fh:
+        json.dump({"machine": machine_info(), "samples": args.samples, "steps": args.steps,
+                   "rows": rows}, fh, indent=1)
+
+
+if __name__ == "__main__":
+    main()
