@@ -56,7 +56,8 @@ def measure(name, how, n_samples, n_steps):
                                                       wp.dfx.Heun(), dt, n_steps))
             args = (w,)
     else:
-        method = getattr(sj, name)()
+        # a class name, or a constructor call such as "LiePoisson(unroll=3)"
+        method = eval(name if "(" in name else name + "()", {"__builtins__": {}}, vars(sj))
         if how == "integrate":
             fn = jax.vmap(lambda dw: sj.integrate(model, y0, dw, dt, method=method,
                                                   throw=False))
@@ -72,12 +73,52 @@ def measure(name, how, n_samples, n_steps):
     start = time.perf_counter()
     compiled = lowered.compile()
     t_compile = time.perf_counter() - start
-    start = time.perf_counter()
-    jax.block_until_ready(compiled(*args))
-    t_run = time.perf_counter() - start
+    from _common import time_call
+
+    median, best, _, _ = time_call(compiled, *args, repeats=5)
     return {"method": name, "how": how, "lower_s": t_lower, "compile_s": t_compile,
-            "total_s": t_lower + t_compile, "first_run_s": t_run,
-            "stablehlo_lines": _lines(lowered)}
+            "total_s": t_lower + t_compile, "stablehlo_lines": _lines(lowered),
+            "run_ns_per_sample_step": 1e9 * median / (n_samples * n_steps),
+            "run_ns_per_sample_step_min": 1e9 * best / (n_samples * n_steps)}
+
+
+def child(python, name, how, args):
+    """One case measured in a fresh process of `python`."""
+    out = subprocess.run(
+        [python, os.path.abspath(__file__), "--one", "--methods", name, "--how", how,
+         "--samples", str(args.samples), "--steps", str(args.steps)],
+        capture_output=True, text=True, check=True).stdout.strip().splitlines()[-1]
+    return json.loads(out)
+
+
+def ab(args):
+    """Medians over alternating fresh processes of two installations: B (`--ab`) against A
+    (`--python`), so that both see the same machine load."""
+    import statistics
+
+    print(f"A: {args.python}\nB: {args.ab}\n{args.samples} samples x {args.steps} steps, "
+          f"{args.repeats} processes each, alternating\n")
+    print("| method | how | compile+trace A s | B s | A/B | run ns per sample-step A (min) | B | "
+          "A/B |")
+    print("|---|---|---|---|---|---|---|---|")
+    for how in args.how.split(","):
+        for name in args.methods.split(","):
+            runs = {"A": [], "B": []}
+            for _ in range(args.repeats):
+                for tag, python in (("A", args.python), ("B", args.ab)):
+                    row = child(python, name, how, args)
+                    if row is not None:
+                        runs[tag].append(row)
+            if not runs["A"]:
+                continue
+            # compile: median over processes; run: the fastest of all timed calls, the
+            # least disturbed by other load on a shared machine
+            med = {t: (statistics.median(r["total_s"] for r in rs),
+                       min(r["run_ns_per_sample_step_min"] for r in rs))
+                   for t, rs in runs.items()}
+            (ca, ra), (cb, rb) = med["A"], med["B"]
+            print(f"| {name} | {how} | {ca:.2f} | {cb:.2f} | {ca / cb:.2f} | {ra:.0f} | "
+                  f"{rb:.0f} | {ra / rb:.2f} |", flush=True)
 
 
 def main(argv=None):
@@ -89,6 +130,14 @@ def main(argv=None):
     parser.add_argument("--fast", action="store_true", help="50 samples x 64 steps")
     parser.add_argument("--one", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--out", default=None)
+    parser.add_argument("--ab", default=None, metavar="PYTHON",
+                        help="A/B: alternate this interpreter (another installation of "
+                             "slps_jax, for example of an earlier commit) with --python, "
+                             "--repeats fresh processes each, and print medians and ratios")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--python", default=sys.executable,
+                        help="the interpreter of the measured processes, for an A/B against "
+                             "another installation of slps_jax (default: this one)")
     args = parser.parse_args(argv)
     if args.fast:
         args.samples, args.steps = 50, 64
@@ -96,30 +145,31 @@ def main(argv=None):
         row = measure(args.methods, args.how, args.samples, args.steps)
         print(json.dumps(row))
         return
-    from _common import DEFAULT_OUT, machine_info, write_csv
+    from _common import DEFAULT_OUT, machine_info
 
+    if args.ab:
+        return ab(args)
     rows = []
     for how in args.how.split(","):
         for name in args.methods.split(","):
-            out = subprocess.run(
-                [sys.executable, os.path.abspath(__file__), "--one", "--methods", name,
-                 "--how", how, "--samples", str(args.samples), "--steps", str(args.steps)],
-                capture_output=True, text=True, check=True).stdout.strip().splitlines()[-1]
-            row = json.loads(out)
+            row = child(args.python, name, how, args)
             if row is None:
                 continue
             rows.append(row)
             print(f"{how:9s} {name:16s} lower {row['lower_s']:6.2f} s  compile "
                   f"{row['compile_s']:6.2f} s  total {row['total_s']:6.2f} s  "
-                  f"{row['stablehlo_lines']:6d} lines", flush=True)
+                  f"{row['stablehlo_lines']:6d} lines  run {row['run_ns_per_sample_step']:7.1f} ns",
+                  flush=True)
     ref = {r["how"]: r["total_s"] for r in rows if r["method"] == REFERENCE}
     ref_total = ref.get("integrate")
-    print("\n| method | how | trace+lower s | compile s | total s | x diffrax Heun | StableHLO lines |")
-    print("|---|---|---|---|---|---|---|")
+    print("\n| method | how | trace+lower s | compile s | total s | x diffrax Heun | "
+          "StableHLO lines | run ns per sample-step |")
+    print("|---|---|---|---|---|---|---|---|")
     for r in rows:
         ratio = f"{r['total_s'] / ref_total:.2f}" if ref_total else "-"
         print(f"| {r['method']} | {r['how']} | {r['lower_s']:.2f} | {r['compile_s']:.2f} | "
-              f"{r['total_s']:.2f} | {ratio} | {r['stablehlo_lines']} |")
+              f"{r['total_s']:.2f} | {ratio} | {r['stablehlo_lines']} | "
+              f"{r['run_ns_per_sample_step']:.0f} |")
     out_dir = args.out or DEFAULT_OUT
     os.makedirs(out_dir, exist_ok=True)
     with open(os.path.join(out_dir, "compile_time.json"), "w") as fh:

@@ -198,3 +198,7 @@ def check_options(method):
         if isinstance(it, (bool, np.bool_)) or not isinstance(it, (int, np.integer)) or it < 1:
             raise ValueError(f"{name}: max_iter must be a positive integer, got {it!r}.")
     positive_or_none("scale", "a positive number or None")
+    if hasattr(method, "unroll"):
+        n = method.unroll
+        if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 0:
+            raise ValueError(f"{name}: unroll must be an integer >= 0, got {n!r}.")

@@ -175,14 +175,15 @@ def sine_chart_in_map(v, y, d, tau, kappa, jacobian=True):
 CONTINUATION = 4
 
 
-def solve_on_branch(sine_fn, z, *, tol, max_iter, feasible=True):
+def solve_on_branch(sine_fn, z, *, tol, max_iter, feasible=True, unroll=0):
     """The root `A` on the branch `theta < pi/2` of an in-map at `z`, as its sine vector `v`
     (`A = branch_rotation(v)`).
 
     `sine_fn(v, lam, jacobian=True)` is the residual in the sine chart (and `dR/dv`) of the
     in-map with its step scaled by `lam` (`tau -> lam tau`, `kappa -> lam^2 kappa`), whose
     root at `lam = 0` is `v = z`. Newton in the sine chart from `v = z`: one loop whose body
-    is one update, usually three updates and a fourth residual that passes the test.
+    is one update (usually three updates, and the fourth residual passes the test); `unroll`
+    updates before it as straight-line code (`newton`).
     A sample whose iterates would leave the chart (`|v| >= 1`, near the fold at large
     steps) or that does not converge starts again and follows the roots from `lam = 0` to
     `lam = 1` in two, then four stages (`newton`'s continuation: data in the same loop, so
@@ -193,9 +194,9 @@ def solve_on_branch(sine_fn, z, *, tol, max_iter, feasible=True):
     """
 
     def solve():
-        s = newton(lambda v, lam: sine_fn(v, lam), z, tol=tol, max_iter=max_iter,
-                   active=feasible, admissible=lambda v: so3.dot(v, v) < 1.0,
-                   continuation=CONTINUATION)
+        s = newton(sine_fn, z, tol=tol, max_iter=max_iter, active=feasible,
+                   admissible=lambda v: so3.dot(v, v) < 1.0, continuation=CONTINUATION,
+                   unroll=unroll)
         return s.x, s.result == RESULTS.successful, (s.result, s.iterations, s.residual)
 
     # Derivatives (with respect to the model's parameters, y and dW) by the implicit
@@ -239,6 +240,10 @@ class LiePoisson(AbstractMethod):
     - `scale`: $\lambda > 0$ to integrate $z = y/\lambda$ (time scaled by $\lambda$): needed when
       $|y_0| \ge 1$, where the in-map has no solution; choose $\lambda > |y_0|$. It moves the
       solve away from the fold at $|y| = 1$ but costs accuracy (`docs/scheme.md`).
+    - `unroll`: Newton updates made as straight-line code before the loop (default 0).
+      `unroll=3` (the updates almost every step needs) makes a step on a CPU about 1.5x
+      faster at about twice the compile time (`benchmarks/compile_time.py`): worth it for
+      large ensembles, not for a notebook's studies, where compilation dominates.
 
     Reference: Q. Liu and L. Wang, *Lie–Poisson numerical method for a class of stochastic
     Lie–Poisson systems*, scheme (42).
@@ -249,6 +254,7 @@ class LiePoisson(AbstractMethod):
     tol: float | None = None
     max_iter: int = 12
     scale: float | None = None
+    unroll: int = 0
 
     def __post_init__(self):
         check_options(self)
@@ -285,7 +291,7 @@ class LiePoisson(AbstractMethod):
             return sine_chart_in_map(v, z, d, lam * tau, lam * lam * kappa, jacobian)
 
         v, result, iterations, residual = solve_on_branch(
-            sine_fn, z, tol=tol, max_iter=self.max_iter, feasible=feasible)
+            sine_fn, z, tol=tol, max_iter=self.max_iter, feasible=feasible, unroll=self.unroll)
         a, _, _ = branch_rotation(v)
         y_next = so3.unvec(so3.mv(a, so3.vec(y))).astype(dtype)
         return y_next, StepInfo(finite_result(y_next, result), iterations,

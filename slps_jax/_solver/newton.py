@@ -19,10 +19,11 @@ class NewtonState(NamedTuple):
     - `x`: the unknowns, a tuple of `n` arrays (components; under `vmap` each is a vector
       over the batch, so the iteration is element-wise arithmetic on long vectors).
     - `iterations`: updates made, over all continuation stages.
-    - `residual`: max-norm of the last residual evaluated.
+    - `residual`: max-norm of the residual at `x` when last tested.
     - `result`: a `RESULTS` code once stopped (`successful`, `max_iterations_reached`,
       `nonfinite`, `off_branch`, `outside_domain`).
     - `level`, `stage`: the continuation stage: the problem at `lam = (stage + 1) / 2^level`.
+    - `updates`: updates made in this stage.
     """
 
     x: tuple
@@ -31,7 +32,7 @@ class NewtonState(NamedTuple):
     result: jax.Array
     level: jax.Array
     stage: jax.Array
-    updates: jax.Array  # in this stage
+    updates: jax.Array
 
 
 def max_norm(r):
@@ -54,31 +55,38 @@ def solve_linear(jac, r):
     return tuple(x[..., i] for i in range(n))
 
 
-def newton(fn, x0, *, tol, max_iter, active=True, admissible=None, continuation=0):
+def newton(fn, x0, *, tol, max_iter, active=True, admissible=None, continuation=0,
+           unroll=0):
     """Newton's method for `fn(x) = 0` from `x0`, for any number `n` of unknowns.
 
     **Arguments:**
 
-    - `fn(x) -> (r, J)`: the residual (`n` components) and its Jacobian (`n` rows of `n`);
-      with `continuation > 0`, `fn(x, lam) -> (r, J)` for a family of problems whose member
-      `lam = 1` is the one to solve and whose member `lam = 0` has the root `x0`.
-    - `x0`: the start, `n` components; it must be admissible.
+    - `fn(x, jacobian=True) -> (r, J)`: the residual (`n` components) and its Jacobian (`n`
+      rows of `n`), or `r` alone with `jacobian=False`; with `continuation > 0`,
+      `fn(x, lam, jacobian=True)` for a family of problems whose member `lam = 1` is the one
+      to solve and whose member `lam = 0` has the root `x0`.
+    - `x0`: the start, `n` components.
     - `tol`: stop when `max|r| <= tol`; `max_iter`: at most this many updates per stage.
     - `active`: samples with `False` do no work and report `RESULTS.outside_domain`.
     - `admissible(x) -> bool`: the branch of roots sought (for example the sine chart's open
       unit ball). A root outside it ends the attempt with `RESULTS.off_branch`; iterates may
       pass outside on the way (`fn` must stay finite there).
-    - `continuation`: a sample whose attempt fails (off the branch, no convergence) starts
-      again from `x0` and follows the family: `lam = 1/2, 1`, then `lam = 1/4, 1/2, 3/4, 1`,
-      ..., each root the start of the next stage, up to `2^continuation` stages.
+    - `continuation`: a sample whose attempt fails (off the branch, no convergence, a
+      non-finite residual) starts again from `x0` and follows the family: `lam = 1/2, 1`,
+      then `lam = 1/4, 1/2, 3/4, 1`, ..., each root the start of the next stage, up to
+      `2^continuation` stages.
+    - `unroll`: updates made as straight-line code before the loop, without a test (for
+      problems where fewer never suffice). XLA fuses straight-line updates, and on a CPU
+      they run markedly faster than loop iterations, but each is one more copy of `fn` to
+      compile.
 
-    One `while_loop` whose body is one update (one evaluation of `r` and `J` and one linear
-    solve): the continuation is data in the loop state, not code, so the residual is
-    compiled once. Under `vmap` the loop runs until every sample stops, and stopped samples
-    stay unchanged.
+    One `while_loop` whose body is one evaluation of `r` and `J`, the test, and one update
+    (a linear solve): the continuation is data in the loop state, not code, so `fn` is
+    compiled once. Under `vmap` the loop runs until every sample stops; stopped samples stay
+    unchanged.
 
-    **Returns:** the final `NewtonState`; a failed sample reports the reason of its last
-    attempt.
+    **Returns:** the final `NewtonState`; `residual` is that of the returned `x` (for a
+    successful sample), and a failed sample reports the reason of its last attempt.
     """
     dtype = x0[0].dtype
     x0 = tuple(x0)
@@ -87,35 +95,50 @@ def newton(fn, x0, *, tol, max_iter, active=True, admissible=None, continuation=
                        jnp.where(active, _RUNNING, RESULTS.outside_domain).astype(jnp.int32),
                        zero, zero, zero)
 
-    def body(s):
+    def evaluate(s, jacobian):
         if continuation:
             lam = (s.stage + 1).astype(dtype) / (2 ** s.level).astype(dtype)
-            r, jac = fn(s.x, lam)
-        else:
-            r, jac = fn(s.x)
-        rnorm = max_norm(r)
-        x_new = tuple(xi - di for xi, di in zip(s.x, solve_linear(jac, r)))
+            return fn(s.x, lam, jacobian=jacobian)
+        return fn(s.x, jacobian=jacobian)
+
+    def test(s, rnorm):
         inside = jnp.ones((), bool) if admissible is None else admissible(s.x)
         small = rnorm <= tol
         result = jnp.select(
             [small & inside, small, ~jnp.isfinite(rnorm), s.updates >= max_iter],
             [RESULTS.successful, RESULTS.off_branch, RESULTS.nonfinite,
              RESULTS.max_iterations_reached], _RUNNING).astype(jnp.int32)
-        go = result == _RUNNING
-        x = tuple(jnp.where(go, a, b) for a, b in zip(x_new, s.x))
-        level, stage, updates = s.level, s.stage, jnp.where(go, s.updates + 1, 0)
+        result = jnp.where(s.result == _RUNNING, result, s.result)
         if continuation:
             done = result == RESULTS.successful
-            next_stage = done & (stage + 1 < 2 ** level)  # the next member of the family
-            again = ~go & ~done & (level < continuation)  # start over with finer stages
+            running = s.result == _RUNNING
+            next_stage = running & done & (s.stage + 1 < 2 ** s.level)  # the next member
+            again = running & ~done & (result != _RUNNING) & (s.level < continuation)
+            s = s._replace(
+                x=tuple(jnp.where(again, a, b) for a, b in zip(x0, s.x)),
+                stage=jnp.where(next_stage, s.stage + 1, jnp.where(again, 0, s.stage)),
+                level=jnp.where(again, s.level + 1, s.level),
+                updates=jnp.where(next_stage | again, 0, s.updates))
             result = jnp.where(next_stage | again, _RUNNING, result)
-            stage = jnp.where(next_stage, stage + 1, jnp.where(again, 0, stage))
-            level = jnp.where(again, level + 1, level)
-            x = tuple(jnp.where(again, a, b) for a, b in zip(x0, x))
-        return s._replace(x=x, iterations=s.iterations + go, residual=rnorm, result=result,
-                          level=level, stage=stage, updates=updates)
+        return s._replace(residual=jnp.where(s.result == _RUNNING, rnorm, s.residual),
+                          result=result)
 
-    return jax.lax.while_loop(lambda s: s.result == _RUNNING, body, init)
+    def update(s, r, jac, go):
+        x = tuple(jnp.where(go, xi - di, xi) for xi, di in zip(s.x, solve_linear(jac, r)))
+        return s._replace(x=x, iterations=s.iterations + go, updates=s.updates + go)
+
+    def body(s):
+        r, jac = evaluate(s, True)
+        t = test(s, max_norm(r))
+        # no update where the test stopped the sample or began a new continuation stage
+        # (`r`, `J` belong to the old one)
+        go = (t.result == _RUNNING) & (t.level == s.level) & (t.stage == s.stage)
+        return update(t, r, jac, go)
+
+    s = init
+    for _ in range(unroll):  # straight-line code: XLA fuses it across updates, a loop not
+        s = update(s, *evaluate(s, True), s.result == _RUNNING)
+    return jax.lax.while_loop(lambda s: s.result == _RUNNING, body, s)
 
 
 def implicit_root(residual, solve, safe):
