@@ -75,7 +75,7 @@ def main(argv=None):
         it = np.asarray(info.iterations).reshape(n_samples, n_steps)
         res = np.asarray(info.residual)
         assert np.all(np.asarray(info.ok))
-        fallback_steps = float(np.mean(np.any(it > USUAL, axis=0)))
+        more_steps = float(np.mean(np.any(it > USUAL, axis=0)))
         counts = np.bincount(it.ravel())
         for n_it, count in enumerate(counts):
             if count:
@@ -83,11 +83,11 @@ def main(argv=None):
                              "fraction": count / it.size})
         entry = {"h": dt, "log2_h": -k, "mean": float(it.mean()), "max": int(it.max()),
                  "fraction_at_most_usual": float(np.mean(it <= USUAL)),
-                 "fraction_time_steps_with_more": fallback_steps,
+                 "fraction_time_steps_with_more": more_steps,
                  "max_residual": float(res.max())}
         summary["per_h"].append(entry)
         print(f"| 2^-{k} | {entry['mean']:.4f} | {entry['max']} | "
-              f"{100 * entry['fraction_at_most_usual']:.3f} % | {100 * fallback_steps:.1f} % | "
+              f"{100 * entry['fraction_at_most_usual']:.3f} % | {100 * more_steps:.1f} % | "
               f"{entry['max_residual']:.1e} |")
 
     _common.write_csv(os.path.join(args.out, "newton_iterations.csv"), rows)

@@ -57,7 +57,7 @@ class ConvergenceResult:
 def _brownian_endpoints(keys, fine_dt, bound, n_fine):
     def one(key):
         return jax.lax.fori_loop(
-            0, n_fine, lambda n, w: w + _noise.increment(key, n, fine_dt, bound, fine_dt.dtype),
+            0, n_fine, lambda n, w: w + _noise.increment(key, n, fine_dt, bound, fine_dt.dtype)[0],
             jnp.zeros((), fine_dt.dtype))
 
     return jax.vmap(one)(keys)

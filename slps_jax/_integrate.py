@@ -221,11 +221,12 @@ def _ensemble(method, model, y0, keys, dt, bound, n_blocks, block_len, want_stat
     def one(key):
         def draw(n):
             if isinstance(substeps, int) and substeps == 1:
-                return _noise.increment(key, n, dt, bound, dtype)
+                return _noise.increment(key, n, dt, bound, dtype, model.n_noises)
             return jax.lax.fori_loop(
                 0, substeps,
-                lambda k, w: w + _noise.increment(key, n * substeps + k, fine_dt, bound, dtype),
-                jnp.zeros((), dtype))
+                lambda k, w: w + _noise.increment(key, n * substeps + k, fine_dt, bound, dtype,
+                                                  model.n_noises),
+                jnp.zeros((model.n_noises,), dtype))
 
         return _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats, retry)
 
@@ -315,7 +316,8 @@ def integrate(model, y0, dW, dt, *, method=LiePoisson(), save_every=None, throw=
     - `model`: a `RigidBody` or a `LiePoissonSystem`; its dtype is the computation's (`y0`,
       `dW` are cast to it).
     - `y0`: initial value, shape `(3,)`.
-    - `dW`: Brownian increments, shape `(n_steps,)`.
+    - `dW`: Brownian increments, shape `(n_steps, n_noises)` (one column per noise;
+      `(n_steps,)` for a system with one noise).
     - `dt`: the step size.
     - `method`: a method instance (default `LiePoisson()`).
     - `save_every`: `None` for the final state only; `k` for the states at steps
@@ -333,14 +335,18 @@ def integrate(model, y0, dW, dt, *, method=LiePoisson(), save_every=None, throw=
     check_throw(throw)
     y0 = check_y0(y0, method, model)
     dW = real_array("dW", dW)
-    if dW.ndim != 1 or dW.shape[0] < 1:
+    s = model.n_noises
+    if dW.ndim == 1 and s == 1:
+        dW = dW[:, None]
+    if dW.ndim != 2 or dW.shape[0] < 1 or dW.shape[1] != s:
         raise ValueError(
-            f"dW must be a non-empty 1-D array of increments, got shape {dW.shape}"
-            + ("; for several paths use jax.vmap over integrate." if dW.ndim == 2 else "."))
+            f"dW must have shape (n_steps, {s}) (one column per noise"
+            + ("; (n_steps,) for one noise" if s == 1 else "") + f"), got shape {dW.shape}"
+            + ("; for several paths use jax.vmap over integrate." if dW.ndim >= 2 else "."))
     dt_np = check_positive("dt", dt)
     dW_np = concrete(dW)
     if dW_np is not None and not np.all(np.isfinite(dW_np)):
-        bad = np.flatnonzero(~np.isfinite(dW_np))
+        bad = np.flatnonzero(~np.all(np.isfinite(dW_np), axis=1))
         raise ValueError(f"dW must be finite; entries {bad[:5].tolist()} are not.")
     n_steps = dW.shape[0]
     k = check_save_every(save_every, n_steps)

@@ -71,9 +71,11 @@ def sample_keys(key, n_samples, offset=0):
     return jax.vmap(lambda i: jax.random.fold_in(key, i))(idx)
 
 
-def increment(sample_key, n, dt, bound, dtype):
-    """The truncated increment $\\Delta\\hat W_n = \\sqrt h\\, \\mathrm{clip}(\\xi_n, \\pm A_h)$."""
-    xi = jax.random.normal(jax.random.fold_in(sample_key, n), (), dtype)
+def increment(sample_key, n, dt, bound, dtype, n_noises=1):
+    """The truncated increments of step `n`, shape `(n_noises,)`:
+    $\\Delta\\hat W_{n,r} = \\sqrt h\\, \\mathrm{clip}(\\xi_{n,r}, \\pm A_h)$, componentwise, from
+    `fold_in(sample_key, n)` (the first component does not depend on `n_noises`)."""
+    xi = jax.random.normal(jax.random.fold_in(sample_key, n), (n_noises,), dtype)
     return jnp.sqrt(dt).astype(dtype) * jnp.clip(xi, -bound, bound)
 
 
@@ -123,7 +125,7 @@ def brownian_increments(key, n_steps, dt, *, n_samples=None, truncate_k=4, dtype
     steps = jnp.arange(int(n_steps), dtype=jnp.uint32)
 
     def one(k):
-        return jax.vmap(lambda n: increment(k, n, dt, bound, dtype))(steps)
+        return jax.vmap(lambda n: increment(k, n, dt, bound, dtype)[0])(steps)
 
     keys = sample_keys(key, 1 if n_samples is None else int(n_samples))
     out = jax.vmap(one)(keys)

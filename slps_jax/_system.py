@@ -103,6 +103,12 @@ class LiePoissonSystem:
         y = jnp.asarray(y)
         return self.algebra.bracket(y, self.gradient(y))
 
+    def noise_time(self, dW):
+        """$c\\,\\Delta W$: how far one step's noise moves the random time
+        $\\tau = h + c\\,\\Delta W$ of a system whose one noise is proportional to the drift.
+        `dW` is the step's increments, shape `(n_noises,) = (1,)` (a scalar is accepted)."""
+        return self.c * jnp.reshape(dW, ())
+
     # Component forms for the integrators (tuples of arrays: see `_so3`). Subclasses with a
     # closed form override them.
 

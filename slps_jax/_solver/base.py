@@ -45,8 +45,8 @@ class AbstractMethod:
     def step(self, model, y, dt, dW):
         """Advance one sample by one step.
 
-        **Arguments:** `model` (a system offering `requires`), `y` shape `(3,)`, the step `dt` and the
-        Brownian increment `dW` (scalars).
+        **Arguments:** `model` (a system offering `requires`), `y` shape `(3,)`, the step
+        `dt` (a scalar) and the step's Brownian increments `dW`, shape `(model.n_noises,)`.
 
         **Returns:** `(y_next, StepInfo)`.
         """

@@ -18,7 +18,7 @@ class EulerMaruyama(AbstractMethod):
     """
 
     def step(self, model, y, dt, dW):
-        tau = dt + model.c * dW
+        tau = dt + model.noise_time(dW)
         yc = so3.vec(y)
         f = so3.cross(yc, model.gradient_c(yc))
         y_next = so3.unvec(tuple(yi + tau * fi for yi, fi in zip(yc, f))).astype(y.dtype)

@@ -23,5 +23,5 @@ class Exact(AbstractMethod):
     requires = frozenset({RIGID_BODY, NOISE_PROPORTIONAL_TO_DRIFT})
 
     def step(self, model, y, dt, dW):
-        y_next = exact_flow(model, y, dt + model.c * dW).astype(y.dtype)
+        y_next = exact_flow(model, y, dt + model.noise_time(dW)).astype(y.dtype)
         return y_next, explicit_info(y_next)

@@ -281,7 +281,7 @@ class LiePoisson(AbstractMethod):
         tol = default_tol(dtype) if self.tol is None else self.tol
         lam = 1.0 if self.scale is None else self.scale
         d = model.inverse_inertia()
-        cdw = model.c * dW
+        cdw = model.noise_time(dW)
         tau = lam * (dt + cdw)
         kappa = lam * lam * self._kappa(cdw)
         z = so3.scale(1.0 / lam, so3.vec(y))

@@ -139,7 +139,7 @@ class _SymmetricLiePoisson(AbstractMethod):
     def step(self, model, y, dt, dW):
         dtype = y.dtype
         tol = default_tol(dtype) if self.tol is None else self.tol
-        tau = dt + model.c * dW
+        tau = dt + model.noise_time(dW)
         yc = so3.vec(y)
         inside = jnp.where(so3.dot(yc, yc) < 1.0, RESULTS.successful, RESULTS.outside_domain)
         info0 = StepInfo(inside.astype(jnp.int32), jnp.zeros((), jnp.int32),

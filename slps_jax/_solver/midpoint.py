@@ -35,7 +35,7 @@ class Midpoint(AbstractMethod):
     def step(self, model, y, dt, dW):
         dtype = y.dtype
         tol = default_tol(dtype) if self.tol is None else self.tol
-        tau = dt + model.c * dW
+        tau = dt + model.noise_time(dW)
         y0 = so3.vec(y)
 
         def f(u):

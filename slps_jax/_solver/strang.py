@@ -71,7 +71,7 @@ class Strang(AbstractMethod):
     requires = frozenset({RIGID_BODY, NOISE_PROPORTIONAL_TO_DRIFT})
 
     def step(self, model, y, dt, dW):
-        return _composed_step(model, y, dt + model.c * dW, (1.0,))
+        return _composed_step(model, y, dt + model.noise_time(dW), (1.0,))
 
 
 def _strang_flow(yc, inv_i, tau):
@@ -120,4 +120,4 @@ class Strang4(AbstractMethod):
     requires = frozenset({RIGID_BODY, NOISE_PROPORTIONAL_TO_DRIFT})
 
     def step(self, model, y, dt, dW):
-        return _composed_step(model, y, dt + model.c * dW, TRIPLE_JUMP)
+        return _composed_step(model, y, dt + model.noise_time(dW), TRIPLE_JUMP)
