@@ -1,13 +1,25 @@
-"""slps-jax: structure-preserving integrators for stochastic Lie–Poisson systems in JAX."""
+"""slps-jax: structure-preserving integrators for stochastic Lie–Poisson systems in JAX.
 
-from ._calibrate import CalibrationResult as CalibrationResult, calibrate as calibrate, moments as moments
-from ._convergence import ConvergenceResult as ConvergenceResult, strong_convergence as strong_convergence
-from ._exact import exact_flow as exact_flow, exact_solution as exact_solution
-from ._integrate import integrate as integrate, simulate as simulate
+The library in four layers:
+
+- **System**: a Lie algebra (`SO3`) with a drift Hamiltonian and its noise, parameters as
+  pytree leaves: `LiePoissonSystem` (derivatives by JAX) and its analytic special case
+  `RigidBody`. A system declares its `structure`.
+- **Method**: a small immutable object with `step(model, y, dt, dW)` and the structures it
+  `requires`; implicit methods share one Newton solver whose `RESULTS` code says why a step
+  failed.
+- **Driver**: `integrate` (given increments), `simulate` (an ensemble, increments drawn inside),
+  `ensemble_statistics` (streamed moments); it owns the time loop, saving, statistics and
+  failures, and refuses a method that the system cannot serve.
+- **Studies**: `strong_convergence`, `calibrate`, exact solutions of the rigid body.
+"""
+
+# System
+from ._algebra import SO3 as SO3
 from ._model import PAPER_Y0 as PAPER_Y0, RigidBody as RigidBody
-from ._noise import brownian_increments as brownian_increments
-from ._stream import EnsembleStatistics as EnsembleStatistics, ensemble_statistics as ensemble_statistics
-from ._solution import RESULTS as RESULTS, Solution as Solution
+from ._system import LiePoissonSystem as LiePoissonSystem
+
+# Methods
 from ._solver.base import AbstractMethod as AbstractMethod, StepInfo as StepInfo
 from ._solver.euler_maruyama import EulerMaruyama as EulerMaruyama
 from ._solver.exact import Exact as Exact
@@ -15,7 +27,17 @@ from ._solver.lie_poisson import LiePoisson as LiePoisson
 from ._solver.lie_poisson_sym import LiePoissonSym2 as LiePoissonSym2, LiePoissonSym4 as LiePoissonSym4
 from ._solver.midpoint import Midpoint as Midpoint
 from ._solver.strang import Strang as Strang, Strang4 as Strang4
-from ._system import LiePoissonSystem as LiePoissonSystem
+
+# Driver
+from ._integrate import integrate as integrate, simulate as simulate
+from ._noise import brownian_increments as brownian_increments
+from ._solution import RESULTS as RESULTS, Solution as Solution
+from ._stream import EnsembleStatistics as EnsembleStatistics, ensemble_statistics as ensemble_statistics
+
+# Studies
+from ._calibrate import CalibrationResult as CalibrationResult, calibrate as calibrate, moments as moments
+from ._convergence import ConvergenceResult as ConvergenceResult, strong_convergence as strong_convergence
+from ._exact import exact_flow as exact_flow, exact_solution as exact_solution
 from . import so3 as so3
 
 __version__ = "0.1.0"
