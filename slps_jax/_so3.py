@@ -196,24 +196,11 @@ def exp_c(xi):
     return shift(madd(mscale(a, x), mscale(b, mm(x, x))), 1.0)
 
 
-def exp_right_jacobian_c(xi):
-    """`Jr(xi)` with `exp(hat(xi + d)) = exp(hat xi) exp(hat(Jr d)) + O(d^2)`."""
-    _, b, c = exp_coefficients(dot(xi, xi))
-    x = hat_c(xi)
-    return shift(madd(mscale(-b, x), mscale(c, mm(x, x))), 1.0)
-
-
 def cayley_c(xi):
     """Cayley map on components: `(Id - X/2)^{-1} (Id + X/2) = Id + 4/(4+|xi|^2) (X + X^2/2)`."""
     x = hat_c(xi)
     s = 4.0 / (4.0 + dot(xi, xi))
     return shift(madd(mscale(s, x), mscale(0.5 * s, mm(x, x))), 1.0)
-
-
-def cayley_right_jacobian_c(xi):
-    """`Jc(xi)` with `cay(xi + d) = cay(xi) exp(hat(Jc d)) + O(d^2)`: `4/(4+|xi|^2) (Id - X/2)`."""
-    s = 4.0 / (4.0 + dot(xi, xi))
-    return shift(mscale(-0.5 * s, hat_c(xi)), s)
 
 
 # --------------------------------------------------------------------------------------

@@ -15,70 +15,6 @@ from .base import AbstractMethod, StepInfo, default_tol, finite_result
 from .newton import implicit_root, newton
 
 
-def in_map(a, y, d, tau, kappa, jacobian=True):
-    r"""Residual of the in-map of scheme (42) and its right-trivialised Jacobian.
-
-    $R(A) = v(A) + \tau\, \mathrm{vee}(\mathrm{skew}(A^T W))
-            - \kappa\, \mathrm{vee}(\mathrm{skew}(A^T G(A))) - y_n$,
-    with $v = \mathrm{vee}(\mathrm{skew} A)$, $\omega = I^{-1} v$, $W = \hat\omega$ and $G$ the
-    Frobenius gradient of $S_{11}(A) = \tfrac12(\omega^T A \omega - |\omega|^2 \operatorname{tr} A)$
-    (`docs/scheme.md`). Written out with $T = \operatorname{tr} A$, $p = A^T\omega$,
-    $m = (\mathrm{sym} A - T)\omega$, $Q = \tfrac12(T - A)$:
-
-    $\mathrm{vee}(\mathrm{skew}(A^T W)) = Q\omega$,
-    $\mathrm{vee}(\mathrm{skew}(A^T G)) = \tfrac14\,\omega\times p + \tfrac12|\omega|^2 v + \tfrac12 Q I^{-1} m$.
-
-    The Jacobian is $J$ with $R(A\exp(\hat\delta)) = R(A) + J\delta + O(\delta^2)$, derived by
-    hand (tests compare it with autodiff). All arguments are component tuples or scalars.
-    """
-    t = so3.trace(a)
-    v = so3.vee_skew(a)
-    w = so3.mul(d, v)
-    aw = so3.mv(a, w)
-    p = so3.mtv(a, w)
-    qw = so3.scale(0.5, so3.sub(so3.scale(t, w), aw))
-    m = so3.sub(so3.scale(0.5, so3.add(aw, p)), so3.scale(t, w))
-    dm = so3.mul(d, m)
-    qdm = so3.scale(0.5, so3.sub(so3.scale(t, dm), so3.mv(a, dm)))
-    ww = so3.dot(w, w)
-    b = so3.add(so3.add(so3.scale(0.25, so3.cross(w, p)), so3.scale(0.5 * ww, v)),
-                so3.scale(0.5, qdm))
-    r = tuple(vi + tau * ai - kappa * bi - yi for vi, ai, bi, yi in zip(v, qw, b, y))
-    if not jacobian:
-        return r, None
-
-    # Differentials along dA = A hat(delta): dv = P delta with P = (T - A^T)/2,
-    # dT = -2 v.delta, d omega = I^{-1} P delta, dp = hat(p) delta + A^T d omega. Terms that
-    # end in d omega are collected into one product (M I^{-1}) P; the rest are outer products
-    # and cheap `A hat(x)` forms. Tests compare the result with autodiff of the residual.
-    at = so3.transpose(a)
-    pm = so3.mscale(0.5, so3.shift(so3.mscale(-1.0, at), t))
-    qm = so3.mscale(0.5, so3.shift(so3.mscale(-1.0, a), t))
-    hp = so3.hat_c(p)
-    sym_a = so3.mscale(0.5, so3.madd(a, at))
-    qd = so3.diag_right(qm, d)  # Q I^{-1}
-    # Everything that multiplies d omega: from tau Q omega, from the kappa terms
-    # (hat(w) A^T - hat(p))/4, Q I^{-1} (sym A - T)/2 and v w^T (from |w|^2 v / 2).
-    m_dw = so3.madd(
-        so3.mscale(tau, qm),
-        so3.mscale(-0.25 * kappa, so3.madd(so3.hat_mat(w, at), so3.mscale(-1.0, hp))),
-        so3.mscale(-0.5 * kappa, so3.mm(qd, so3.shift(sym_a, -t))),
-        so3.mscale(-kappa, so3.outer(v, w)),
-    )
-    dpm = so3.diag_left(d, pm)  # d omega = dpm delta
-    # Everything that multiplies delta directly.
-    direct = so3.madd(
-        so3.mscale(tau, so3.madd(so3.mscale(-1.0, so3.outer(w, v)), so3.mscale(0.5, so3.mat_hat(a, w)))),
-        so3.mscale(-0.25 * kappa, so3.shift(so3.outer(p, w), -so3.dot(w, p))),  # hat(w) hat(p)
-        so3.mscale(-0.5 * kappa, so3.madd(so3.mscale(-1.0, so3.outer(dm, v)),
-                                          so3.mscale(0.5, so3.mat_hat(a, dm)))),
-        so3.mscale(-0.25 * kappa, so3.mm(qd, so3.madd(hp, so3.mscale(-1.0, so3.mat_hat(a, w))))),
-        so3.mscale(-kappa, so3.outer(so3.mv(qd, w), v)),
-    )
-    jac = so3.madd(so3.mscale(1.0 - 0.5 * kappa * ww, pm), direct, so3.mm(m_dw, dpm))
-    return r, jac
-
-
 def branch_rotation(v):
     r"""The rotation on the branch $\theta < \pi/2$ whose sine vector is `v`.
 
@@ -99,7 +35,7 @@ def branch_rotation(v):
 def sine_chart_in_map(v, y, d, tau, kappa, jacobian=True):
     r"""The in-map residual as a function of the sine vector `v` of $A$, and $dR/dv$.
 
-    With $A = A(v)$ of `branch_rotation` every term of `in_map` is a short vector formula
+    With $A = A(v)$ of `branch_rotation` every term of the in-map is a short vector formula
     ($\omega = I^{-1}v$, $s = v\cdot\omega$, $c = \sqrt{1-|v|^2}$, $g = 1/(1+c)$):
 
     $R = v + \tau F - \kappa B - y_n$, $F = \tfrac12((1+c)\omega - v\times\omega - g s v)$,
@@ -109,8 +45,9 @@ def sine_chart_in_map(v, y, d, tau, kappa, jacobian=True):
     In this chart the map $v \mapsto v(A)$ is the identity, so $dR/dv = \mathrm{Id} + O(\tau)$:
     the fold of the branch ($\cos\theta \to 0$) enters only through the small terms, and
     Newton from $v = y_n$ converges in few updates. The Jacobian is written out by hand
-    (tests compare it and the residual with autodiff of `in_map(branch_rotation(v))`).
-    About 3x fewer operations than the matrix form `in_map` plus a chain rule.
+    (tests compare it and the residual with autodiff of the generating function at
+    `branch_rotation(v)`).
+    About 3x fewer operations than the matrix form of the in-map plus a chain rule.
     """
     s2 = so3.dot(v, v)
     c = jnp.sqrt(jnp.maximum(1.0 - s2, 0.0))

@@ -15,39 +15,11 @@ from .composition import TRIPLE_JUMP, combine
 from .lie_poisson import branch_rotation, solve_on_branch
 
 
-def in_map_general(a, y, model, tau, jacobian=True):
-    r"""Residual of the $\kappa = 0$ in-map for any Hamiltonian, and its Jacobian.
-
-    $R(A) = v(A) + \tau\,\mathrm{vee}(\mathrm{skew}(A^T \hat\omega)) - y$ with
-    $v = \mathrm{vee}(\mathrm{skew} A)$ and $\omega = \nabla H(v)$: the in-map of the generating
-    function $\tfrac12 \operatorname{tr} A - \tau H(v(A))$ (for the rigid body $\omega = I^{-1}v$,
-    and this is `in_map` with $\kappa = 0$). With $T = \operatorname{tr} A$,
-    $P = \tfrac12(T - A^T)$, $Q = \tfrac12(T - A)$ the residual is $v + \tau Q\omega - y$ and
-    the right-trivialised Jacobian ($R(A\exp\hat\delta) = R + J\delta + O(\delta^2)$) is
-
-    $J = P + \tau\,(-\omega v^T + \tfrac12 A\hat\omega) + \tau\, Q\, \nabla^2H(v)\, P$.
-
-    All arguments are component tuples or scalars; `model` supplies $\nabla H$, $\nabla^2 H$.
-    """
-    t = so3.trace(a)
-    v = so3.vee_skew(a)
-    if jacobian:
-        w, hess = model.gradient_hessian_c(v)
-    else:
-        w = model.gradient_c(v)
-    qw = so3.scale(0.5, so3.sub(so3.scale(t, w), so3.mv(a, w)))
-    r = tuple(vi + tau * qi - yi for vi, qi, yi in zip(v, qw, y))
-    if not jacobian:
-        return r, None
-    pm = so3.mscale(0.5, so3.shift(so3.mscale(-1.0, so3.transpose(a)), t))
-    qm = so3.mscale(0.5, so3.shift(so3.mscale(-1.0, a), t))
-    direct = so3.madd(so3.mscale(-1.0, so3.outer(w, v)), so3.mscale(0.5, so3.mat_hat(a, w)))
-    jac = so3.madd(pm, so3.mscale(tau, direct), so3.mscale(tau, so3.mm(so3.mm(qm, hess), pm)))
-    return r, jac
-
-
 def sine_chart_in_map_general(v, y, model, tau, jacobian=True):
-    r"""`in_map_general` in the sine chart $A = A(v)$ of `branch_rotation`, and $dR/dv$.
+    r"""The $\kappa = 0$ in-map of any Hamiltonian, $R(A) = v(A) + \tau\,\mathrm{vee}(
+    \mathrm{skew}(A^T\hat\omega)) - y$ with $\omega = \nabla H(v(A))$ (the in-map of the
+    generating function $\tfrac12\operatorname{tr}A - \tau H(v(A))$), in the sine chart
+    $A = A(v)$ of `branch_rotation`, and $dR/dv$.
 
     $R(v) = v + \tau\, Q\,\omega - y$ with $\omega = \nabla H(v)$,
     $Q x = \tfrac12((1+c)x - v\times x - g(v\cdot x)v)$, $c = \sqrt{1-|v|^2}$, $g = 1/(1+c)$
