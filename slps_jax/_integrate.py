@@ -322,8 +322,8 @@ def integrate(model, y0, dW, dt, *, method=LiePoisson(), save_every=None, throw=
     - `method`: a method instance (default `LiePoisson()`).
     - `save_every`: `None` for the final state only; `k` for the states at steps
       `0, k, 2k, ..., n_steps` (`k` must divide `n_steps`).
-    - `throw`: raise `RuntimeError` if a step cannot be solved. With `throw=False` a failed
-      path is frozen at its last good state.
+    - `throw`: raise `RuntimeError` if a step cannot be solved, quoting the reason (a
+      `RESULTS` message). With `throw=False` a failed path is frozen at its last good state.
     - `retry_substeps`: `None` (default), or `k >= 2`: a step that fails is redone as `k`,
       then `k^2`, then `k^3` equal substeps of `(dt, dW)` before the path is given up.
       Steps that succeed are untouched, so results without failures are identical.
@@ -382,8 +382,10 @@ def simulate(model, y0, *, t1, dt, n_samples, key, method=LiePoisson(), save_eve
     - `save_every`: `None` (final state only) or `k` (states at steps `0, k, ..., n`).
     - `truncate_k`: the `k` of the truncation (default 4, the paper's), `None` for none.
     - `newton_stats`: also report Newton iteration counts and residuals in `stats`.
-    - `throw`: raise `RuntimeError` if any sample failed; with `throw=False` a warning is
-      issued and `result`, `fail_step` say which samples failed and where.
+    - `throw`: raise `RuntimeError` if any sample failed, naming how many failed and why
+      (inside `jax.jit` or `jax.grad`, through a host callback when the compiled function
+      runs); with `throw=False` a warning is issued (outside `jit` only) and `result`
+      (a `RESULTS` code per sample) and `fail_step` say which samples failed, why and where.
     - `retry_substeps`: `None` (default), or `k >= 2`: a step that fails is redone as `k`,
       then `k^2`, then `k^3` equal substeps before the sample is given up; `stats` then has
       `n_retried_steps`. Steps that succeed are untouched.

@@ -177,6 +177,16 @@ def test_simulate_reports_failures(paper):
     assert np.all(np.asarray(sol.fail_step)[~failed] == -1)
     good = sj.simulate(model, y0, t1=1.0, dt=0.05, n_samples=50, key=jax.random.key(12))
     np.testing.assert_allclose(sol.ys[~failed], good.ys[~failed], atol=1e-14)
+    # The reason is kept per sample: with max_iter=3 every attempt runs out of updates.
+    codes = set(np.asarray(sol.result)[failed].tolist())
+    assert codes == {sj.RESULTS.max_iterations_reached}, codes
+    msg = sj.RESULTS.message(sj.RESULTS.max_iterations_reached)
+    with pytest.raises(RuntimeError, match=f"{int(failed.sum())} x {msg}"):
+        sj.simulate(model, y0, **kwargs)
+    # Under jit the failures are traced: throw=True raises when the program runs.
+    with pytest.raises(Exception, match="samples failed"):
+        jax.block_until_ready(jax.jit(lambda c: sj.simulate(
+            sj.RigidBody(model.inertia, c), y0, **kwargs).ys)(model.c))
 
 
 def test_scaling_option_handles_norm_above_one():
