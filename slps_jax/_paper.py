@@ -7,6 +7,7 @@ y0 = (0.7, 0.7, 0). The exact solution y(t) = φ_{t + cW(t)}(y0) replaces the pa
 
 from __future__ import annotations
 
+import concurrent.futures
 import json
 import math
 import os
@@ -90,12 +91,33 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
                "wall_seconds": {}}
     t_start = time.perf_counter()
 
+    # The paths of Figures 4.1-4.3: nine independent programs, compiled and run by two
+    # threads (XLA compiles without the GIL, so the two cores compile at once).
+    t0 = time.perf_counter()
+    runs = {}
+    dt41, n41 = cfg["path_dt"], int(round(cfg["path_t1"] / cfg["path_dt"]))
+    dW41 = sj.brownian_increments(jax.random.fold_in(key, 1), n41, dt41)
+    runs["4.1", "LiePoisson"] = (_path, (model, y0, methods["LiePoisson"], dW41, dt41, 1))
+    runs["4.1", "exact"] = (_exact_path, (model, y0, dW41, dt41, 1))
+    dt42, n42 = cfg["drift_dt"], int(round(cfg["drift_t1"] / cfg["drift_dt"]))
+    every42 = max(1, n42 // 400)
+    dW42 = sj.brownian_increments(jax.random.fold_in(key, 2), n42, dt42)
+    for name, method in methods.items():
+        runs["4.2", name] = (_path, (model, y0, method, dW42, dt42, every42))
+    dt43, n43 = 1e-2, int(round(cfg["sphere_t1"] / 1e-2))
+    dW43 = sj.brownian_increments(jax.random.fold_in(key, 3), n43, dt43)
+    for name in ("LiePoisson", "EulerMaruyama"):
+        runs["4.3", name] = (_path, (model, y0, methods[name], dW43, dt43, 1))
+    runs["4.3", "exact"] = (_exact_path, (model, y0, dW43, dt43, 1))
+    with concurrent.futures.ThreadPoolExecutor(max_workers=2) as pool:
+        futures = {k: pool.submit(fn, *args) for k, (fn, args) in runs.items()}
+        paths = {k: np.asarray(f.result()) for k, f in futures.items()}
+    results["wall_seconds"]["paths_fig4_1_to_4_3"] = time.perf_counter() - t0
+
     # Figure 4.1: one sample path, scheme (42) at h = 1e-2 against the exact path.
     t0 = time.perf_counter()
-    dt, n = cfg["path_dt"], int(round(cfg["path_t1"] / cfg["path_dt"]))
-    dW = sj.brownian_increments(jax.random.fold_in(key, 1), n, dt)
-    ys = np.asarray(_path(model, y0, methods["LiePoisson"], dW, dt, 1))
-    ye = np.asarray(_exact_path(model, y0, dW, dt, 1))
+    dt, n = dt41, n41
+    ys, ye = paths["4.1", "LiePoisson"], paths["4.1", "exact"]
     ts = np.arange(n + 1) * dt
     fig, axes = plt.subplots(3, 1, figsize=(7, 6.5), sharex=True)
     for i, ax in enumerate(axes):
@@ -115,15 +137,13 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
 
     # Figure 4.2: Casimir and Hamiltonian errors along time.
     t0 = time.perf_counter()
-    dt, n = cfg["drift_dt"], int(round(cfg["drift_t1"] / cfg["drift_dt"]))
-    every = max(1, n // 400)
-    dW = sj.brownian_increments(jax.random.fold_in(key, 2), n, dt)
+    dt, n, every = dt42, n42, every42
     ts = np.arange(0, n + 1, every) * dt
     c0, h0 = float(model.casimir(y0)), float(model.hamiltonian(y0))
     fig, (ax_c, ax_h) = plt.subplots(1, 2, figsize=(11, 4.2))
     drift = {}
     for name, method in methods.items():
-        ys = np.asarray(_path(model, y0, method, dW, dt, every))
+        ys = paths["4.2", name]
         dc = np.abs(np.asarray(model.casimir(ys)) / c0 - 1)
         dh = np.abs(np.asarray(model.hamiltonian(ys)) / h0 - 1)
         drift[name] = {"casimir_max": float(dc.max()), "energy_max": float(dh.max())}
@@ -146,11 +166,8 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
 
     # Figure 4.3: phase trajectories on the sphere |y| = |y0|.
     t0 = time.perf_counter()
-    dt, n = 1e-2, int(round(cfg["sphere_t1"] / 1e-2))
-    dW = sj.brownian_increments(jax.random.fold_in(key, 3), n, dt)
-    paths = {"LiePoisson": np.asarray(_path(model, y0, methods["LiePoisson"], dW, dt, 1)),
-             "EulerMaruyama": np.asarray(_path(model, y0, methods["EulerMaruyama"], dW, dt, 1)),
-             "exact": np.asarray(_exact_path(model, y0, dW, dt, 1))}
+    dt = dt43
+    paths = {name: paths["4.3", name] for name in ("LiePoisson", "EulerMaruyama", "exact")}
     fig = plt.figure(figsize=(13, 4.5))
     r0 = float(jnp.linalg.norm(y0))
     u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 30), np.linspace(0, np.pi, 16))
