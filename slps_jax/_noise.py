@@ -79,7 +79,8 @@ def increment(sample_key, n, dt, bound, dtype, n_noises=1):
     return jnp.sqrt(dt).astype(dtype) * jnp.clip(xi, -bound, bound)
 
 
-def brownian_increments(key, n_steps, dt, *, n_samples=None, truncate_k=4, dtype=None):
+def brownian_increments(key, n_steps, dt, *, n_samples=None, truncate_k=4, dtype=None,
+                        n_noises=None):
     """The increments `simulate` uses, materialised: for `integrate`, plots and checks.
 
     **Arguments:**
@@ -90,9 +91,12 @@ def brownian_increments(key, n_steps, dt, *, n_samples=None, truncate_k=4, dtype
     - `truncate_k`: the truncation parameter $k$ of $A_h = \\sqrt{2k|\\ln h|}$, `None` for none.
     - `dtype`: a floating dtype, by default the default float (float64 with
       `jax_enable_x64`); use the model's dtype (`model.inertia.dtype`).
+    - `n_noises`: `None` for one noise, or the number `s` of independent noises (the
+      system's `n_noises`): then each step has `s` increments, a last axis of length `s`.
 
-    **Returns:** `(n_steps,)`, or `(n_samples, n_steps)`; row `i` equals what `simulate` draws
-    for sample `i` with the same key.
+    **Returns:** `(n_steps,)`, or `(n_samples, n_steps)`, with a last axis `(n_noises,)` when
+    `n_noises` is given; row `i` equals what `simulate` draws for sample `i` with the same
+    key.
     """
     key = check_key(key)
     if isinstance(dt, (bool, np.bool_, str)) or np.ndim(dt) != 0:
@@ -108,6 +112,9 @@ def brownian_increments(key, n_steps, dt, *, n_samples=None, truncate_k=4, dtype
             continue
         if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 1:
             raise ValueError(f"{name} must be a positive integer, got {n!r}.")
+    if n_noises is not None and (isinstance(n_noises, (bool, np.bool_))
+                                 or not isinstance(n_noises, (int, np.integer)) or n_noises < 1):
+        raise ValueError(f"n_noises must be None or a positive integer, got {n_noises!r}.")
     check_truncation(dt, truncate_k)
     if dtype is None:
         dtype = jnp.result_type(float)
@@ -124,8 +131,11 @@ def brownian_increments(key, n_steps, dt, *, n_samples=None, truncate_k=4, dtype
     dt = jnp.asarray(dt, dtype)
     steps = jnp.arange(int(n_steps), dtype=jnp.uint32)
 
+    s = 1 if n_noises is None else n_noises
+
     def one(k):
-        return jax.vmap(lambda n: increment(k, n, dt, bound, dtype)[0])(steps)
+        out = jax.vmap(lambda n: increment(k, n, dt, bound, dtype, s))(steps)
+        return out[:, 0] if n_noises is None else out
 
     keys = sample_keys(key, 1 if n_samples is None else int(n_samples))
     out = jax.vmap(one)(keys)

@@ -43,6 +43,18 @@ def test_simulate_matches_integrate_on_the_same_increments(paper):
     assert sol.ys.shape == (4, 6, 3)
     np.testing.assert_allclose(sol.ts, np.arange(6) * 0.1, atol=1e-15)
     np.testing.assert_allclose(sol.ys[:, 0], np.broadcast_to(y0, (4, 3)))
+    # Noise as a vector: (n_steps, 1) is the same path; with several noises per step the
+    # first component is the one-noise draw.
+    dW1 = sj.brownian_increments(key, 50, 0.01, n_samples=4, n_noises=1)
+    assert dW1.shape == (4, 50, 1)
+    np.testing.assert_array_equal(dW1[..., 0], dW)
+    np.testing.assert_allclose(sj.integrate(model, y0, dW1[0], 0.01),
+                               sj.integrate(model, y0, dW[0], 0.01), atol=0)
+    dW3 = sj.brownian_increments(key, 50, 0.01, n_samples=4, n_noises=3)
+    assert dW3.shape == (4, 50, 3)
+    np.testing.assert_array_equal(dW3[..., 0], dW)
+    with pytest.raises(ValueError, match=r"shape \(n_steps, 1\)"):
+        sj.integrate(model, y0, dW3[0], 0.01)
 
 
 def test_final_state_only_by_default(paper):
