@@ -22,7 +22,6 @@ from scipy.optimize import root
 from scipy.spatial.transform import Rotation
 
 import slps_jax as sj
-from slps_jax._solver import lie_poisson as lp
 
 from reference import exact_sde_solution
 

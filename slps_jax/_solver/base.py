@@ -8,7 +8,7 @@ import jax
 import jax.numpy as jnp
 
 from .._solution import RESULTS
-from .._system import NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY  # noqa: F401
+from .._system import NOISE_PROPORTIONAL_TO_DRIFT
 
 
 class StepInfo(NamedTuple):
