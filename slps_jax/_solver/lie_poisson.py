@@ -120,10 +120,10 @@ def solve_on_branch(sine_fn, z, *, tol, max_iter, feasible=True, unroll=0):
     root at `lam = 0` is `v = z`. Newton in the sine chart from `v = z`: one loop whose body
     is one update (usually three updates, and the fourth residual passes the test); `unroll`
     updates before it as straight-line code (`newton`).
-    A sample whose iterates would leave the chart (`|v| >= 1`, near the fold at large
-    steps) or that does not converge starts again and follows the roots from `lam = 0` to
-    `lam = 1` in two, then four stages (`newton`'s continuation: data in the same loop, so
-    the residual is compiled once). Derivatives follow the implicit function theorem
+    A sample whose attempt fails (no convergence in `max_iter` updates, a non-finite
+    residual, or a root off the chart `|v| < 1`, near the fold at large steps) starts again
+    and follows the roots from `lam = 0` to `lam = 1` in 2, 4, 8, then 16 stages (`newton`'s
+    continuation: data in the same loop, so the residual is compiled once). Derivatives follow the implicit function theorem
     (`implicit_root`).
 
     **Returns:** `(v, result, iterations, residual)`.
@@ -159,10 +159,9 @@ class LiePoisson(AbstractMethod):
     In this chart $v(A)$ is the unknown itself, so the Jacobian is $\mathrm{Id} + O(\tau)$
     and the fold at $|y| = 1$ only enters through the small terms; the chart is algebraic
     (no trigonometry) and lies on the branch by construction. On the paper's setup three
-    updates reach the tolerance for almost every sample-step. A sample whose iterates would
-    leave the chart (near the fold at large steps) starts again and follows the roots along
-    the step, $\lambda\tau$ and $\lambda^2\kappa$ for $\lambda = 1/2, 1$, then
-    $1/4, \dots, 1$: data in the same loop, so the solver is compiled once
+    updates reach the tolerance for almost every sample-step. A sample whose attempt fails
+    (near the fold at large steps) starts again and follows the roots along the step, $\lambda\tau$ and $\lambda^2\kappa$ for $\lambda = 1/2, 1$, then
+    $1/4, \dots, 1$ and finer: data in the same loop, so the solver is compiled once
     (`solve_on_branch`).
 
     A sample it cannot solve is flagged with the reason (`StepInfo.result`, a `RESULTS`
@@ -178,7 +177,7 @@ class LiePoisson(AbstractMethod):
       solve away from the fold at $|y| = 1$ but costs accuracy (`docs/scheme.md`).
     - `unroll`: Newton updates made as straight-line code before the loop (default 0).
       `unroll=3` (the updates almost every step needs) makes a step on a CPU about 1.5x
-      faster at about twice the compile time (`benchmarks/compile_time.py`): worth it for
+      faster at about three times the compile time (`benchmarks/compile_time.py`): worth it for
       large ensembles, not for a notebook's studies, where compilation dominates.
 
     Reference: Q. Liu and L. Wang, *Lie–Poisson numerical method for a class of stochastic

@@ -45,9 +45,7 @@ class Midpoint(AbstractMethod):
             m = so3.scale(0.5, so3.add(y0, y1))
             return tuple(a - b - tau * c for a, b, c in zip(y1, y0, f(m)))
 
-        def system(y1, jacobian=True):
-            if not jacobian:
-                return residual(y1)
+        def system(y1):
             m = so3.scale(0.5, so3.add(y0, y1))
             g, hess = model.gradient_hessian_c(m)
             r = tuple(a - b - tau * c for a, b, c in zip(y1, y0, so3.cross(m, g)))

@@ -61,9 +61,8 @@ def newton(fn, x0, *, tol, max_iter, active=True, admissible=None, continuation=
 
     **Arguments:**
 
-    - `fn(x, jacobian=True) -> (r, J)`: the residual (`n` components) and its Jacobian (`n`
-      rows of `n`), or `r` alone with `jacobian=False`; with `continuation > 0`,
-      `fn(x, lam, jacobian=True)` for a family of problems whose member `lam = 1` is the one
+    - `fn(x) -> (r, J)`: the residual (`n` components) and its Jacobian (`n` rows of `n`);
+      with `continuation > 0`, `fn(x, lam) -> (r, J)` for a family of problems whose member `lam = 1` is the one
       to solve and whose member `lam = 0` has the root `x0`.
     - `x0`: the start, `n` components.
     - `tol`: stop when `max|r| <= tol`; `max_iter`: at most this many updates per stage.
@@ -95,11 +94,10 @@ def newton(fn, x0, *, tol, max_iter, active=True, admissible=None, continuation=
                        jnp.where(active, _RUNNING, RESULTS.outside_domain).astype(jnp.int32),
                        zero, zero, zero)
 
-    def evaluate(s, jacobian):
+    def evaluate(s):
         if continuation:
-            lam = (s.stage + 1).astype(dtype) / (2 ** s.level).astype(dtype)
-            return fn(s.x, lam, jacobian=jacobian)
-        return fn(s.x, jacobian=jacobian)
+            return fn(s.x, (s.stage + 1).astype(dtype) / (2 ** s.level).astype(dtype))
+        return fn(s.x)
 
     def test(s, rnorm):
         inside = jnp.ones((), bool) if admissible is None else admissible(s.x)
@@ -128,7 +126,7 @@ def newton(fn, x0, *, tol, max_iter, active=True, admissible=None, continuation=
         return s._replace(x=x, iterations=s.iterations + go, updates=s.updates + go)
 
     def body(s):
-        r, jac = evaluate(s, True)
+        r, jac = evaluate(s)
         t = test(s, max_norm(r))
         # no update where the test stopped the sample or began a new continuation stage
         # (`r`, `J` belong to the old one)
@@ -137,7 +135,7 @@ def newton(fn, x0, *, tol, max_iter, active=True, admissible=None, continuation=
 
     s = init
     for _ in range(unroll):  # straight-line code: XLA fuses it across updates, a loop not
-        s = update(s, *evaluate(s, True), s.result == _RUNNING)
+        s = update(s, *evaluate(s), s.result == _RUNNING)
     return jax.lax.while_loop(lambda s: s.result == _RUNNING, body, s)
 
 
