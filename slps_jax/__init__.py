@@ -18,15 +18,17 @@ The library in four layers:
 from ._algebra import SO3 as SO3
 from ._model import PAPER_Y0 as PAPER_Y0, RigidBody as RigidBody
 from ._system import LiePoissonSystem as LiePoissonSystem
+from ._noise_hamiltonians import random_inertia_noise as random_inertia_noise, salt_noise as salt_noise
 
 # Methods
 from ._solver.base import AbstractMethod as AbstractMethod, StepInfo as StepInfo
 from ._solver.euler_maruyama import EulerMaruyama as EulerMaruyama
 from ._solver.exact import Exact as Exact
+from ._solver.heun import Heun as Heun
 from ._solver.lie_poisson import LiePoisson as LiePoisson
 from ._solver.lie_poisson_sym import LiePoissonSym2 as LiePoissonSym2, LiePoissonSym4 as LiePoissonSym4
 from ._solver.midpoint import Midpoint as Midpoint
-from ._solver.strang import Strang as Strang, Strang4 as Strang4
+from ._solver.strang import SaltSplitting as SaltSplitting, Strang as Strang, Strang4 as Strang4
 
 # Driver
 from ._integrate import integrate as integrate, simulate as simulate

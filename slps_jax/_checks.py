@@ -93,7 +93,7 @@ def check_y0(y0, method, model):
             f"y0 must have shape (3,), got shape {y0.shape}"
             + ("; for several initial values use jax.vmap over integrate." if y0.ndim == 2
                and y0.shape[-1] == 3 else "."))
-    y0 = y0.astype(model.c.dtype)
+    y0 = y0.astype(model.dtype)
     y_np = concrete(y0)
     if y_np is not None:
         if not np.all(np.isfinite(y_np)):

@@ -10,7 +10,7 @@ import numpy as np
 
 from . import _so3
 from ._checks import concrete, float_dtype, real_array
-from ._system import NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY, LiePoissonSystem
+from ._system import RIGID_BODY, LiePoissonSystem, _noise_or_c
 
 
 def _rigid_body_hamiltonian(y, inertia):
@@ -35,34 +35,30 @@ class RigidBody(LiePoissonSystem):
 
     - `inertia`: the principal moments $(I_1, I_2, I_3)$, shape `(3,)`, finite and positive.
     - `c`: the noise amplitude, a finite scalar (default 0, the deterministic free rigid body).
+    - `noise`: instead of `c`, noise Hamiltonians of their own, as for `LiePoissonSystem`
+      (for example `salt_noise(chi)`); their `params` are the inertia.
 
-    The model's floating dtype (the promoted dtype of `inertia` and `c`, at least the default
-    float) is the dtype of every computation with it: `simulate` and `integrate` cast `y0`
+    The model's floating dtype (`model.dtype`: the promoted dtype of `inertia`, `c` and the
+    noise's parameters, at least the default float) is the dtype of every computation with it: `simulate` and `integrate` cast `y0`
     and the increments to it. For float32 work pass float32 `inertia`.
 
     Raises `ValueError` naming the argument if a concrete value is invalid. Traced values
     (inside `jit` or `grad`) are not checked.
     """
 
-    structure = frozenset({NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY})
     hamiltonian_fn = staticmethod(_rigid_body_hamiltonian)
 
-    def __init__(self, inertia, c=0.0):
+    def __init__(self, inertia, c=None, noise=None):
         inertia = real_array("inertia", inertia)
-        c = real_array("c", c)
-        dtype = float_dtype(inertia, c)
-        inertia, c = inertia.astype(dtype), c.astype(dtype)
+        inertia = inertia.astype(float_dtype(inertia))
         if inertia.shape != (3,):
             raise ValueError(f"inertia must have shape (3,), got shape {inertia.shape}.")
-        if c.shape != ():
-            raise ValueError(f"c must be a scalar, got shape {c.shape}.")
-        i_np, c_np = concrete(inertia), concrete(c)
+        i_np = concrete(inertia)
         if i_np is not None and not (np.all(np.isfinite(i_np)) and np.all(i_np > 0)):
             raise ValueError(f"inertia must be finite and positive, got {i_np}.")
-        if c_np is not None and not np.isfinite(c_np):
-            raise ValueError(f"c must be finite, got {c_np}.")
         self.inertia = inertia
-        self.c = c
+        self.c, self.noise = _noise_or_c(c, noise, inertia, [inertia])
+        self.inertia = inertia.astype(self.dtype)
 
     @classmethod
     def paper(cls):
@@ -72,17 +68,22 @@ class RigidBody(LiePoissonSystem):
         return cls([r2 + r2 / 1.51, r2 - 0.51 * r2 / 1.51, 1.0], 0.2)
 
     def tree_flatten(self):
-        return (self.inertia, self.c), None
+        return (self.inertia, self.c, self.noise), None
 
     @classmethod
     def tree_unflatten(cls, aux, children):
         # Bypass __init__: unflattening happens with tracers and placeholder leaves.
         obj = object.__new__(cls)
-        obj.inertia, obj.c = children
+        obj.inertia, obj.c, obj.noise = children
         return obj
 
     def __repr__(self):
-        return f"RigidBody(inertia={self.inertia!r}, c={self.c!r})"
+        return (f"RigidBody(inertia={self.inertia!r}, "
+                + (f"c={self.c!r})" if self.noise is None else f"noise={self.noise!r})"))
+
+    @property
+    def structure(self):
+        return super().structure | {RIGID_BODY}
 
     @property
     def params(self):

@@ -8,116 +8,197 @@ import numpy as np
 
 from . import _so3
 from ._algebra import SO3
-from ._checks import concrete, float_dtype
+from ._checks import concrete, float_dtype, real_array
+from ._noise_hamiltonians import as_noise
 
 
 # What a system offers, which methods may declare they need (`AbstractMethod.requires`).
 NOISE_PROPORTIONAL_TO_DRIFT = "noise proportional to the drift"  # one noise, H_1 = c H_0
 RIGID_BODY = "rigid body"  # H_0 = y^T I^{-1} y / 2 on so(3)*, `inverse_inertia()` available
+LINEAR_NOISE = "linear noise"  # H_r = chi_r . y (SALT), `noise.chi` of shape (s, 3) available
 
 
 @jax.tree_util.register_pytree_node_class
 class LiePoissonSystem:
-    r"""The stochastic Lie–Poisson system $dy = y \times \nabla H(y)\,(dt + c \circ dW)$ on
-    so(3)*, for a differentiable Hamiltonian $H$ you supply.
+    r"""A stochastic Lie–Poisson system on so(3)*: a drift Hamiltonian $H_0$ you supply and
+    its noise, either one noise proportional to the drift,
+
+    $dy = y \times \nabla H_0(y)\,(dt + c \circ dW)$ (`c=`), or $s$ noises with their own
+    Hamiltonians, $dy = y \times \nabla H_0(y)\,dt + \sum_{r=1}^s y \times \nabla H_r(y)
+    \circ dW_r$ (`noise=`; Stratonovich, independent Brownian motions).
 
     Structure matrix $B(y) = \hat y$, Casimir $C(y) = \tfrac12|y|^2$ (kept by every
-    Lie–Poisson method whatever $H$ is). The rigid body is $H(y) = \tfrac12 y^T I^{-1} y$;
-    `RigidBody` is its fast analytic special case. The derivatives of $H$ come from JAX:
-    $\nabla H$ by `jax.grad`, the Hessian (for Newton's Jacobian) by `jax.jacfwd` of it.
+    Lie–Poisson method whatever the Hamiltonians are). The rigid body is
+    $H_0(y) = \tfrac12 y^T I^{-1} y$; `RigidBody` is its fast analytic special case. The
+    derivatives of a Hamiltonian given as a function come from JAX.
 
-    A pytree: `params` (any pytree of arrays) and `c` are leaves, so `jax.grad` reaches them;
-    the function `hamiltonian` is static data. Pass the same function object each time (not a
-    fresh `lambda`), or every call compiles anew.
+    A pytree: `params` (any pytree of arrays), `c` and the parameters of a noise family are
+    leaves, so `jax.grad` reaches them; the functions are static data. Pass the same function
+    object each time (not a fresh `lambda`), or every call compiles anew.
 
     **Arguments:**
 
     - `hamiltonian`: `hamiltonian(y, params) -> scalar`, for `y` of shape `(3,)`; smooth
       (twice differentiable by JAX).
-    - `params`: a pytree of parameters passed to `hamiltonian` (default `None`).
-    - `c`: the noise amplitude, a finite scalar (default 0).
+    - `params`: a pytree of parameters passed to `hamiltonian` and to `noise` (default `None`).
+    - `c`: the amplitude of one noise proportional to the drift, $H_1 = cH_0$, a finite
+      scalar (default 0: no noise).
+    - `noise`: instead of `c`, the noise Hamiltonians: a function
+      `noise(y, params) -> shape (s,)` (derivatives by JAX), or a family with closed-form
+      derivatives, `salt_noise(chi)` ($H_r = \chi_r\cdot y$) or
+      `random_inertia_noise(sigma)` ($H_r = \tfrac12\sum_j\sigma_{rj}y_j^2$).
 
-    The computation runs in the promoted floating dtype of `c` and the leaves of `params`.
-    Raises `ValueError` (`TypeError` for a non-callable `hamiltonian`) for invalid concrete
-    values; traced values are not checked.
+    `model.n_noises` is $s$ (1 with `c`). The computation runs in the promoted floating dtype
+    of the parameters (`model.dtype`). Raises `ValueError` (`TypeError` for a non-callable
+    `hamiltonian` or `noise`) for invalid concrete values, before anything is compiled;
+    traced values are not checked.
 
     **Reference:** Liu & Wang, *Lie–Poisson numerical method for a class of stochastic
-    Lie–Poisson systems*, system (1) with $B(y) = \hat y$, $H_0 = H$ and $H_1 = cH$.
+    Lie–Poisson systems*, system (1) with $B(y) = \hat y$.
     """
 
     algebra = SO3
-    n_noises = 1
-    structure = frozenset({NOISE_PROPORTIONAL_TO_DRIFT})
 
-    def __init__(self, hamiltonian, params=None, c=0.0):
+    def __init__(self, hamiltonian, params=None, c=None, noise=None):
         if not callable(hamiltonian):
             raise TypeError(f"hamiltonian must be callable as hamiltonian(y, params), got "
                             f"{type(hamiltonian).__name__}.")
         params = jax.tree_util.tree_map(jnp.asarray, params)
-        c = jnp.asarray(c)
         leaves = [x for x in jax.tree_util.tree_leaves(params)
                   if jnp.issubdtype(x.dtype, jnp.inexact)]
-        dtype = float_dtype(c, *leaves)
-        c = c.astype(dtype)
-        if c.shape != ():
-            raise ValueError(f"c must be a scalar, got shape {c.shape}.")
-        c_np = concrete(c)
-        if c_np is not None and not np.isfinite(c_np):
-            raise ValueError(f"c must be finite, got {c_np}.")
         self.hamiltonian_fn = hamiltonian
         self.params = params
-        self.c = c
+        self.c, self.noise = _noise_or_c(c, noise, params, leaves)
 
     def tree_flatten(self):
-        return (self.params, self.c), self.hamiltonian_fn
+        return (self.params, self.c, self.noise), self.hamiltonian_fn
 
     @classmethod
     def tree_unflatten(cls, aux, children):
         obj = object.__new__(cls)
         obj.hamiltonian_fn = aux
-        obj.params, obj.c = children
+        obj.params, obj.c, obj.noise = children
         return obj
 
     def __repr__(self):
         name = getattr(self.hamiltonian_fn, "__name__", repr(self.hamiltonian_fn))
-        return f"LiePoissonSystem(hamiltonian={name}, params={self.params!r}, c={self.c!r})"
+        return (f"LiePoissonSystem(hamiltonian={name}, params={self.params!r}, "
+                + (f"c={self.c!r})" if self.noise is None else f"noise={self.noise!r})"))
+
+    # What the system is.
+
+    @property
+    def n_noises(self):
+        """The number $s$ of independent noises (1 with `c=`)."""
+        return 1 if self.noise is None else self.noise.n_noises
+
+    @property
+    def structure(self):
+        """The structures the system offers (methods declare which they need)."""
+        if self.noise is None:
+            return frozenset({NOISE_PROPORTIONAL_TO_DRIFT})
+        return frozenset({LINEAR_NOISE}) if self.noise.linear else frozenset()
+
+    @property
+    def dtype(self):
+        """The floating dtype of every computation with this system."""
+        leaves = [x for x in jax.tree_util.tree_leaves(self)
+                  if hasattr(x, "dtype") and jnp.issubdtype(x.dtype, jnp.inexact)]
+        return float_dtype(*leaves)
 
     def _h(self, y):
         return self.hamiltonian_fn(y, self.params)
 
     def hamiltonian(self, y):
-        """$H(y)$ over the last axis of `y`."""
+        """$H_0(y)$ over the last axis of `y`."""
         return jnp.vectorize(self._h, signature="(3)->()")(jnp.asarray(y))
 
+    def noise_hamiltonians(self, y):
+        r"""$(H_1(y), \dots, H_s(y))$ over the last axis of `y`, shape `(..., s)`."""
+        if self.noise is None:
+            return (self.c * self.hamiltonian(y))[..., None]
+        return jnp.vectorize(lambda u: self.noise.values(u, self.params),
+                             signature="(3)->(s)")(jnp.asarray(y))
+
     def casimir(self, y):
-        """$C(y) = \\tfrac12 |y|^2$, over the last axis of `y`."""
+        r"""$C(y) = \tfrac12 |y|^2$, over the last axis of `y`."""
         return self.algebra.casimirs(y)[..., 0]
 
     def gradient(self, y):
-        """$\\nabla H(y)$ over the last axis of `y`."""
+        r"""$\nabla H_0(y)$ over the last axis of `y`."""
         return jnp.vectorize(jax.grad(self._h), signature="(3)->(3)")(jnp.asarray(y))
 
     def vector_field(self, y):
-        """$f(y) = B(y)\\nabla H(y) = y \\times \\nabla H(y)$, so that
-        $dy = f(y)(dt + c \\circ dW)$."""
+        r"""The drift $f_0(y) = B(y)\nabla H_0(y) = y \times \nabla H_0(y)$."""
         y = jnp.asarray(y)
         return self.algebra.bracket(y, self.gradient(y))
 
     def noise_time(self, dW):
-        """$c\\,\\Delta W$: how far one step's noise moves the random time
-        $\\tau = h + c\\,\\Delta W$ of a system whose one noise is proportional to the drift.
+        r"""$c\,\Delta W$: how far one step's noise moves the random time
+        $\tau = h + c\,\Delta W$ of a system whose one noise is proportional to the drift.
         `dW` is the step's increments, shape `(n_noises,) = (1,)` (a scalar is accepted)."""
         return self.c * jnp.reshape(dW, ())
 
     # Component forms for the integrators (tuples of arrays: see `_so3`). Subclasses with a
-    # closed form override them.
+    # closed form override the drift's; noise families give theirs.
 
     def gradient_c(self, v):
-        """$\\nabla H(v)$ on components."""
+        r"""$\nabla H_0(v)$ on components."""
         return _so3.vec(jax.grad(self._h)(_so3.unvec(v)))
 
     def gradient_hessian_c(self, v):
-        """$(\\nabla H(v), \\nabla^2 H(v))$ on components, in one forward-mode pass."""
+        r"""$(\nabla H_0(v), \nabla^2 H_0(v))$ on components, in one forward-mode pass."""
         grad = jax.grad(self._h)
         hess, g = jax.jacfwd(lambda u: (grad(u), grad(u)), has_aux=True)(_so3.unvec(v))
         return _so3.vec(g), _so3.mat(hess)
+
+    def noise_gradient_c(self, v, dW):
+        r"""$u(v) = \sum_r \Delta W_r \nabla H_r(v)$ on components: the noise part of a
+        step's Hamiltonian, `dW` of shape `(n_noises,)`."""
+        if self.noise is None:
+            return _so3.scale(self.noise_time(dW), self.gradient_c(v))
+        return self.noise.gradient_c(v, dW, self.params)
+
+    def noise_gradient_jacobian_c(self, v, dW):
+        r"""$(u(v), \partial u/\partial v)$ on components."""
+        if self.noise is None:
+            cdw = self.noise_time(dW)
+            g, hess = self.gradient_hessian_c(v)
+            return _so3.scale(cdw, g), _so3.mscale(cdw, hess)
+        return self.noise.gradient_jacobian_c(v, dW, self.params)
+
+    def step_gradient_c(self, v, dt, dW):
+        r"""$\nabla K(v)$ of a step's Hamiltonian $K = h H_0 + \sum_r \Delta W_r H_r$ (the
+        step's flow to first order is that of $K$), on components. With `c=`,
+        $K = \tau H_0$, $\tau = h + c\Delta W$.r"""
+        if self.noise is None:
+            return _so3.scale(dt + self.noise_time(dW), self.gradient_c(v))
+        return _so3.add(_so3.scale(dt, self.gradient_c(v)), self.noise_gradient_c(v, dW))
+
+    def step_gradient_hessian_c(self, v, dt, dW):
+        r"""$(\nabla K(v), \nabla^2 K(v))$ on components."""
+        g, hess = self.gradient_hessian_c(v)
+        if self.noise is None:
+            tau = dt + self.noise_time(dW)
+            return _so3.scale(tau, g), _so3.mscale(tau, hess)
+        u, ju = self.noise_gradient_jacobian_c(v, dW)
+        return (_so3.add(_so3.scale(dt, g), u),
+                _so3.madd(_so3.mscale(dt, hess), ju))
+
+
+def _noise_or_c(c, noise, params, leaves):
+    """`(c, noise)` of a system: `c` a scalar of the system's dtype and `noise` `None`, or
+    `c` `None` and `noise` a noise family. Refuses both together and bad values by name."""
+    if noise is not None:
+        if c is not None:
+            raise ValueError("Pass either c (one noise proportional to the drift, H_1 = c H_0) "
+                             "or noise (the noise Hamiltonians), not both.")
+        return None, as_noise(noise, params, float_dtype(*leaves))
+    c = real_array("c", 0.0 if c is None else c)
+    c = c.astype(float_dtype(c, *leaves))
+    if c.shape != ():
+        raise ValueError(f"c must be a scalar, got shape {c.shape}.")
+    c_np = concrete(c)
+    if c_np is not None and not np.isfinite(c_np):
+        raise ValueError(f"c must be finite, got {c_np}.")
+    return c, None

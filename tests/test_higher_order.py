@@ -60,7 +60,7 @@ def test_adjoint_step_solves_the_out_map_with_minus_tau(paper, tau):
     against the out-map of the generating function (autodiff)."""
     model, _ = paper
     z = jnp.asarray([0.3, -0.5, 0.6])
-    b, info = _solve_rotation(model, _so3.vec(-z), -tau, 1e-14, 12, True)
+    b, info = _solve_rotation(model, _so3.vec(-z), -tau, jnp.zeros(1), 1.0, 1e-14, 12, True)
     assert bool(info.ok)
     a = _so3.unmat(b).T
     np.testing.assert_allclose(out_map(a, model.inertia, -tau), z, atol=1e-14)

@@ -317,7 +317,7 @@ def test_exact_solution_rejects_bad_input(paper, bad, exc, match):
     ([[1.0, 2.0, 3.0]], 0.2, ValueError, "inertia"),
     ([1.0, 2.0, 3.0], "0.2", TypeError, "c"),
     ([1.0, 2.0, 3.0], np.inf, ValueError, "c"),
-    ([1.0, 2.0, 3.0], None, TypeError, "c"),
+    ([1.0, 2.0, 3.0], object(), TypeError, "c"),
 ])
 def test_rigid_body_rejects_more_bad_input(inertia, c, exc, match):
     with pytest.raises(exc, match=match):

@@ -3,10 +3,11 @@ alternatives from."""
 
 from .euler_maruyama import EulerMaruyama
 from .exact import Exact
+from .heun import Heun
 from .lie_poisson import LiePoisson
 from .lie_poisson_sym import LiePoissonSym2, LiePoissonSym4
 from .midpoint import Midpoint
-from .strang import Strang, Strang4
+from .strang import SaltSplitting, Strang, Strang4
 
-METHODS = (LiePoisson, LiePoissonSym2, LiePoissonSym4, Midpoint, Strang, Strang4, Exact,
-           EulerMaruyama)
+METHODS = (LiePoisson, LiePoissonSym2, LiePoissonSym4, Midpoint, Strang, Strang4,
+           SaltSplitting, Exact, Heun, EulerMaruyama)

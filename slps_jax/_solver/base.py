@@ -8,7 +8,6 @@ import jax
 import jax.numpy as jnp
 
 from .._solution import RESULTS
-from .._system import NOISE_PROPORTIONAL_TO_DRIFT
 
 
 class StepInfo(NamedTuple):
@@ -30,7 +29,8 @@ class StepInfo(NamedTuple):
 
 
 class AbstractMethod:
-    """A one-step method for $dy = f(y)(dt + c \\circ dW)$.
+    """A one-step method for
+    $dy = y \\times \\nabla H_0(y)\\,dt + \\sum_r y \\times \\nabla H_r(y) \\circ dW_r$.
 
     A method is a small immutable (hashable) object; the driver owns the loop, the noise,
     saving and failure handling. Subclasses implement `step`, and may override `check_initial`
@@ -38,9 +38,8 @@ class AbstractMethod:
     """
 
     # The structures a system must offer (`LiePoissonSystem.structure`); the driver refuses
-    # a pair that lacks one and names the methods that would work. Every method here steps
-    # with the random time tau = h + c dW, so needs the noise proportional to the drift.
-    requires = frozenset({NOISE_PROPORTIONAL_TO_DRIFT})
+    # a pair that lacks one and names the methods that would work. Empty: any system.
+    requires = frozenset()
 
     def step(self, model, y, dt, dW):
         """Advance one sample by one step.

@@ -10,16 +10,17 @@ from .base import AbstractMethod, explicit_info
 
 @dataclasses.dataclass(frozen=True)
 class EulerMaruyama(AbstractMethod):
-    r"""$y_{n+1} = y_n + f(y_n)(h + c\Delta W_n)$, the paper's comparison method.
+    r"""$y_{n+1} = y_n + y_n \times \nabla K_n(y_n)$, $K_n = hH_0 + \sum_r \Delta W_{r,n} H_r$
+    (for one noise $H_1 = cH_0$: $y_n + f(y_n)(h + c\Delta W_n)$), the paper's comparison
+    method.
 
     Applied to the Stratonovich equation as written, it converges to the Itô equation with the
     same coefficients, not to the Stratonovich solution, and it does not conserve $|y|$.
-    Works for the `RigidBody` and any `LiePoissonSystem` ($f(y) = y \times \nabla H(y)$).
+    Works for any system.
     """
 
     def step(self, model, y, dt, dW):
-        tau = dt + model.noise_time(dW)
         yc = so3.vec(y)
-        f = so3.cross(yc, model.gradient_c(yc))
-        y_next = so3.unvec(tuple(yi + tau * fi for yi, fi in zip(yc, f))).astype(y.dtype)
+        f = so3.cross(yc, model.step_gradient_c(yc, dt, dW))
+        y_next = so3.unvec(so3.add(yc, f)).astype(y.dtype)
         return y_next, explicit_info(y_next)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import jax
 import jax.numpy as jnp
 
 from .. import _so3 as so3
@@ -106,6 +107,58 @@ def sine_chart_in_map(v, y, d, tau, kappa, jacobian=True):
     return r, jac
 
 
+def sine_chart_in_map_noise(v, y, fields, jacobian=True):
+    r"""The in-map of scheme (42) with several noises, in the sine chart, and $dR/dv$.
+
+    The generating function of a step with increments $(h, \Delta W_1, \dots, \Delta W_s)$ is
+    $ar S(A) = 	frac12\operatorname{tr}A - K(v) + 	frac14(u^T A u - \operatorname{tr}A\,|u|^2)$
+    with $v = v(A)$, the step's Hamiltonian $K = hH_0 + \sum_r \Delta W_r H_r$ and
+    $u = \sum_r \Delta W_r 
+abla H_r(v)$: the last term is
+    $	frac12\sum_{r,q}\Delta W_r\Delta W_q S_{rq}(A)$, and for one noise $H_1 = cH_0$ it is
+    the $\kappa$ term of (42) (`docs/several-noises.md`). Its in-map, with $A = A(v)$ of
+    `branch_rotation`:
+
+    $R(v) = v + Q
+abla K - 	frac14 u	imes p - 	frac12|u|^2 v - 	frac12 Q J_u^T m - y_n$,
+    $p = A^T u$, $m = (\mathrm{sym}A - \operatorname{tr}A)\,u$, $J_u = \partial u/\partial v$,
+    $Qx = 	frac12((1+c)x - v	imes x - g(v\cdot x)v)$.
+
+    `fields(v)` returns $(
+abla K(v), u(v), J_u(v))$ on components. $dR/dv$ by forward-mode
+    autodiff of $R$ (three tangents), so `fields` must be differentiable (for a Hamiltonian
+    given as a function this takes its third derivatives).
+    """
+
+    def residual(v):
+        k, u, ju = fields(v)
+        # (tiny, not 0: off the ball the derivative stays finite and the iterate is flagged)
+        c = jnp.sqrt(jnp.maximum(1.0 - so3.dot(v, v), jnp.finfo(v[0].dtype).tiny))
+        opc = 1.0 + c
+        g = 1.0 / opc
+
+        def q(x):
+            vx = so3.dot(v, x)
+            return tuple(0.5 * (opc * xi - ci - g * vx * vi)
+                         for xi, ci, vi in zip(x, so3.cross(v, x), v))
+
+        vu = so3.dot(v, u)
+        p = tuple(c * ui - ci + g * vu * vi for ui, ci, vi in zip(u, so3.cross(v, u), v))
+        m = tuple(g * vu * vi - opc * ui for ui, vi in zip(u, v))
+        uxp = so3.cross(u, p)
+        n2 = so3.dot(u, u)
+        qk, qjm = q(k), q(so3.mtv(ju, m))
+        return tuple(vi + a - 0.25 * b - 0.5 * n2 * vi - 0.5 * e - yi
+                     for vi, a, b, e, yi in zip(v, qk, uxp, qjm, y))
+
+    if not jacobian:
+        return residual(v)
+    r, lin = jax.linearize(residual, v)
+    zero, one = jnp.zeros_like(r[0]), jnp.ones_like(r[0])
+    cols = [lin(tuple(one if i == j else zero for i in range(3))) for j in range(3)]
+    return r, tuple(tuple(cols[j][i] for j in range(3)) for i in range(3))
+
+
 # Continuation levels of the sine-chart Newton: a failed solve restarts along
 # lam = 1/2, 1, then quarters, eighths and sixteenths of the step (see `newton`).
 CONTINUATION = 4
@@ -164,6 +217,16 @@ class LiePoisson(AbstractMethod):
     $1/4, \dots, 1$ and finer: data in the same loop, so the solver is compiled once
     (`solve_on_branch`).
 
+    **Any system.** For the `RigidBody` with `c=` the residual and Jacobian above are written
+    out. For any other system (a Hamiltonian of your own, several noises with their own
+    Hamiltonians) each step solves the in-map of the generalised generating function
+    $\tfrac12\operatorname{tr}A - K_n(v) + \tfrac14(u^TAu - \operatorname{tr}A|u|^2)$,
+    $K_n = hH_0 + \sum_r\Delta W_r H_r$, $u = \sum_r \Delta W_r\nabla H_r(v)$
+    (`sine_chart_in_map_noise`, `docs/several-noises.md`), from the same start and with the
+    same continuation; its Jacobian by forward-mode autodiff. With several non-commuting
+    noises the strong order is 1/2 (measured), as for every method that uses only the
+    increments.
+
     A sample it cannot solve is flagged with the reason (`StepInfo.result`, a `RESULTS`
     code); the driver keeps its last good state. The chart gives an orthogonal $A$, so $|y|$ (the
     Casimir) is kept to round-off. Strong order 1 on the paper's setup (measured).
@@ -172,7 +235,8 @@ class LiePoisson(AbstractMethod):
 
     - `tol`: max-norm residual tolerance; default `64 eps` of the dtype.
     - `max_iter`: Newton updates allowed per continuation stage (default 12).
-    - `scale`: $\lambda > 0$ to integrate $z = y/\lambda$ (time scaled by $\lambda$): needed when
+    - `scale` (`RigidBody` with `c=` only): $\lambda > 0$ to integrate $z = y/\lambda$ (time
+      scaled by $\lambda$): needed when
       $|y_0| \ge 1$, where the in-map has no solution; choose $\lambda > |y_0|$. It moves the
       solve away from the fold at $|y| = 1$ but costs accuracy (`docs/scheme.md`).
     - `unroll`: Newton updates made as straight-line code before the loop (default 0).
@@ -184,8 +248,6 @@ class LiePoisson(AbstractMethod):
     Lie–Poisson systems*, scheme (42).
     """
 
-    requires = frozenset({RIGID_BODY, NOISE_PROPORTIONAL_TO_DRIFT})
-
     tol: float | None = None
     max_iter: int = 12
     scale: float | None = None
@@ -195,6 +257,11 @@ class LiePoisson(AbstractMethod):
         check_options(self)
 
     def check_initial(self, model, y0):
+        if self.scale is not None and not _ANALYTIC <= model.structure:
+            raise ValueError(
+                "LiePoisson(scale=...) needs a RigidBody with one noise proportional to the "
+                "drift (c=): scaling y is a time change only for a quadratic Hamiltonian "
+                "and noise; this system has not that structure.")
         lam = 1.0 if self.scale is None else self.scale
         norm = float((y0 ** 2).sum() ** 0.5)
         if norm / lam >= 1.0:
@@ -206,28 +273,49 @@ class LiePoisson(AbstractMethod):
                 f"s = {1.5 * norm:.3g}; |y| is conserved, so |y0|/s < 1 suffices."
             )
 
+    # The second-order terms of the generating function, c^2 dW^2 of (41) for one noise and
+    # the S_rq terms for several: they make the scheme converge to the Stratonovich
+    # solution (tests remove them).
+    _second_order = True
+
     def _kappa(self, cdw):
-        # The second-order term c^2 dW^2 of the generating function (41); it is what makes
-        # the scheme converge to the Stratonovich solution (a test removes it).
-        return cdw * cdw
+        return cdw * cdw if self._second_order else 0.0 * cdw
 
     def step(self, model, y, dt, dW):
         dtype = y.dtype
         tol = default_tol(dtype) if self.tol is None else self.tol
-        lam = 1.0 if self.scale is None else self.scale
-        d = model.inverse_inertia()
-        cdw = model.noise_time(dW)
-        tau = lam * (dt + cdw)
-        kappa = lam * lam * self._kappa(cdw)
-        z = so3.scale(1.0 / lam, so3.vec(y))
+        z = so3.vec(y)
+        if _ANALYTIC <= model.structure:
+            lam = 1.0 if self.scale is None else self.scale
+            d = model.inverse_inertia()
+            cdw = model.noise_time(dW)
+            tau = lam * (dt + cdw)
+            kappa = lam * lam * self._kappa(cdw)
+            z = so3.scale(1.0 / lam, z)
+
+            def sine_fn(v, lam, jacobian=True):
+                return sine_chart_in_map(v, z, d, lam * tau, lam * lam * kappa, jacobian)
+        else:
+            # Any Hamiltonians: the generalised generating function, fields from the model.
+            second = 1.0 if self._second_order else 0.0
+
+            def sine_fn(v, lam, jacobian=True):
+                def fields(v):
+                    g = model.gradient_c(v)
+                    u, ju = model.noise_gradient_jacobian_c(v, dW)
+                    k = tuple(dt * gi + ui for gi, ui in zip(g, u))
+                    return (so3.scale(lam, k), so3.scale(second * lam, u),
+                            so3.mscale(lam, ju))
+                return sine_chart_in_map_noise(v, z, fields, jacobian)
+
         feasible = so3.dot(z, z) < 1.0
-
-        def sine_fn(v, lam, jacobian=True):
-            return sine_chart_in_map(v, z, d, lam * tau, lam * lam * kappa, jacobian)
-
         v, result, iterations, residual = solve_on_branch(
             sine_fn, z, tol=tol, max_iter=self.max_iter, feasible=feasible, unroll=self.unroll)
         a, _, _ = branch_rotation(v)
         y_next = so3.unvec(so3.mv(a, so3.vec(y))).astype(dtype)
         return y_next, StepInfo(finite_result(y_next, result), iterations,
                                 residual.astype(dtype))
+
+
+# The structure for which `LiePoisson` has its closed-form residual and Jacobian.
+_ANALYTIC = frozenset({RIGID_BODY, NOISE_PROPORTIONAL_TO_DRIFT})

@@ -14,46 +14,49 @@ from .newton import implicit_root, newton
 
 @dataclasses.dataclass(frozen=True)
 class Midpoint(AbstractMethod):
-    r"""The implicit midpoint rule $y_{n+1} = y_n + \tau f(\tfrac12(y_n + y_{n+1}))$,
-    $\tau = h + c\Delta W_n$.
+    r"""The implicit midpoint rule $y_{n+1} = y_n + F_n(\tfrac12(y_n + y_{n+1}))$ with
+    $F_n(y) = y \times \nabla K_n(y)$, $K_n = hH_0 + \sum_r \Delta W_{r,n} H_r$ (for one noise
+    $H_1 = cH_0$: $F_n = \tau f$, $\tau = h + c\Delta W_n$).
 
-    Symmetric and of deterministic order 2, hence strong order 1 for this SDE; it conserves
-    every quadratic invariant, here both $|y|^2$ and (for the rigid body) $H$, up to the
-    solver tolerance. Solved by Newton's method from the explicit Euler predictor, with the
-    Jacobian $\mathrm{Id} - \tfrac\tau2 f'(m)$,
-    $f'(m) = \hat m\, \nabla^2 H(m) - \widehat{\nabla H(m)}$: from the system
-    (analytic for the `RigidBody`, by autodiff of $H$ for a `LiePoissonSystem`).
+    Symmetric; with one noise proportional to the drift it has deterministic order 2, hence
+    strong order 1; with several non-commuting noises strong order 1/2, weak order 1. It
+    conserves every quadratic invariant, here $|y|^2$ and (with one noise, for the rigid body)
+    $H$, up to the solver tolerance. Solved by Newton's method from the explicit Euler
+    predictor, with the Jacobian $\mathrm{Id} - \tfrac12 F_n'(m)$,
+    $F_n'(m) = \hat m\, \nabla^2 K_n(m) - \widehat{\nabla K_n(m)}$: from the system (analytic
+    for the `RigidBody` and the noise families, by autodiff of a Hamiltonian function).
+    Works for any system.
 
     **Arguments:** `tol` (default `64 eps`), `max_iter` (default 12).
     """
 
     tol: float | None = None
     max_iter: int = 12
+
     def __post_init__(self):
         check_options(self)
 
     def step(self, model, y, dt, dW):
         dtype = y.dtype
         tol = default_tol(dtype) if self.tol is None else self.tol
-        tau = dt + model.noise_time(dW)
         y0 = so3.vec(y)
 
-        def f(u):
-            return so3.cross(u, model.gradient_c(u))
+        def f(u):  # the step's increment field y x grad K(y), K = h H_0 + sum_r dW_r H_r
+            return so3.cross(u, model.step_gradient_c(u, dt, dW))
 
         def residual(y1):
             m = so3.scale(0.5, so3.add(y0, y1))
-            return tuple(a - b - tau * c for a, b, c in zip(y1, y0, f(m)))
+            return tuple(a - b - c for a, b, c in zip(y1, y0, f(m)))
 
         def system(y1):
             m = so3.scale(0.5, so3.add(y0, y1))
-            g, hess = model.gradient_hessian_c(m)
-            r = tuple(a - b - tau * c for a, b, c in zip(y1, y0, so3.cross(m, g)))
+            g, hess = model.step_gradient_hessian_c(m, dt, dW)
+            r = tuple(a - b - c for a, b, c in zip(y1, y0, so3.cross(m, g)))
             fprime = so3.madd(so3.mm(so3.hat_c(m), hess), so3.mscale(-1.0, so3.hat_c(g)))
-            return r, so3.shift(so3.mscale(-0.5 * tau, fprime), 1.0)
+            return r, so3.shift(so3.mscale(-0.5, fprime), 1.0)
 
         def solve():
-            start = tuple(a + tau * b for a, b in zip(y0, f(y0)))
+            start = so3.add(y0, f(y0))
             s = newton(system, start, tol=tol, max_iter=self.max_iter)
             return s.x, s.result == RESULTS.successful, (s.result, s.iterations, s.residual)
 
