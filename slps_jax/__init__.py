@@ -38,7 +38,8 @@ from ._stream import EnsembleStatistics as EnsembleStatistics, ensemble_statisti
 
 # Studies
 from ._calibrate import CalibrationResult as CalibrationResult, calibrate as calibrate, moments as moments
-from ._convergence import ConvergenceResult as ConvergenceResult, strong_convergence as strong_convergence
+from ._convergence import (ConvergenceResult as ConvergenceResult, WeakConvergenceResult as WeakConvergenceResult,
+                           strong_convergence as strong_convergence, weak_convergence as weak_convergence)
 from ._exact import exact_flow as exact_flow, exact_solution as exact_solution
 from . import so3 as so3
 

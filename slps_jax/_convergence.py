@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import statistics
 import time
 
 import jax
@@ -12,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _noise
-from ._exact import exact_solution
+from ._exact import exact_flow, exact_solution
 from ._checks import (check_count, check_method, check_model, check_positive, check_retry,
                       check_y0)
 from ._integrate import _ensemble_dynamic_jit, _failure_message
@@ -81,6 +82,123 @@ def _substeps(dt, fine_dt, name):
     return s
 
 
+@dataclasses.dataclass(frozen=True)
+class _Study:
+    """What a convergence study shares: the step sizes (largest first), the methods, the
+    final states of a method at a step on the shared paths, and the reference's."""
+
+    dts: np.ndarray
+    methods: dict
+    final_states: object
+    y_ref: jax.Array
+    reference_error: float
+    n_samples: int
+    y0: jax.Array
+    t1: float
+    kind: str  # "exact", "method" or "flow"
+    y_ref_coarse: jax.Array | None  # a method reference at twice its step
+
+
+def _study(caller, model, y0, t1, dts, n_samples, key, methods, reference, reference_dt,
+           reference_factor, truncate_k, retry_substeps):
+    """Validate a study's arguments (before anything compiles) and set up its shared paths
+    and reference (see `strong_convergence`)."""
+    check_model(model)
+    if isinstance(methods, dict):
+        if not methods:
+            raise ValueError("methods must name at least one method, got an empty dict.")
+    else:
+        methods = {type(methods).__name__: methods}
+    for m in methods.values():
+        check_method(m)
+        y0 = check_y0(y0, m, model)
+    t1_np = check_positive("t1", t1)
+    if t1_np is None:
+        raise TypeError(f"{caller} needs a concrete t1: call it outside jax.jit.")
+    t1 = float(t1_np)
+    try:
+        dts = np.asarray(dts, float)
+    except (TypeError, ValueError):
+        raise TypeError(f"dts must be a list of step sizes, got {dts!r}.") from None
+    if dts.ndim != 1 or len(dts) < 2 or not np.all(np.isfinite(dts) & (dts > 0)):
+        raise ValueError(f"dts must hold at least two positive finite step sizes, got {dts}.")
+    if len(np.unique(dts)) != len(dts):
+        raise ValueError(f"dts must be distinct, got {dts}.")
+    dts = np.sort(dts)[::-1]
+    named = reference if isinstance(reference, str) else None
+    if named == "midpoint":
+        reference = Midpoint()
+        if reference_dt is None and reference_factor is None:
+            reference_factor = 16
+    is_method = isinstance(reference, AbstractMethod)
+    if not (is_method or callable(reference) or named == "exact"):
+        raise ValueError(f"reference must be 'exact', 'midpoint', a method instance or a "
+                         f"callable flow, got {reference!r}.")
+    if not is_method and NOISE_PROPORTIONAL_TO_DRIFT not in model.structure:
+        raise ValueError("This system's noise is not proportional to its drift: it has no "
+                         "time-change solution. Pass a method as the reference, for example "
+                         "reference=Midpoint(), computed on the same paths at a fine step.")
+    if named == "exact" and RIGID_BODY not in model.structure:
+        raise ValueError("reference='exact' needs a RigidBody (the closed-form flow); for a "
+                         "LiePoissonSystem pass a deterministic flow as reference (a callable) "
+                         "or a method, for example reference=Midpoint().")
+    if is_method:
+        check_method(reference)
+        y0 = check_y0(y0, reference, model)
+    if reference_dt is not None and reference_factor is not None:
+        raise ValueError("Pass reference_dt or reference_factor, not both.")
+    if reference_dt is not None:
+        check_positive("reference_dt", reference_dt)
+    if reference_factor is not None:
+        reference_factor = check_count("reference_factor", reference_factor, minimum=2)
+    n_samples = check_count("n_samples", n_samples, minimum=2)
+    retry = check_retry(retry_substeps)
+    key = _noise.check_key(key)
+    fine_dt = float(dts[-1])
+    if is_method:
+        fine_dt = (float(reference_dt) if reference_dt is not None
+                   else fine_dt / (64 if reference_factor is None else reference_factor))
+    _noise.check_truncation(fine_dt, truncate_k)
+    n_fine = _substeps(float(t1), fine_dt, "t1")
+    dtype = y0.dtype
+    keys = _noise.sample_keys(key, int(n_samples))
+    bound = jnp.asarray(_noise.truncation_bound(fine_dt, truncate_k), dtype)
+
+    def final_states(method, dt, name="dt"):
+        s = _substeps(dt, fine_dt, name)
+        ys, fail_step, result, _, _ = _ensemble_dynamic_jit(
+            method, model, y0, keys, jnp.asarray(dt, dtype), bound, 1, jnp.asarray(n_fine // s),
+            False, jnp.asarray(s), retry=retry)
+        msg = _failure_message(f"{caller} ({type(method).__name__} at dt={dt})",
+                               fail_step, result)
+        if msg is not None:
+            raise RuntimeError(msg + " Use smaller dts.")
+        return ys[:, -1]
+
+    if is_method:
+        y_ref = final_states(reference, fine_dt, "reference_dt")
+        half = final_states(reference, 2 * fine_dt, "reference_dt")
+        reference_error = float(jnp.sqrt(jnp.mean(jnp.sum((half - y_ref) ** 2, -1))))
+    elif callable(reference):
+        # The time change: y(t1) = phi_{t1 + c W(t1)}(y0) for the deterministic flow phi.
+        w_t = _brownian_endpoints(keys, jnp.asarray(fine_dt, dtype), bound, n_fine)
+        times = float(t1) + np.asarray(model.c) * np.asarray(w_t)
+        y_ref = np.asarray(reference(times), dtype=np.float64)
+        if y_ref.shape != (n_samples, 3):
+            raise ValueError(f"reference(times) must return shape ({n_samples}, 3), got "
+                             f"{y_ref.shape}.")
+        y_ref = jnp.asarray(y_ref, dtype)
+        reference_error = math.nan
+    else:
+        w_t = _brownian_endpoints(keys, jnp.asarray(fine_dt, dtype), bound, n_fine)
+        y_ref = _exact_endpoints(model, y0, jnp.asarray(t1, dtype), w_t)
+        reference_error = 0.0
+
+    kind = "method" if is_method else "flow" if callable(reference) else "exact"
+    return _Study(dts, methods, final_states, y_ref, reference_error, int(n_samples), y0, t1,
+                  kind, half if is_method else None)
+
+
 def strong_convergence(model, y0, *, t1, dts, n_samples, key, methods, reference="exact",
                        reference_dt=None, reference_factor=None, truncate_k=4,
                        n_bootstrap=200, retry_substeps=None):
@@ -121,105 +239,17 @@ def strong_convergence(model, y0, *, t1, dts, n_samples, key, methods, reference
     paths: the size of the reference's own error (0 for `"exact"`, `nan` for a flow). Keep it
     well below the errors you fit.
     """
-    check_model(model)
-    if isinstance(methods, dict):
-        if not methods:
-            raise ValueError("methods must name at least one method, got an empty dict.")
-    else:
-        methods = {type(methods).__name__: methods}
-    for m in methods.values():
-        check_method(m)
-        y0 = check_y0(y0, m, model)
-    t1_np = check_positive("t1", t1)
-    if t1_np is None:
-        raise TypeError("strong_convergence needs a concrete t1: call it outside jax.jit.")
-    t1 = float(t1_np)
-    try:
-        dts = np.asarray(dts, float)
-    except (TypeError, ValueError):
-        raise TypeError(f"dts must be a list of step sizes, got {dts!r}.") from None
-    if dts.ndim != 1 or len(dts) < 2 or not np.all(np.isfinite(dts) & (dts > 0)):
-        raise ValueError(f"dts must hold at least two positive finite step sizes, got {dts}.")
-    if len(np.unique(dts)) != len(dts):
-        raise ValueError(f"dts must be distinct, got {dts}.")
-    dts = np.sort(dts)[::-1]
-    named = reference if isinstance(reference, str) else None
-    if named == "midpoint":
-        reference = Midpoint()
-        if reference_dt is None and reference_factor is None:
-            reference_factor = 16
-    is_method = isinstance(reference, AbstractMethod)
-    if not (is_method or callable(reference) or named == "exact"):
-        raise ValueError(f"reference must be 'exact', 'midpoint', a method instance or a "
-                         f"callable flow, got {reference!r}.")
-    if not is_method and NOISE_PROPORTIONAL_TO_DRIFT not in model.structure:
-        raise ValueError("This system's noise is not proportional to its drift: it has no "
-                         "time-change solution. Pass a method as the reference, for example "
-                         "reference=Midpoint(), computed on the same paths at a fine step.")
-    if named == "exact" and RIGID_BODY not in model.structure:
-        raise ValueError("reference='exact' needs a RigidBody (the closed-form flow); for a "
-                         "LiePoissonSystem pass a deterministic flow as reference (a callable) "
-                         "or a method, for example reference=Midpoint().")
-    if is_method:
-        check_method(reference)
-        y0 = check_y0(y0, reference, model)
-    if reference_dt is not None and reference_factor is not None:
-        raise ValueError("Pass reference_dt or reference_factor, not both.")
-    if reference_dt is not None:
-        check_positive("reference_dt", reference_dt)
-    if reference_factor is not None:
-        reference_factor = check_count("reference_factor", reference_factor, minimum=2)
-    n_samples = check_count("n_samples", n_samples, minimum=2)
     n_bootstrap = check_count("n_bootstrap", n_bootstrap, minimum=2)
-    retry = check_retry(retry_substeps)
-    key = _noise.check_key(key)
-    fine_dt = float(dts[-1])
-    if is_method:
-        fine_dt = (float(reference_dt) if reference_dt is not None
-                   else fine_dt / (64 if reference_factor is None else reference_factor))
-    _noise.check_truncation(fine_dt, truncate_k)
-    n_fine = _substeps(float(t1), fine_dt, "t1")
-    dtype = y0.dtype
-    keys = _noise.sample_keys(key, int(n_samples))
-    bound = jnp.asarray(_noise.truncation_bound(fine_dt, truncate_k), dtype)
-
-    def final_states(method, dt, name="dt"):
-        s = _substeps(dt, fine_dt, name)
-        ys, fail_step, result, _, _ = _ensemble_dynamic_jit(
-            method, model, y0, keys, jnp.asarray(dt, dtype), bound, 1, jnp.asarray(n_fine // s),
-            False, jnp.asarray(s), retry=retry)
-        msg = _failure_message(f"strong_convergence ({type(method).__name__} at dt={dt})",
-                               fail_step, result)
-        if msg is not None:
-            raise RuntimeError(msg + " Use smaller dts.")
-        return ys[:, -1]
-
-    if is_method:
-        y_ref = final_states(reference, fine_dt, "reference_dt")
-        half = final_states(reference, 2 * fine_dt, "reference_dt")
-        reference_error = float(jnp.sqrt(jnp.mean(jnp.sum((half - y_ref) ** 2, -1))))
-    elif callable(reference):
-        # The time change: y(t1) = phi_{t1 + c W(t1)}(y0) for the deterministic flow phi.
-        w_t = _brownian_endpoints(keys, jnp.asarray(fine_dt, dtype), bound, n_fine)
-        times = float(t1) + np.asarray(model.c) * np.asarray(w_t)
-        y_ref = np.asarray(reference(times), dtype=np.float64)
-        if y_ref.shape != (n_samples, 3):
-            raise ValueError(f"reference(times) must return shape ({n_samples}, 3), got "
-                             f"{y_ref.shape}.")
-        y_ref = jnp.asarray(y_ref, dtype)
-        reference_error = math.nan
-    else:
-        w_t = _brownian_endpoints(keys, jnp.asarray(fine_dt, dtype), bound, n_fine)
-        y_ref = _exact_endpoints(model, y0, jnp.asarray(t1, dtype), w_t)
-        reference_error = 0.0
-
+    st = _study("strong_convergence", model, y0, t1, dts, n_samples, key, methods, reference,
+                reference_dt, reference_factor, truncate_k, retry_substeps)
+    dts, n_samples, y_ref = st.dts, st.n_samples, st.y_ref
     errors, stderr, order, order_se, seconds = {}, {}, {}, {}, {}
     rng = np.random.default_rng(0)
     boot = rng.integers(0, n_samples, size=(n_bootstrap, n_samples))
     log_h = np.log(dts)
-    for name, method in methods.items():
+    for name, method in st.methods.items():
         start = time.perf_counter()
-        e2 = np.stack([np.asarray(jnp.sum((final_states(method, float(dt)) - y_ref) ** 2, -1))
+        e2 = np.stack([np.asarray(jnp.sum((st.final_states(method, float(dt)) - y_ref) ** 2, -1))
                        for dt in dts], axis=1)  # (n_samples, n_dts)
         seconds[name] = time.perf_counter() - start
         ms = e2.mean(0)
@@ -228,4 +258,123 @@ def strong_convergence(model, y0, *, t1, dts, n_samples, key, methods, reference
         order[name] = float(np.polyfit(log_h, np.log(errors[name]), 1)[0])
         slopes = [np.polyfit(log_h, 0.5 * np.log(e2[b].mean(0)), 1)[0] for b in boot]
         order_se[name] = float(np.std(slopes, ddof=1))
-    return ConvergenceResult(dts, errors, stderr, order, order_se, seconds, reference_error)
+    return ConvergenceResult(dts, errors, stderr, order, order_se, seconds,
+                             st.reference_error)
+
+
+@dataclasses.dataclass(frozen=True)
+class WeakConvergenceResult:
+    """What `weak_convergence` returns. Dicts are keyed by method name; arrays have one
+    column per observable component.
+
+    - `dts`: the step sizes, shape `(n_dts,)`.
+    - `bias`: the estimated weak error $E_h[g(y_N)] - E[g(y(t_1))]$, shape `(n_dts, m)`: the
+      mean of the coupled differences $g(y_N) - g(y_\text{ref})$ over the samples.
+    - `ci`: half-width of its confidence interval at level `confidence` (normal
+      approximation), from the coupled differences' standard deviation.
+    - `order`: least-squares slope of `log |bias|` against `log dt`, per component
+      (meaningful where `|bias|` is well above `ci`).
+    - `reference_mean`: $E[g(y(t_1))]$: by Gauss–Hermite quadrature of the exact flow for
+      `reference="exact"` (exact to quadrature accuracy), else the mean over the reference
+      paths.
+    - `reference_error`: the reference's own weak error: 0 for `"exact"`; for a method, the
+      coupled mean difference between it and the same method at twice its step.
+    - `seconds`: wall time of each method's runs.
+    """
+
+    dts: np.ndarray
+    bias: dict
+    ci: dict
+    order: dict
+    reference_mean: np.ndarray
+    reference_error: np.ndarray
+    seconds: dict
+
+    def table(self):
+        """A Markdown table of |bias| ± CI per step size (one column per method and
+        observable component) and the fitted orders."""
+        cols = [(n, j) for n in self.bias for j in range(self.bias[n].shape[1])]
+        label = {(n, j): n if self.bias[n].shape[1] == 1 else f"{n}[{j}]" for n, j in cols}
+        head = ("| h | " + " | ".join(label[c] for c in cols) + " |\n|---|"
+                + "---|" * len(cols) + "\n")
+        rows = "".join(
+            f"| 2^{math.log2(h):.0f} | " + " | ".join(
+                f"{abs(self.bias[n][i, j]):.2e} ± {self.ci[n][i, j]:.1e}" for n, j in cols)
+            + " |\n" for i, h in enumerate(self.dts))
+        order = "| order | " + " | ".join(f"{self.order[n][j]:.2f}" for n, j in cols) + " |\n"
+        return head + rows + order
+
+
+def weak_convergence(model, y0, *, t1, dts, n_samples, key, methods, observable,
+                     reference="exact", reference_dt=None, reference_factor=None,
+                     truncate_k=4, confidence=0.95, n_nodes=64, retry_substeps=None):
+    r"""Weak error $|E_h[g(y_N)] - E[g(y(t_1))]|$ of each method at each step size, for an
+    observable $g$ you choose, on shared paths, with confidence intervals and fitted orders.
+
+    The paths, step sizes and references are those of `strong_convergence` (same arguments).
+    The weak error is estimated from the *coupled* differences $g(y_N) - g(y_	ext{ref})$ on
+    the same Brownian path, whose variance is far smaller than that of $g(y_N)$, so the
+    confidence intervals are narrow for few samples. With `reference="exact"` (a `RigidBody`
+    with one noise proportional to the drift) the pathwise reference is the exact solution,
+    so $E[g(y_	ext{ref})]$ is exactly $E[g(y(t_1))] = \int g(arphi_{t_1 + c\sqrt{t_1}z}(y_0))
+    \,N(dz)$, which is also computed, by Gauss–Hermite quadrature with `n_nodes` nodes, as
+    `reference_mean`. For other systems pass a method as the reference (for example
+    `Midpoint()`, 64x finer by default); its own weak error is reported.
+
+    **Arguments:** as `strong_convergence`, and
+
+    - `observable`: `g(y) -> scalar or shape (m,)`, for `y` of shape `(3,)`, traceable by JAX
+      (for example `lambda y: y` for the mean, or `model.hamiltonian`).
+    - `confidence`: the level of the intervals (default 0.95).
+    - `n_nodes`: Gauss–Hermite nodes for the exact expectation (default 64).
+
+    **Returns:** a `WeakConvergenceResult`.
+    """
+    if not callable(observable):
+        raise TypeError(f"observable must be a function g(y) -> scalar or shape (m,), got "
+                        f"{type(observable).__name__}.")
+    if not (isinstance(confidence, (float, int)) and 0 < confidence < 1):
+        raise ValueError(f"confidence must lie strictly between 0 and 1, got {confidence!r}.")
+    n_nodes = check_count("n_nodes", n_nodes, minimum=2)
+    check_model(model)
+    g = jax.jit(jax.vmap(lambda y: jnp.atleast_1d(observable(y))))
+    shape = jax.eval_shape(g, jax.ShapeDtypeStruct((2, 3), model.dtype)).shape
+    if len(shape) != 2:
+        raise ValueError(f"observable(y) must return a scalar or shape (m,), got shape "
+                         f"{shape[1:]}.")
+    st = _study("weak_convergence", model, y0, t1, dts, n_samples, key, methods, reference,
+                reference_dt, reference_factor, truncate_k, retry_substeps)
+    z = statistics.NormalDist().inv_cdf(0.5 + confidence / 2)
+    g_ref = np.asarray(g(st.y_ref))
+    n = st.n_samples
+    if st.kind == "exact":
+        x, w = np.polynomial.hermite_e.hermegauss(n_nodes)
+        times = st.t1 + float(model.c) * math.sqrt(st.t1) * x
+        states = _exact_flows(model, st.y0, jnp.asarray(times, st.y0.dtype))
+        reference_mean = np.asarray(w @ np.asarray(g(states))) / math.sqrt(2 * math.pi)
+        reference_error = np.zeros(shape[1])
+    else:
+        reference_mean = g_ref.mean(0)
+        reference_error = np.full(shape[1], np.nan)
+        if st.kind == "method":
+            reference_error = np.abs((np.asarray(g(st.y_ref_coarse)) - g_ref).mean(0))
+
+    bias, ci, order, seconds = {}, {}, {}, {}
+    log_h = np.log(st.dts)
+    for name, method in st.methods.items():
+        start = time.perf_counter()
+        diffs = np.stack([np.asarray(g(st.final_states(method, float(dt)))) - g_ref
+                          for dt in st.dts])  # (n_dts, n_samples, m)
+        seconds[name] = time.perf_counter() - start
+        bias[name] = diffs.mean(1)
+        ci[name] = z * diffs.std(1, ddof=1) / math.sqrt(n)
+        order[name] = np.array([
+            np.polyfit(log_h, np.log(np.maximum(np.abs(b), np.finfo(float).tiny)), 1)[0]
+            for b in bias[name].T])
+    return WeakConvergenceResult(st.dts, bias, ci, order, reference_mean, reference_error,
+                                 seconds)
+
+
+@jax.jit
+def _exact_flows(model, y0, times):
+    return jax.vmap(lambda t: exact_flow(model, y0, t))(times)
