@@ -1,4 +1,5 @@
-"""Fit the inertia and `c` to observed ensemble statistics, with pathwise gradients."""
+"""Fit the inertia and the noise (`c`, or a noise family's parameters) to observed ensemble
+statistics, with pathwise gradients."""
 
 from __future__ import annotations
 
@@ -29,39 +30,82 @@ class CalibrationResult:
 
     - `model`: the fitted `RigidBody`.
     - `loss`: the loss before each optimiser step (`loss[0]` at `init`).
-    - `stderr`: delta-method standard errors of `(I_1, I_2, I_3, c)` from the Jacobian of the
-      statistics at the fit and `observed_stderr` (`None` if that was not given; 0 for the
-      fixed parameters); with `observed_n_samples` they include the simulation's own
+    - `names`: the parameters, in order: `I_1, I_2, I_3`, then `c`, or the entries of the
+      noise family's parameter (`chi[r,j]` for `salt_noise`, `sigma[r,j]` for
+      `random_inertia_noise`).
+    - `stderr`: delta-method standard errors of the parameters in `names` from the Jacobian of
+      the statistics at the fit and `observed_stderr` (`None` if that was not given; 0 for
+      the fixed parameters); with `observed_n_samples` they include the simulation's own
       sampling error.
-    - `singular_values`: of the weighted Jacobian of the statistics with respect to
-      `(log I, log c)` at the start; their spread says how well the data determine the
-      parameters.
+    - `singular_values`: of the weighted Jacobian of the statistics with respect to the
+      free parameters (`log I`, `log c`, the noise parameters as they are) at the start;
+      their spread says how well the data determine the parameters.
     """
 
     model: RigidBody
     loss: np.ndarray
     stderr: np.ndarray | None
     singular_values: np.ndarray
+    names: tuple = ("I_1", "I_2", "I_3", "c")
 
 
-_NAMES = ("I_1", "I_2", "I_3", "c")
+@dataclasses.dataclass(frozen=True)
+class _Parameters:
+    """The parameters of a `RigidBody` as one vector `theta`: `log I`, then `log c` or the
+    noise family's parameter array raveled (on its own scale: its entries may have either
+    sign)."""
 
+    names: tuple
+    theta: jax.Array
+    log: np.ndarray  # which entries are logarithms
+    init: RigidBody
 
-def _unpack(theta):
-    return RigidBody(jnp.exp(theta[:3]), jnp.exp(theta[3]))
+    @classmethod
+    def of(cls, init):
+        inertia = [f"I_{i + 1}" for i in range(3)]
+        if init.noise is None:
+            return cls((*inertia, "c"), jnp.concatenate([jnp.log(init.inertia),
+                                                          jnp.log(init.c)[None]]),
+                       np.ones(4, bool), init)
+        (leaf,) = jax.tree_util.tree_leaves(init.noise)
+        name = init.noise.parameter_name
+        entries = [f"{name}[{', '.join(map(str, i))}]" for i in np.ndindex(leaf.shape)]
+        return cls((*inertia, *entries),
+                   jnp.concatenate([jnp.log(init.inertia), jnp.ravel(leaf)]),
+                   np.arange(3 + len(entries)) < 3, init)
+
+    def model(self, theta):
+        inertia = jnp.exp(theta[:3])
+        if self.init.noise is None:
+            return RigidBody(inertia, jnp.exp(theta[3]))
+        leaves, treedef = jax.tree_util.tree_flatten(self.init.noise)
+        noise = jax.tree_util.tree_unflatten(treedef, [theta[3:].reshape(leaves[0].shape)])
+        return RigidBody(inertia, noise=noise)
+
+    def values(self, theta):
+        """The parameters themselves (not their logarithms), as a NumPy array."""
+        theta = np.asarray(theta)
+        return np.where(self.log, np.exp(theta), theta)
+
+    def describe(self, theta):
+        return ", ".join(f"{n} {v:.6g}" for n, v in zip(self.names, self.values(theta)))
 
 
 def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
               observed_stderr=None, observed_n_samples=None, fixed=(), method=LiePoisson(),
               optimizer=None, steps=50, truncate_k=4, rtol=1e-10, progress=True):
-    r"""Fit `inertia` and `c` of a `RigidBody` to observed ensemble statistics.
+    r"""Fit `inertia` and the noise (`c`, or a noise family's parameters) of a `RigidBody` to
+    observed ensemble statistics.
 
     Minimises the weighted least-squares misfit
     $L(\theta) = \tfrac12 \sum_{k} |(S_k(\theta) - S^{obs}_k)/\sigma_k|^2$, where
     $S_k(\theta)$ = `statistic` of the simulated ensemble at time `ts[k]` and $\sigma$ =
     `observed_stderr` (1 if not given), over $\theta = (\log I_1, \log I_2, \log I_3, \log c)$:
     the parameters stay positive ($c$ and $-c$ give the same law, so only $|c|$ can be
-    fitted). The ensemble is simulated with the same `key` at every iteration (common random
+    fitted). For a `RigidBody` with a noise family (`noise=salt_noise(chi)`,
+    `random_inertia_noise(sigma)`) $\theta$ is $\log I$ and the family's parameter array as
+    it is. Flipping the sign of one noise's row, or mixing the rows by an orthogonal matrix,
+    leaves the law unchanged: with several noises, fix all but the entries you can identify. The ensemble is simulated with the same `key` at every iteration (common random
     numbers), so $L$ is a smooth deterministic function whose gradient `jax.grad` computes
     exactly (pathwise, through the implicit Newton solves); its minimiser estimates the
     parameters, with a bias of order $1/$`n_samples`.
@@ -78,7 +122,7 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
     - `observed`: array `(len(ts), k)`, the statistics to match.
     - `y0`: the initial value; `ts`: increasing observation times, multiples of `dt`.
     - `dt`, `n_samples`, `key`, `method`, `truncate_k`: as in `simulate`.
-    - `init`: a `RigidBody`, the starting guess.
+    - `init`: a `RigidBody` (with `c=` or with a noise family), the starting guess.
     - `statistic`: `(n_samples, 3) -> (k,)`; default `moments` (means of `y` and `y**2`).
     - `observed_stderr`: standard errors of `observed` (same shape), used as weights and for
       the standard errors of the fit.
@@ -86,7 +130,8 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
       then include the sampling error of the simulated statistics too (a factor
       $\sqrt{1 + n_{obs}/n_{samples}}$, the model's statistics having the observed ones'
       variance).
-    - `fixed`: names among `"I_1", "I_2", "I_3", "c"` held at their values in `init`.
+    - `fixed`: names among `"I_1", "I_2", "I_3", "c"` (or the noise family's entries, such
+      as `"chi[0, 1]"`; `CalibrationResult.names` lists them) held at their values in `init`.
     - `optimizer`: an optax optimiser; default `optax.lbfgs()` (the loss is deterministic and
       smooth). Optimisers that need the loss value (line searches) get it.
     - `steps`: at most this many optimiser steps; stops earlier when the loss changes by
@@ -105,8 +150,13 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
     """
     if not isinstance(init, RigidBody):
         raise TypeError(f"init must be a RigidBody, got {type(init).__name__}.")
-    if not float(init.c) > 0:
+    if init.noise is None and not float(init.c) > 0:
         raise ValueError(f"init.c must be positive (c is fitted on a log scale), got {init.c}.")
+    if init.noise is not None and not hasattr(init.noise, "parameter_name"):
+        raise TypeError("calibrate fits the parameters of a noise family (salt_noise, "
+                        "random_inertia_noise); a noise given as a function has none.")
+    params = _Parameters.of(init)
+    all_names = params.names
     ts = np.asarray(ts, float)
     if ts.ndim != 1 or len(ts) < 1 or not np.all(np.diff(ts) > 0) or ts[0] <= 0:
         raise ValueError(f"ts must be increasing positive times, got {ts}.")
@@ -123,12 +173,12 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
     if weight.shape != observed.shape or not bool(jnp.all(jnp.isfinite(weight) & (weight > 0))):
         raise ValueError("observed_stderr must be positive and have the shape of observed.")
     key = _noise.check_key(key)
-    unknown = [n for n in fixed if n not in _NAMES]
-    if unknown or len(set(fixed)) == len(_NAMES):
-        raise ValueError(f"fixed must name some (not all) of {_NAMES}, got {fixed!r}.")
-    free = np.array([n not in fixed for n in _NAMES])
-    names = [n for n in _NAMES if n not in fixed]
-    theta_all = jnp.concatenate([jnp.log(init.inertia), jnp.log(init.c)[None]])
+    unknown = [n for n in fixed if n not in all_names]
+    if unknown or len(set(fixed)) == len(all_names):
+        raise ValueError(f"fixed must name some (not all) of {all_names}, got {fixed!r}.")
+    free = np.array([n not in fixed for n in all_names])
+    names = [n for n in all_names if n not in fixed]
+    theta_all = params.theta
 
     def full(theta):
         return theta_all.at[np.flatnonzero(free)].set(theta)
@@ -138,7 +188,7 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
         with warnings.catch_warnings():
             # failures are counted here and raised by `check` with calibrate's own advice
             warnings.filterwarnings("ignore", "simulate: .* samples failed", RuntimeWarning)
-            sol = simulate(_unpack(full(theta)), y0, t1=float(ts[-1]), dt=dt,
+            sol = simulate(params.model(full(theta)), y0, t1=float(ts[-1]), dt=dt,
                            n_samples=n_samples, key=key, method=method, save_every=every,
                            truncate_k=truncate_k, throw=False)
         ys = sol.ys[:, idx // every]  # (n_samples, len(ts), 3)
@@ -155,10 +205,9 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
     def check(n_failed, theta, where):
         n_failed = int(n_failed)
         if n_failed > 0:
-            m = _unpack(full(theta))
             raise RuntimeError(
                 f"calibrate: {n_failed} of {n_samples} samples failed (Newton solve) {where}, "
-                f"at inertia {np.asarray(m.inertia)}, c {float(m.c)}. Failed samples are "
+                f"at {params.describe(full(theta))}. Failed samples are "
                 "frozen at their last good state and are never used as data, so the fit "
                 "stops. Use a smaller dt, a method without Newton solves such as "
                 "method=Strang(), or an init / y0 away from the failing region.")
@@ -200,28 +249,28 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
             break
         theta, checked = new_theta, False
         if progress:
-            m = _unpack(full(theta))
-            print(f"calibrate: step {i + 1:3d}  loss {history[-1]:.6e}  inertia "
-                  f"{np.round(np.asarray(m.inertia), 6)}  c {float(m.c):.6f}", file=sys.stderr)
+            print(f"calibrate: step {i + 1:3d}  loss {history[-1]:.6e}  "
+                  f"{params.describe(full(theta))}", file=sys.stderr)
 
-    model = _unpack(full(theta))
+    model = params.model(full(theta))
     stderr = None
     if observed_stderr is not None:
         # Delta method: Cov(theta) = (J^T J)^{-1} with the weighted Jacobian; then the chain
-        # rule d exp(theta) = exp(theta) d theta.
+        # rule d exp(theta) = exp(theta) d theta for the logarithms.
         jac, n_failed = jax.jacfwd(residuals, has_aux=True)(theta)
         check(n_failed, theta, "at the fitted parameters")
         checked = True
         jac = np.asarray(jac)
         cov = np.linalg.pinv(jac.T @ jac)
-        stderr = np.zeros(len(_NAMES))
-        stderr[free] = np.sqrt(np.diag(cov)) * np.exp(np.asarray(theta))
+        stderr = np.zeros(len(all_names))
+        scale = np.where(params.log[free], np.exp(np.asarray(theta)), 1.0)
+        stderr[free] = np.sqrt(np.diag(cov)) * scale
         if observed_n_samples is not None:
             stderr *= math.sqrt(1.0 + observed_n_samples / n_samples)
     if not checked:
         # the last step's result (steps ran out): evaluated only inside its line search
         check(loss_aux(theta)[1], theta, "at the fitted parameters")
-    return CalibrationResult(model, np.asarray(history), stderr, sv)
+    return CalibrationResult(model, np.asarray(history), stderr, sv, tuple(all_names))
 
 
 def _check_identifiable(jac, names, inertia):

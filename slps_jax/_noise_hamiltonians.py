@@ -66,6 +66,7 @@ class SaltNoise(AbstractNoise):
     $y \times \chi_r$ rotates $y$ about the fixed axis $\chi_r$. Build with `salt_noise`."""
 
     linear = True
+    parameter_name = "chi"
 
     def __init__(self, chi):
         self.chi = chi
@@ -109,6 +110,8 @@ def salt_noise(chi):
 class RandomInertiaNoise(AbstractNoise):
     r"""Random inertia: $H_r(y) = \tfrac12 \sum_j \sigma_{rj} y_j^2$. Build with
     `random_inertia_noise`."""
+
+    parameter_name = "sigma"
 
     def __init__(self, sigma):
         self.sigma = sigma

@@ -58,5 +58,5 @@ def test_failed_samples_during_the_fit_are_refused():
     assert int(target.stats["n_failed"]) > 0
     with pytest.raises(RuntimeError,
                        match=rf"[1-{N}] of {N} samples failed .*after optimiser step \d+, at "
-                             r"inertia .*, c "):
+                             r"I_1 .*, c "):
         fit(moments(target), 0.1, steps=10)
