@@ -28,7 +28,16 @@ the RMS error at T against the exact solution `phi_{T + cW_T}(y0)` (from the ver
 increments, `brownian_increments` in the run's dtype, evaluated in float64); wall time with
 compilation.
 
-Writes `stress.csv`, `stress.json` and `stress.md` (the Markdown table) into `--out`.
+A second matrix does the same for **several noises**: the rigid body I = (1, 2, 3) with three
+SALT noises chi = a [[1, 0, 0], [0, 1, 0], [0, 0.5, 1]] (base a = 0.4), y0 along
+(0.6, 0.5, 0.3) with |y0| = 0.9, h = 2^-5, T = 1; one factor at a time: a in {0.1, 1, 3},
+h in {1e-2, 0.1, 0.25, 0.5}, |y0| in {0.5, 0.99, 0.999}, T in {10, 100, 1e4}, float32, and
+hard corners. Methods LiePoisson (with and without retry), Midpoint, SaltSplitting, Heun,
+EulerMaruyama. No exact solution: recorded are the failed samples with their reasons (the
+`RESULTS` codes), NaN/Inf entries (flagged or not) and the Casimir drift.
+
+Writes `stress.csv`, `stress.json` and `stress.md` (the Markdown tables) into `--out`
+(`stress_noises.csv` for the second matrix).
 
     python benchmarks/stress.py [--fast] [--out DIR]
 """
@@ -200,6 +209,66 @@ def run_cell(settings, method_name, seed=0):
     }
 
 
+NOISE_BASE = dict(h=2.0 ** -5, a=0.4, r=0.9, T=1.0, dtype="float64", n_samples=100)
+NOISE_METHODS = ("LiePoisson", "LiePoisson+retry4", "Midpoint", "SaltSplitting", "Heun",
+                 "EulerMaruyama")
+SALT_AXES = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.5, 1.0]])
+
+
+def noise_cells(fast):
+    """(sweep, label, settings) of the several-noises matrix."""
+    corner = ("corner", "h=0.25 a=1 |y0|=0.999", dict(h=0.25, a=1.0, r=0.999))
+    if fast:
+        return [corner]
+    out = [("base", "base", {})]
+    out += [("noise", f"a={a:g}", dict(a=a)) for a in (0.1, 1.0, 3.0)]
+    out += [("h", f"h={h:g}", dict(h=h)) for h in (1e-2, 0.1, 0.25, 0.5)]
+    out += [("|y0|", f"|y0|={r:g}", dict(r=r)) for r in (0.5, 0.99, 0.999)]
+    out += [("T", "T=10", dict(T=10.0, n_samples=20)),
+            ("T", "T=100", dict(T=100.0, n_samples=8)),
+            ("T", "T=1e4", dict(T=1e4, h=2.0 ** -3, n_samples=4)),
+            ("dtype", "float32", dict(dtype="float32")),
+            ("dtype", "float32 h=0.25 a=1", dict(dtype="float32", h=0.25, a=1.0)),
+            corner,
+            ("corner", "h=0.5 a=3 |y0|=0.99", dict(h=0.5, a=3.0, r=0.99)),
+            ("corner", "h=0.1 a=1 T=100", dict(h=0.1, a=1.0, T=100.0, n_samples=8))]
+    return out
+
+
+def run_noise_cell(settings, method_name, seed=0):
+    s = settings
+    dtype = np.float32 if s["dtype"] == "float32" else np.float64
+    y0 = (s["r"] * np.array([0.6, 0.5, 0.3]) / np.linalg.norm([0.6, 0.5, 0.3])).astype(dtype)
+    model = sj.RigidBody(np.array([1.0, 2.0, 3.0], dtype),
+                         noise=sj.salt_noise((s["a"] * SALT_AXES).astype(dtype)))
+    method, retry = {
+        "LiePoisson": (sj.LiePoisson(), None), "LiePoisson+retry4": (sj.LiePoisson(), 4),
+        "Midpoint": (sj.Midpoint(), None), "SaltSplitting": (sj.SaltSplitting(), None),
+        "Heun": (sj.Heun(), None), "EulerMaruyama": (sj.EulerMaruyama(), None)}[method_name]
+    start = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # failures are counted below
+        sol = sj.simulate(model, y0, t1=s["T"], dt=s["h"], n_samples=s["n_samples"],
+                          key=jax.random.key(seed), method=method, throw=False,
+                          retry_substeps=retry)
+        ys = np.asarray(jax.block_until_ready(sol.ys), np.float64)
+    wall = time.perf_counter() - start
+    result = np.asarray(sol.result)
+    failed = result != sj.RESULTS.successful
+    reasons = ", ".join(f"{int((result == code).sum())} {sj.RESULTS.name(code)}"
+                        for code in np.unique(result[failed]))
+    ok = ~failed & np.isfinite(ys).all(axis=(1, 2))
+    with np.errstate(over="ignore", invalid="ignore"):
+        cas = np.abs(np.linalg.norm(ys[ok], axis=-1) / np.linalg.norm(y0.astype(float)) - 1)
+    return {
+        "n_samples": s["n_samples"], "n_steps": int(round(s["T"] / s["h"])),
+        "failed": int(failed.sum()), "reasons": reasons or "-",
+        "nonfinite_unflagged": int((~np.isfinite(ys[~failed])).sum()),
+        "nonfinite_flagged": int((~np.isfinite(ys[failed])).sum()),
+        "casimir_drift": float(cas.max()) if cas.size else math.nan, "wall_s": wall,
+    }
+
+
 def parse(argv):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--fast", action="store_true",
@@ -293,15 +362,41 @@ def main(argv=None):
                "rows": rows}
     _common.write_csv(os.path.join(args.out, "stress.csv"), rows)
     _common.write_json(os.path.join(args.out, "stress.json"), summary)
+    noise_rows = []
+    for sweep, label, change in noise_cells(args.fast):
+        settings = dict(NOISE_BASE, **change)
+        if args.fast:
+            settings["n_samples"] = min(settings["n_samples"], 8)
+        for name in NOISE_METHODS:
+            row = {"sweep": sweep, "cell": label, "method": name, **settings}
+            row.update(run_noise_cell(settings, name))
+            noise_rows.append(row)
+            print(f"[noises] {label:28s} {name:18s} failed {row['failed']:3d}/"
+                  f"{row['n_samples']:<3d} ({row['reasons']}) nonfinite "
+                  f"{row['nonfinite_unflagged']}/{row['nonfinite_flagged']} "
+                  f"C {row['casimir_drift']:.1e} ({row['wall_s']:.1f} s)", flush=True)
+    total = time.perf_counter() - start
+    summary["wall_s"] = total
+    summary["nonfinite_total"] += sum(r["nonfinite_unflagged"] + r["nonfinite_flagged"]
+                                      for r in noise_rows)
+    summary["noise_rows"] = noise_rows
+    _common.write_csv(os.path.join(args.out, "stress_noises.csv"), noise_rows)
+    _common.write_json(os.path.join(args.out, "stress.json"), summary)
     table = _common.markdown_table([dict(r, cell=md(r["cell"])) for r in rows], COLUMNS, FORMATS)
     failures, invariants = compact_tables(rows, methods)
+    noise_table = _common.markdown_table(
+        [dict(r, cell=md(r["cell"])) for r in noise_rows],
+        ["cell", "method", "n_samples", "failed", "reasons", "nonfinite_unflagged",
+         "casimir_drift"], {"casimir_drift": ".1e"})
     with open(os.path.join(args.out, "stress.md"), "w") as fh:
         fh.write("### Failed samples, Newton work, non-finite values\n\n" + failures
                  + "\n### Largest relative Casimir drift / Hamiltonian error at T "
                    "(successful samples)\n\n" + invariants
-                 + "\n### Every run\n\n" + table)
+                 + "\n### Every run\n\n" + table
+                 + "\n### Several noises: failures with their reasons, Casimir drift\n\n"
+                 + noise_table)
     print(f"\nNaN/Inf entries in any returned state: {summary['nonfinite_total']}")
-    print(f"stress matrix: {len(rows)} runs in {total:.0f} s")
+    print(f"stress matrix: {len(rows) + len(noise_rows)} runs in {total:.0f} s")
     return 0
 
 

@@ -2,16 +2,18 @@
 
 The library in four layers:
 
-- **System**: a Lie algebra (`SO3`) with a drift Hamiltonian and its noise, parameters as
-  pytree leaves: `LiePoissonSystem` (derivatives by JAX) and its analytic special case
-  `RigidBody`. A system declares its `structure`.
+- **System**: a Lie algebra (`SO3`) with a drift Hamiltonian and its noise (`c=`, or
+  several noises with their own Hamiltonians: `salt_noise`, `random_inertia_noise`, a
+  function), parameters as pytree leaves: `LiePoissonSystem` (derivatives by JAX) and its
+  analytic special case `RigidBody`. A system declares its `structure`.
 - **Method**: a small immutable object with `step(model, y, dt, dW)` and the structures it
   `requires`; implicit methods share one Newton solver whose `RESULTS` code says why a step
   failed.
 - **Driver**: `integrate` (given increments), `simulate` (an ensemble, increments drawn inside),
   `ensemble_statistics` (streamed moments); it owns the time loop, saving, statistics and
   failures, and refuses a method that the system cannot serve.
-- **Studies**: `strong_convergence`, `calibrate`, exact solutions of the rigid body.
+- **Studies**: `strong_convergence`, `weak_convergence`, `calibrate`, exact solutions of the
+  rigid body.
 """
 
 # System

@@ -36,7 +36,9 @@ class CalibrationResult:
     - `stderr`: delta-method standard errors of the parameters in `names` from the Jacobian of
       the statistics at the fit and `observed_stderr` (`None` if that was not given; 0 for
       the fixed parameters); with `observed_n_samples` they include the simulation's own
-      sampling error.
+      sampling error. They treat the statistics as independent: statistics of the same
+      paths at several times are correlated, so these can be optimistic (compare the
+      spread of fits to independent data sets).
     - `singular_values`: of the weighted Jacobian of the statistics with respect to the
       free parameters (`log I`, `log c`, the noise parameters as they are) at the start;
       their spread says how well the data determine the parameters.

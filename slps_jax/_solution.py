@@ -35,6 +35,12 @@ class RESULTS:
         """The meaning of a code, in words."""
         return cls._messages.get(int(code), f"unknown result code {int(code)}")
 
+    @classmethod
+    def name(cls, code):
+        """The name of a code, such as `"max_iterations_reached"`."""
+        names = {v: k for k, v in vars(cls).items() if isinstance(v, int) and k[0] != "_"}
+        return names.get(int(code), f"code {int(code)}")
+
 
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)

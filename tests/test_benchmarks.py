@@ -217,3 +217,4 @@ def test_gradients(tmp_path):
     # reverse-mode memory grows far slower than the number of steps (sqrt(n) checkpoints)
     growth = mem[-1]["temp_bytes"] / mem[0]["temp_bytes"]
     assert growth < 0.5 * mem[-1]["n_steps"] / mem[0]["n_steps"], mem
+

@@ -515,3 +515,14 @@ def test_stress_matrix_fast(tmp_path):
     assert summary["nonfinite_total"] == 0
     md = (tmp_path / "stress.md").read_text()
     assert "\\|y0\\|" in md and "LP+retry4 failed" in md
+    # Several noises: no NaN/Inf anywhere, every failure with its reason, |y| kept by the
+    # Poisson methods.
+    noise = {r["method"]: r for r in csv.DictReader(open(tmp_path / "stress_noises.csv"))}
+    assert set(noise) == {"LiePoisson", "LiePoisson+retry4", "Midpoint", "SaltSplitting",
+                          "Heun", "EulerMaruyama"}
+    for r in noise.values():
+        assert int(r["nonfinite_unflagged"]) == 0 and int(r["nonfinite_flagged"]) == 0
+        assert (r["reasons"] == "-") == (int(r["failed"]) == 0), r
+    assert int(noise["SaltSplitting"]["failed"]) == 0
+    assert float(noise["SaltSplitting"]["casimir_drift"]) < 1e-13
+    assert "Several noises" in md

@@ -218,7 +218,8 @@ def test_linear_hamiltonians_exact_moments(method):
 # Gradients with respect to the noise's and the drift's parameters.
 
 
-@pytest.mark.parametrize("method", [sj.LiePoisson(), sj.Midpoint()], ids=type)
+@pytest.mark.parametrize("method", [sj.LiePoisson(), sj.Midpoint(), sj.LiePoissonSym2()],
+                         ids=type)
 def test_gradients_chi_and_inertia_match_finite_differences(method):
     dt, n = 2.0 ** -5, 32
     keys = jax.random.split(jax.random.key(4), 8)
@@ -242,10 +243,10 @@ def test_calibrate_recovers_a_salt_amplitude():
     """Statistics of the ensemble at chi[0, 0] = 0.4 on the very paths calibrate simulates
     (common random numbers): the loss is zero at the truth, so the fit from 0.2 must land on
     it to the optimiser's tolerance."""
-    ts, dt, n = [0.5, 1.0], 2.0 ** -4, 64
+    ts, dt, n = [1.0], 2.0 ** -4, 32
     names = [f"chi[{r}, {j}]" for r in range(3) for j in range(3)]
     sol = sj.simulate(salt(), Y0, t1=1.0, dt=dt, n_samples=n, key=jax.random.key(8),
-                      save_every=8, method=sj.SaltSplitting())
+                      save_every=16, method=sj.SaltSplitting())
     observed = jax.vmap(sj.moments, in_axes=1)(sol.ys[:, 1:])
     chi0 = CHI.copy()
     chi0[0, 0] = 0.2
@@ -306,7 +307,7 @@ def test_simulate_draws_one_increment_per_noise():
     for family, fn in ((sj.salt_noise(CHI), lambda y, p: jnp.asarray(CHI) @ y),
                        (sj.random_inertia_noise(sigma),
                         lambda y, p: 0.5 * jnp.asarray(sigma) @ (y * y))):
-        for method in (sj.LiePoisson(), sj.Midpoint(), sj.LiePoissonSym2()):
+        for method in (sj.LiePoisson(), sj.Midpoint()):
             got = sj.integrate(sj.RigidBody(INERTIA, noise=family), Y0, dW, 2.0 ** -5,
                                method=method)
             want = sj.integrate(sj.LiePoissonSystem(rigid_body_h, INERTIA, noise=fn), Y0, dW,
