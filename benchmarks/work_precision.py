@@ -289,7 +289,9 @@ def plot(rows, path, n_samples, fastest_row):
     hs = sorted({r["h"] for r in rows}, reverse=True)
     markers = "os^vD<>ph*X"
     fig, ax = plt.subplots(figsize=(10, 6.5))
-    cmap = plt.get_cmap("tab10")
+    # tab20's ten dark hues first, then its ten light ones: a distinct colour for up to 20
+    # solvers (tab10 repeated LiePoisson's colour for the eleventh).
+    cmap = plt.get_cmap("tab20")
     handles = []
     floor = min((r["rms_error"] for r in rows if r["method"] != "Exact" and r["rms_error"] > 0),
                 default=1e-8) / 5
@@ -300,7 +302,8 @@ def plot(rows, path, n_samples, fastest_row):
             off_scale.append((name, min(p["rms_error"] for p in pts),
                               max(p["rms_error"] for p in pts)))
             continue
-        color = cmap(groups.index(_group(name)) % 10)
+        i = groups.index(_group(name)) % 20
+        color = cmap((2 * i) % 20 + (2 * i) // 20)
         style = "--" if "VBT" in name else (":" if "scan" in name else "-")
         (line,) = ax.plot([p["time_median_s"] for p in pts], [p["rms_error"] for p in pts],
                           style, color=color, label=name)

@@ -124,6 +124,8 @@ def _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats, retry=No
     dtype = y0.dtype
     zero = jnp.zeros((), dtype)
     acc0 = (zero, jnp.zeros((), jnp.int32), zero) if want_stats else ()
+    if method.flow_in_time is not None:
+        return _time_change_path(method, model, y0, dt, draw, n_blocks, block_len, acc0)
     carry0 = (y0, jnp.array(RESULTS.successful, jnp.int32), jnp.array(-1, jnp.int32),
               jnp.array(0, jnp.int32),
               jnp.array(0, jnp.int32), acc0)
@@ -147,6 +149,30 @@ def _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats, retry=No
     (_, result, fail_step, _, n_retried, acc), ys = jax.lax.scan(block, carry0, None,
                                                                   length=n_blocks)
     return ys, fail_step, result, n_retried, acc
+
+
+def _time_change_path(method, model, y0, dt, draw, n_blocks, block_len, acc0):
+    """`_path` for a method whose steps compose in time (`flow_in_time`): the step with
+    increments `(h, dW)` is the flow for the random time `h + c dW`, so between two saved
+    states only the sum of the step times is needed. The loop draws the same increments
+    and adds up the times; the flow is evaluated once per saved state (once in all for the
+    final state only). It cannot fail (explicit), so the failure outputs are constant."""
+    def steps(carry, length, n_live):
+        tau, n0 = carry
+        dWs = jax.vmap(lambda j: draw(n0 + j))(jnp.arange(length, dtype=n0.dtype))
+        times = jax.vmap(lambda w: dt + model.noise_time(w))(dWs)
+        live = jnp.arange(length) < n_live
+        return tau + jnp.sum(jnp.where(live, times, 0.0)), n0 + jnp.minimum(length, n_live)
+
+    def block(carry, _):
+        y, n = carry
+        tau, n = _checkpointed_loop(steps, block_len, (jnp.zeros((), y.dtype), n))
+        y = method.flow_in_time(model, y, tau).astype(y.dtype)
+        return (y, n), y
+
+    _, ys = jax.lax.scan(block, (y0, jnp.array(0, jnp.int32)), None, length=n_blocks)
+    return (ys, jnp.array(-1, jnp.int32), jnp.array(RESULTS.successful, jnp.int32),
+            jnp.array(0, jnp.int32), acc0)
 
 
 _DRAW_BLOCK = 32  # most steps whose increments are drawn together (memory per sample)

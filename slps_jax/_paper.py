@@ -16,7 +16,9 @@ import time
 
 
 class Progress:
-    """A one-line progress bar on stderr for the long parts of a run."""
+    """A one-line progress bar on stderr for the long parts of a run: redrawn in place on a
+    terminal; elsewhere (a log file, a pipe, a notebook's captured stream) only the final
+    line, so a log gets no carriage-return soup."""
 
     def __init__(self, total, stream=None, width=28):
         # sys.stderr looked up now, not when this module was imported (it may be replaced,
@@ -30,8 +32,12 @@ class Progress:
         filled = round(self.width * self.done / self.total)
         bar = "#" * filled + "." * (self.width - filled)
         elapsed = time.perf_counter() - self.start
-        end = "\n" if self.done == self.total else ""
-        self.stream.write(f"\r[{bar}] {self.done}/{self.total} {elapsed:5.1f}s {label:<40}{end}")
+        last = self.done == self.total
+        if getattr(self.stream, "isatty", lambda: False)():
+            self.stream.write(f"\r[{bar}] {self.done}/{self.total} {elapsed:5.1f}s {label:<40}"
+                              + ("\n" if last else ""))
+        elif last:
+            self.stream.write(f"{self.done}/{self.total} done in {elapsed:.1f}s ({label})\n")
         self.stream.flush()
 
 
@@ -58,6 +64,17 @@ def _exact_path(model, y0, dW, dt, every):
     w = jnp.concatenate([jnp.zeros(1, dW.dtype), jnp.cumsum(dW)])[::every]
     t = jnp.arange(w.shape[0], dtype=dW.dtype) * dt * every
     return jax.vmap(lambda ti, wi: sj.exact_solution(model, y0, ti, wi))(t, w)
+
+
+def plus_minus(value, error):
+    """`value ± error` with the error to one significant digit and the value to the same
+    decimal place (for example `1.055 ± 0.001`, not `1.05 ± 0.00`)."""
+    if not (error > 0 and math.isfinite(error)):
+        return f"{value:.3f} ± {error:.1g}"
+    digits = max(0, -math.floor(math.log10(error)))
+    if round(error, digits) >= 10 ** (1 - digits):  # 0.096 rounds to 0.1: one digit fewer
+        digits = max(0, digits - 1)
+    return f"{value:.{digits}f} ± {error:.{digits}f}"
 
 
 def run(out_dir="paper-output", fast=False, seed=0, stream=None):
@@ -152,10 +169,11 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
         ax_h.semilogy(ts, np.maximum(dh, floor), color=colors[name], label=name)
     for ax, what in ((ax_c, "Casimir $|C(y_n)/C(y_0) - 1|$"), (ax_h, "Hamiltonian $|H(y_n)/H(y_0) - 1|$")):
         ax.set_xlabel("time t")
-        ax.set_ylabel(f"relative error of the {what}")
-        ax.set_ylim(1e-17, 1e1)
+        ax.set_ylabel("relative error")
+        ax.set_title(what, fontsize=10)
+        ax.set_ylim(2e-18, 1e2)  # the floor 1e-17 inside the frame, not on its edge
         ax.grid(True, which="major", alpha=0.3)
-    ax_c.legend(fontsize=8)
+        ax.legend(fontsize=8)
     fig.suptitle(f"Fig. 4.2: invariants along one path, h = {dt:g} (values below 1e-17 drawn at 1e-17)")
     fig.tight_layout()
     fig.savefig(os.path.join(out_dir, "fig4_2_invariants.png"), dpi=110)
@@ -205,7 +223,7 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
     for name, res in conv.items():
         e, se = res.errors[name], res.stderr[name]
         ax.errorbar(hs, e, yerr=2 * se, marker="o", ms=4, capsize=2, color=colors[name],
-                    label=f"{name}: slope {res.order[name]:.2f} ± {res.order_stderr[name]:.2f}")
+                    label=f"{name}: slope {plus_minus(res.order[name], res.order_stderr[name])}")
     anchor = conv["LiePoisson"].errors["LiePoisson"][0]
     for slope, ls in ((0.5, ":"), (1.0, "--")):
         ax.loglog(hs, anchor * 2 * (hs / hs[0]) ** slope, color="0.5", ls=ls, lw=1,

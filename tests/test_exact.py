@@ -15,6 +15,7 @@ import pytest
 import scipy.integrate
 import scipy.special
 
+import slps_jax as sj
 from slps_jax._exact import ellipj, exact_flow, exact_solution
 
 R2 = math.sqrt(2.0)
@@ -375,3 +376,24 @@ def test_float32():
                         ((2.0, 1.3, 0.7), (0.0, 1.0, 0.0))]:
         y = f32(jnp.float32(inertia), jnp.float32(y0), jnp.float32(3.0))
         assert rel_err(y, flow_np(inertia, y0, 3.0), y0) < 1e-5
+
+
+def test_exact_method_evaluates_the_flow_at_saved_states_only():
+    """`Exact` sums the step times between saved states (the flows compose): its saved
+    states are the exact solution at the partial sums of the very same increments, and its
+    final state the exact solution at their total."""
+    model = sj.RigidBody.paper()
+    y0 = jnp.asarray(sj.PAPER_Y0)
+    dt = 2.0 ** -6
+    dW = sj.brownian_increments(jax.random.key(3), 256, dt)
+    ys = sj.integrate(model, y0, dW, dt, method=sj.Exact(), save_every=64)
+    w = np.concatenate([[0.0], np.cumsum(np.asarray(dW))])[::64]
+    expected = np.stack([sj.exact_solution(model, y0, k * 64 * dt, wk)
+                         for k, wk in enumerate(w)])
+    np.testing.assert_allclose(ys, expected, atol=1e-13)
+    final = sj.integrate(model, y0, dW, dt, method=sj.Exact())
+    np.testing.assert_allclose(final, expected[-1], atol=1e-13)
+    # simulate's Exact: no failures, no Newton work
+    sol = sj.simulate(model, y0, t1=1.0, dt=dt, n_samples=3, key=jax.random.key(0),
+                      method=sj.Exact(), newton_stats=True)
+    assert int(sol.stats["n_failed"]) == 0 and int(sol.stats["newton_iterations_max"]) == 0

@@ -93,3 +93,31 @@ def test_paper_command_fast(tmp_path):
     assert res["fig4_2"]["drift"]["EulerMaruyama"]["casimir_max"] > 1e-3
     assert res["fig4_4"]["exact_method_max_rms_error"] < 1e-12
     assert "| LiePoisson |" in (out / "results.md").read_text()
+
+
+def test_paper_command_output_folders(monkeypatch, capsys):
+    """`--fast` writes to its own default folder, so it never overwrites a full run; `--out`
+    wins; `--help` describes the commands and every option."""
+    import slps_jax._paper as paper_module
+    from slps_jax.__main__ import main
+
+    seen = []
+    monkeypatch.setattr(paper_module, "run", lambda out_dir, fast, seed: seen.append(out_dir))
+    main(["paper"])
+    main(["paper", "--fast"])
+    main(["paper", "--fast", "--out", "mine"])
+    assert seen == ["paper-output", "paper-output-fast", "mine"]
+    for args in (["--help"], ["paper", "--help"], ["summary", "--help"]):
+        with pytest.raises(SystemExit):
+            main(args)
+    text = capsys.readouterr().out
+    assert "reproduce Figures 4.1-4.4" in text and "seed of the Brownian samples" in text
+    assert "paper-output-fast" in text and "Command line:" not in text
+
+
+def test_plus_minus_gives_the_error_one_significant_digit():
+    from slps_jax._paper import plus_minus
+
+    assert plus_minus(1.0551, 0.0012) == "1.055 ± 0.001"
+    assert plus_minus(1.05, 0.0004) == "1.0500 ± 0.0004"
+    assert plus_minus(1.2, 0.096) == "1.2 ± 0.1"

@@ -41,6 +41,11 @@ class AbstractMethod:
     # a pair that lacks one and names the methods that would work. Empty: any system.
     requires = frozenset()
 
+    # A method whose step with increments (h, dW) is a flow for the time h + c dW, composing
+    # in time, sets this to that flow, `flow_in_time(model, y, tau)`: the driver then adds up
+    # the times and evaluates the flow only where a state is saved (`Exact`).
+    flow_in_time = None
+
     def step(self, model, y, dt, dW):
         """Advance one sample by one step.
 

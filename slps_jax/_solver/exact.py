@@ -17,10 +17,16 @@ class Exact(AbstractMethod):
     flow $\varphi$ run to the random time $t + cW(t)$, and composing the exact flow over the
     steps gives the exact solution at every step for the given increments (up to round-off,
     which grows like the flow's conditioning). A reference for the other methods and a fast
-    exact sampler of the rigid body; it has no Newton solve. See `exact_flow`.
+    exact sampler of the rigid body; it has no Newton solve. See `exact_flow`. The driver
+    evaluates the flow only where a state is saved, at the sum of the step times since the
+    last one (`flow_in_time`): one evaluation per sample for the final state only.
     """
 
     requires = frozenset({RIGID_BODY, NOISE_PROPORTIONAL_TO_DRIFT})
+
+    # The flows compose: the driver sums the step times and evaluates the flow only at the
+    # saved states (once for the final state), on the very same increments.
+    flow_in_time = staticmethod(exact_flow)
 
     def step(self, model, y, dt, dW):
         y_next = exact_flow(model, y, dt + model.noise_time(dW)).astype(y.dtype)
