@@ -16,6 +16,7 @@ import optax
 from . import _noise
 from ._integrate import simulate
 from ._model import RigidBody
+from ._noise_hamiltonians import _MatrixNoise
 from ._solver.lie_poisson import LiePoisson
 
 
@@ -69,20 +70,18 @@ class _Parameters:
             return cls((*inertia, "c"), jnp.concatenate([jnp.log(init.inertia),
                                                           jnp.log(init.c)[None]]),
                        np.ones(4, bool), init)
-        (leaf,) = jax.tree_util.tree_leaves(init.noise)
-        name = init.noise.parameter_name
-        entries = [f"{name}[{', '.join(map(str, i))}]" for i in np.ndindex(leaf.shape)]
+        matrix, name = init.noise.matrix, init.noise.parameter_name
+        entries = [f"{name}[{', '.join(map(str, i))}]" for i in np.ndindex(matrix.shape)]
         return cls((*inertia, *entries),
-                   jnp.concatenate([jnp.log(init.inertia), jnp.ravel(leaf)]),
+                   jnp.concatenate([jnp.log(init.inertia), jnp.ravel(matrix)]),
                    np.arange(3 + len(entries)) < 3, init)
 
     def model(self, theta):
         inertia = jnp.exp(theta[:3])
         if self.init.noise is None:
             return RigidBody(inertia, jnp.exp(theta[3]))
-        leaves, treedef = jax.tree_util.tree_flatten(self.init.noise)
-        noise = jax.tree_util.tree_unflatten(treedef, [theta[3:].reshape(leaves[0].shape)])
-        return RigidBody(inertia, noise=noise)
+        family = self.init.noise
+        return RigidBody(inertia, noise=type(family)(theta[3:].reshape(family.matrix.shape)))
 
     def values(self, theta):
         """The parameters themselves (not their logarithms), as a NumPy array."""
@@ -154,7 +153,7 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
         raise TypeError(f"init must be a RigidBody, got {type(init).__name__}.")
     if init.noise is None and not float(init.c) > 0:
         raise ValueError(f"init.c must be positive (c is fitted on a log scale), got {init.c}.")
-    if init.noise is not None and not hasattr(init.noise, "parameter_name"):
+    if init.noise is not None and not isinstance(init.noise, _MatrixNoise):
         raise TypeError("calibrate fits the parameters of a noise family (salt_noise, "
                         "random_inertia_noise); a noise given as a function has none.")
     params = _Parameters.of(init)

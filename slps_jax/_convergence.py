@@ -164,6 +164,10 @@ def _study(caller, model, y0, t1, dts, n_samples, key, methods, reference, refer
     keys = _noise.sample_keys(key, int(n_samples))
     bound = jnp.asarray(_noise.truncation_bound(fine_dt, truncate_k), dtype)
 
+    for dt in dts:
+        if n_fine % _substeps(float(dt), fine_dt, "dt"):
+            raise ValueError(f"t1={t1} must be a multiple of every step size, not of dt={dt}.")
+
     def final_states(method, dt, name="dt"):
         s = _substeps(dt, fine_dt, name)
         ys, fail_step, result, _, _ = _ensemble_dynamic_jit(
@@ -175,10 +179,13 @@ def _study(caller, model, y0, t1, dts, n_samples, key, methods, reference, refer
             raise RuntimeError(msg + " Use smaller dts.")
         return ys[:, -1]
 
+    half = None  # a method reference at twice its step
     if is_method:
         y_ref = final_states(reference, fine_dt, "reference_dt")
-        half = final_states(reference, 2 * fine_dt, "reference_dt")
-        reference_error = float(jnp.sqrt(jnp.mean(jnp.sum((half - y_ref) ** 2, -1))))
+        # (at twice its step: possible when that divides t1)
+        half = final_states(reference, 2 * fine_dt, "reference_dt") if n_fine % 2 == 0 else None
+        reference_error = (math.nan if half is None else
+                           float(jnp.sqrt(jnp.mean(jnp.sum((half - y_ref) ** 2, -1)))))
     elif callable(reference):
         # The time change: y(t1) = phi_{t1 + c W(t1)}(y0) for the deterministic flow phi.
         w_t = _brownian_endpoints(keys, jnp.asarray(fine_dt, dtype), bound, n_fine)
@@ -196,7 +203,7 @@ def _study(caller, model, y0, t1, dts, n_samples, key, methods, reference, refer
 
     kind = "method" if is_method else "flow" if callable(reference) else "exact"
     return _Study(dts, methods, final_states, y_ref, reference_error, int(n_samples), y0, t1,
-                  kind, half if is_method else None)
+                  kind, half)
 
 
 def strong_convergence(model, y0, *, t1, dts, n_samples, key, methods, reference="exact",
@@ -356,7 +363,7 @@ def weak_convergence(model, y0, *, t1, dts, n_samples, key, methods, observable,
     else:
         reference_mean = g_ref.mean(0)
         reference_error = np.full(shape[1], np.nan)
-        if st.kind == "method":
+        if st.y_ref_coarse is not None:
             reference_error = np.abs((np.asarray(g(st.y_ref_coarse)) - g_ref).mean(0))
 
     bias, ci, order, seconds = {}, {}, {}, {}

@@ -56,9 +56,9 @@ class RigidBody(LiePoissonSystem):
         i_np = concrete(inertia)
         if i_np is not None and not (np.all(np.isfinite(i_np)) and np.all(i_np > 0)):
             raise ValueError(f"inertia must be finite and positive, got {i_np}.")
-        self.inertia = inertia
         self.c, self.noise = _noise_or_c(c, noise, inertia, [inertia])
-        self.inertia = inertia.astype(self.dtype)
+        self.inertia = inertia.astype(
+            float_dtype(inertia, *jax.tree_util.tree_leaves((self.c, self.noise))))
 
     @classmethod
     def paper(cls):

@@ -60,30 +60,42 @@ def _parameter_matrix(name, x, what):
     return x
 
 
-@jax.tree_util.register_pytree_node_class
-class SaltNoise(AbstractNoise):
-    r"""Stochastic advection by Lie transport: $H_r(y) = \chi_r \cdot y$, so the noise field
-    $y \times \chi_r$ rotates $y$ about the fixed axis $\chi_r$. Build with `salt_noise`."""
+class _MatrixNoise(AbstractNoise):
+    """A family whose one parameter is an `(s, 3)` array, one row per noise, stored under
+    `parameter_name` (a pytree leaf; `calibrate` fits it by that name)."""
 
-    linear = True
-    parameter_name = "chi"
+    parameter_name: str
+    builder: str  # the public function that builds it, for the repr
 
-    def __init__(self, chi):
-        self.chi = chi
+    def __init__(self, value):
+        setattr(self, self.parameter_name, value)
+
+    @property
+    def matrix(self):
+        return getattr(self, self.parameter_name)
 
     @property
     def n_noises(self):
-        return self.chi.shape[0]
+        return self.matrix.shape[0]
 
     def tree_flatten(self):
-        return (self.chi,), None
+        return (self.matrix,), None
 
     @classmethod
     def tree_unflatten(cls, aux, children):
         return cls(*children)
 
     def __repr__(self):
-        return f"salt_noise({self.chi!r})"
+        return f"{self.builder}({self.matrix!r})"
+
+
+@jax.tree_util.register_pytree_node_class
+class SaltNoise(_MatrixNoise):
+    r"""Stochastic advection by Lie transport: $H_r(y) = \chi_r \cdot y$, so the noise field
+    $y \times \chi_r$ rotates $y$ about the fixed axis $\chi_r$. Build with `salt_noise`."""
+
+    linear = True
+    parameter_name, builder = "chi", "salt_noise"
 
     def values(self, y, params):
         return self.chi @ y
@@ -107,28 +119,11 @@ def salt_noise(chi):
 
 
 @jax.tree_util.register_pytree_node_class
-class RandomInertiaNoise(AbstractNoise):
+class RandomInertiaNoise(_MatrixNoise):
     r"""Random inertia: $H_r(y) = \tfrac12 \sum_j \sigma_{rj} y_j^2$. Build with
     `random_inertia_noise`."""
 
-    parameter_name = "sigma"
-
-    def __init__(self, sigma):
-        self.sigma = sigma
-
-    @property
-    def n_noises(self):
-        return self.sigma.shape[0]
-
-    def tree_flatten(self):
-        return (self.sigma,), None
-
-    @classmethod
-    def tree_unflatten(cls, aux, children):
-        return cls(*children)
-
-    def __repr__(self):
-        return f"random_inertia_noise({self.sigma!r})"
+    parameter_name, builder = "sigma", "random_inertia_noise"
 
     def values(self, y, params):
         return 0.5 * self.sigma @ (y * y)

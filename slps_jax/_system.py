@@ -152,28 +152,14 @@ class LiePoissonSystem:
         hess, g = jax.jacfwd(lambda u: (grad(u), grad(u)), has_aux=True)(_so3.unvec(v))
         return _so3.vec(g), _so3.mat(hess)
 
-    def noise_gradient_c(self, v, dW):
-        r"""$u(v) = \sum_r \Delta W_r \nabla H_r(v)$ on components: the noise part of a
-        step's Hamiltonian, `dW` of shape `(n_noises,)`."""
-        if self.noise is None:
-            return _so3.scale(self.noise_time(dW), self.gradient_c(v))
-        return self.noise.gradient_c(v, dW, self.params)
-
-    def noise_gradient_jacobian_c(self, v, dW):
-        r"""$(u(v), \partial u/\partial v)$ on components."""
-        if self.noise is None:
-            cdw = self.noise_time(dW)
-            g, hess = self.gradient_hessian_c(v)
-            return _so3.scale(cdw, g), _so3.mscale(cdw, hess)
-        return self.noise.gradient_jacobian_c(v, dW, self.params)
-
     def step_gradient_c(self, v, dt, dW):
         r"""$\nabla K(v)$ of a step's Hamiltonian $K = h H_0 + \sum_r \Delta W_r H_r$ (the
-        step's flow to first order is that of $K$), on components. With `c=`,
-        $K = \tau H_0$, $\tau = h + c\Delta W$.r"""
+        step's flow to first order is that of $K$), on components, `dW` of shape
+        `(n_noises,)`. With `c=`, $K = \tau H_0$, $\tau = h + c\Delta W$."""
         if self.noise is None:
             return _so3.scale(dt + self.noise_time(dW), self.gradient_c(v))
-        return _so3.add(_so3.scale(dt, self.gradient_c(v)), self.noise_gradient_c(v, dW))
+        return _so3.add(_so3.scale(dt, self.gradient_c(v)),
+                        self.noise.gradient_c(v, dW, self.params))
 
     def step_gradient_hessian_c(self, v, dt, dW):
         r"""$(\nabla K(v), \nabla^2 K(v))$ on components."""
@@ -181,9 +167,20 @@ class LiePoissonSystem:
         if self.noise is None:
             tau = dt + self.noise_time(dW)
             return _so3.scale(tau, g), _so3.mscale(tau, hess)
-        u, ju = self.noise_gradient_jacobian_c(v, dW)
+        u, ju = self.noise.gradient_jacobian_c(v, dW, self.params)
         return (_so3.add(_so3.scale(dt, g), u),
                 _so3.madd(_so3.mscale(dt, hess), ju))
+
+    def step_fields_c(self, v, dt, dW):
+        r"""$(\nabla K(v), u(v), \partial u/\partial v)$ on components, with
+        $u = \sum_r \Delta W_r \nabla H_r$ the noise part of $\nabla K$: what scheme (42)
+        with several noises needs (`sine_chart_in_map_noise`)."""
+        if self.noise is None:
+            cdw = self.noise_time(dW)
+            g, hess = self.gradient_hessian_c(v)
+            return _so3.scale(dt + cdw, g), _so3.scale(cdw, g), _so3.mscale(cdw, hess)
+        u, ju = self.noise.gradient_jacobian_c(v, dW, self.params)
+        return _so3.add(_so3.scale(dt, self.gradient_c(v)), u), u, ju
 
 
 def _noise_or_c(c, noise, params, leaves):

@@ -301,9 +301,7 @@ class LiePoisson(AbstractMethod):
 
             def sine_fn(v, lam, jacobian=True):
                 def fields(v):
-                    g = model.gradient_c(v)
-                    u, ju = model.noise_gradient_jacobian_c(v, dW)
-                    k = tuple(dt * gi + ui for gi, ui in zip(g, u))
+                    k, u, ju = model.step_fields_c(v, dt, dW)
                     return (so3.scale(lam, k), so3.scale(second * lam, u),
                             so3.mscale(lam, ju))
                 return sine_chart_in_map_noise(v, z, fields, jacobian)
