@@ -2,10 +2,11 @@
 
 The library in four layers:
 
-- **System**: a Lie algebra (`SO3`) with a drift Hamiltonian and its noise (`c=`, or
-  several noises with their own Hamiltonians: `salt_noise`, `random_inertia_noise`, a
-  function), parameters as pytree leaves: `LiePoissonSystem` (derivatives by JAX) and its
-  analytic special case `RigidBody`. A system declares its `structure`.
+- **System**: a Lie algebra (`SO3`, 3-vector states; `so(n)`, skew-matrix states) with a
+  drift Hamiltonian and its noise (`c=`, or several noises with their own Hamiltonians:
+  `salt_noise`, `random_inertia_noise`, a function), parameters as pytree leaves:
+  `LiePoissonSystem` (derivatives by JAX) and its analytic special cases `RigidBody` and
+  `GeneralisedRigidBody` (so(n)). A system declares its `structure`.
 - **Method**: a small immutable object with `step(model, y, dt, dW)` and the structures it
   `requires`; implicit methods share one Newton solver whose `RESULTS` code says why a step
   failed.
@@ -17,8 +18,9 @@ The library in four layers:
 """
 
 # System
-from ._algebra import SO3 as SO3
-from ._model import PAPER_Y0 as PAPER_Y0, RigidBody as RigidBody
+from ._algebra import SO3 as SO3, so as so
+from ._model import (PAPER_Y0 as PAPER_Y0, GeneralisedRigidBody as GeneralisedRigidBody,
+                     RigidBody as RigidBody)
 from ._system import LiePoissonSystem as LiePoissonSystem
 from ._noise_hamiltonians import random_inertia_noise as random_inertia_noise, salt_noise as salt_noise
 
@@ -27,6 +29,7 @@ from ._solver.base import AbstractMethod as AbstractMethod, StepInfo as StepInfo
 from ._solver.euler_maruyama import EulerMaruyama as EulerMaruyama
 from ._solver.exact import Exact as Exact
 from ._solver.heun import Heun as Heun
+from ._solver.isospectral import IsospectralMidpoint as IsospectralMidpoint
 from ._solver.lie_poisson import LiePoisson as LiePoisson
 from ._solver.lie_poisson_sym import LiePoissonSym2 as LiePoissonSym2, LiePoissonSym4 as LiePoissonSym4
 from ._solver.midpoint import Midpoint as Midpoint
@@ -43,6 +46,7 @@ from ._calibrate import CalibrationResult as CalibrationResult, calibrate as cal
 from ._convergence import (ConvergenceResult as ConvergenceResult, WeakConvergenceResult as WeakConvergenceResult,
                            strong_convergence as strong_convergence, weak_convergence as weak_convergence)
 from ._exact import exact_flow as exact_flow, exact_solution as exact_solution
+from ._flow import deterministic_flow as deterministic_flow
 from . import so3 as so3
 
 __version__ = "0.1.0"

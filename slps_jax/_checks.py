@@ -88,16 +88,24 @@ def check_method(method):
 def check_y0(y0, method, model):
     check_pair(method, model)
     y0 = real_array("y0", y0)
-    if y0.shape != (3,):
+    shape = model.algebra.shape
+    if y0.shape != shape:
+        several = y0.ndim == len(shape) + 1 and y0.shape[1:] == shape
         raise ValueError(
-            f"y0 must have shape (3,), got shape {y0.shape}"
-            + ("; for several initial values use jax.vmap over integrate." if y0.ndim == 2
-               and y0.shape[-1] == 3 else "."))
+            f"y0 must have shape {shape} (a state of {model.algebra.name}), got shape "
+            f"{y0.shape}"
+            + ("; for several initial values use jax.vmap over integrate." if several
+               else "."))
     y0 = y0.astype(model.dtype)
     y_np = concrete(y0)
     if y_np is not None:
         if not np.all(np.isfinite(y_np)):
             raise ValueError(f"y0 must be finite, got {y_np}.")
+        if model.algebra.matrix:
+            asym = float(np.max(np.abs(y_np + y_np.T)))
+            if asym > 1e-12 * max(1.0, float(np.max(np.abs(y_np)))):
+                raise ValueError(f"y0 must be skew-symmetric (a state of "
+                                 f"{model.algebra.name}); max |y0 + y0^T| = {asym:.3g}.")
         method.check_initial(model, y_np)
     return y0
 
@@ -193,10 +201,11 @@ def check_options(method):
             raise ValueError(f"{name}: {option} must be {value_error}, got {value!r}.")
 
     positive_or_none("tol", "a positive number")
-    if hasattr(method, "max_iter"):
+    if getattr(method, "max_iter", None) is not None:
         it = method.max_iter
         if isinstance(it, (bool, np.bool_)) or not isinstance(it, (int, np.integer)) or it < 1:
-            raise ValueError(f"{name}: max_iter must be a positive integer, got {it!r}.")
+            raise ValueError(f"{name}: max_iter must be a positive integer or None, got "
+                             f"{it!r}.")
     positive_or_none("scale", "a positive number or None")
     if hasattr(method, "unroll"):
         n = method.unroll

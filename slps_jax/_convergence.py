@@ -14,6 +14,7 @@ import numpy as np
 
 from . import _noise
 from ._exact import exact_flow, exact_solution
+from ._flow import deterministic_flow
 from ._checks import (check_count, check_method, check_model, check_positive, check_retry,
                       check_y0)
 from ._integrate import _ensemble_dynamic_jit, _failure_message
@@ -27,7 +28,8 @@ class ConvergenceResult:
     """What `strong_convergence` returns. Dicts are keyed by method name.
 
     - `dts`: the step sizes, shape `(n_dts,)`.
-    - `errors`: RMS error $\\sqrt{E|y_N - y(t_1)|^2}$ per step size.
+    - `errors`: RMS error $\\sqrt{E|y_N - y(t_1)|^2}$ per step size (on so(n) the norm of
+      the pairing, $|Y|^2 = \\sum_{i<j}Y_{ij}^2$).
     - `stderr`: standard error of each RMS estimate (delta method over the samples).
     - `order`: least-squares slope of `log error` against `log dt`.
     - `order_stderr`: its standard error, by bootstrap over the samples (the errors at
@@ -131,9 +133,9 @@ def _study(caller, model, y0, t1, dts, n_samples, key, methods, reference, refer
         if reference_dt is None and reference_factor is None:
             reference_factor = 16
     is_method = isinstance(reference, AbstractMethod)
-    if not (is_method or callable(reference) or named == "exact"):
-        raise ValueError(f"reference must be 'exact', 'midpoint', a method instance or a "
-                         f"callable flow, got {reference!r}.")
+    if not (is_method or callable(reference) or named in ("exact", "flow")):
+        raise ValueError(f"reference must be 'exact', 'flow', 'midpoint', a method instance "
+                         f"or a callable flow, got {reference!r}.")
     if not is_method and NOISE_PROPORTIONAL_TO_DRIFT not in model.structure:
         raise ValueError("This system's noise is not proportional to its drift: it has no "
                          "time-change solution. Pass a method as the reference, for example "
@@ -145,6 +147,9 @@ def _study(caller, model, y0, t1, dts, n_samples, key, methods, reference, refer
     if is_method:
         check_method(reference)
         y0 = check_y0(y0, reference, model)
+    if named == "flow":
+        y0_flow = y0
+        reference = lambda times: deterministic_flow(model, y0_flow, times)  # noqa: E731
     if reference_dt is not None and reference_factor is not None:
         raise ValueError("Pass reference_dt or reference_factor, not both.")
     if reference_dt is not None:
@@ -185,15 +190,15 @@ def _study(caller, model, y0, t1, dts, n_samples, key, methods, reference, refer
         # (at twice its step: possible when that divides t1)
         half = final_states(reference, 2 * fine_dt, "reference_dt") if n_fine % 2 == 0 else None
         reference_error = (math.nan if half is None else
-                           float(jnp.sqrt(jnp.mean(jnp.sum((half - y_ref) ** 2, -1)))))
+                           float(jnp.sqrt(jnp.mean(model.algebra.norm_sq(half - y_ref)))))
     elif callable(reference):
         # The time change: y(t1) = phi_{t1 + c W(t1)}(y0) for the deterministic flow phi.
         w_t = _brownian_endpoints(keys, jnp.asarray(fine_dt, dtype), bound, n_fine)
         times = float(t1) + np.asarray(model.c) * np.asarray(w_t)
         y_ref = np.asarray(reference(times), dtype=np.float64)
-        if y_ref.shape != (n_samples, 3):
-            raise ValueError(f"reference(times) must return shape ({n_samples}, 3), got "
-                             f"{y_ref.shape}.")
+        if y_ref.shape != (n_samples, *model.algebra.shape):
+            raise ValueError(f"reference(times) must return shape "
+                             f"{(n_samples, *model.algebra.shape)}, got {y_ref.shape}.")
         y_ref = jnp.asarray(y_ref, dtype)
         reference_error = math.nan
     else:
@@ -232,9 +237,11 @@ def strong_convergence(model, y0, *, t1, dts, n_samples, key, methods, reference
         - `"midpoint"`: `Midpoint()` at `reference_dt` (default `min(dts)/16`, the paper's
           choice);
         - a callable `flow(times) -> states`, the deterministic flow $\varphi_t(y_0)$ at the
-          NumPy array of times $t_1 + cW(t_1)$, shape `(n_samples,)` to `(n_samples, 3)`
-          (a system with one noise proportional to the drift: the same time change holds
-          for every Hamiltonian).
+          NumPy array of times $t_1 + cW(t_1)$, shape `(n_samples,)` to
+          `(n_samples, *state_shape)` (a system with one noise proportional to the drift:
+          the same time change holds for every Hamiltonian and algebra);
+        - `"flow"`: that time change through `deterministic_flow` (Runge–Kutta at steps of
+          at most 2^-10), for any system with `c=` (so(n) included).
     - `reference_dt`, `reference_factor`: the reference method's step, or the factor by
       which it is finer than `min(dts)` (not both).
     - `truncate_k`: the truncation parameter of the fine increments (`None` for none).
@@ -256,7 +263,7 @@ def strong_convergence(model, y0, *, t1, dts, n_samples, key, methods, reference
     log_h = np.log(dts)
     for name, method in st.methods.items():
         start = time.perf_counter()
-        e2 = np.stack([np.asarray(jnp.sum((st.final_states(method, float(dt)) - y_ref) ** 2, -1))
+        e2 = np.stack([np.asarray(model.algebra.norm_sq(st.final_states(method, float(dt)) - y_ref))
                        for dt in dts], axis=1)  # (n_samples, n_dts)
         seconds[name] = time.perf_counter() - start
         ms = e2.mean(0)
@@ -345,7 +352,8 @@ def weak_convergence(model, y0, *, t1, dts, n_samples, key, methods, observable,
     n_nodes = check_count("n_nodes", n_nodes, minimum=2)
     check_model(model)
     g = jax.jit(jax.vmap(lambda y: jnp.atleast_1d(observable(y))))
-    shape = jax.eval_shape(g, jax.ShapeDtypeStruct((2, 3), model.dtype)).shape
+    shape = jax.eval_shape(g, jax.ShapeDtypeStruct((2, *model.algebra.shape),
+                                                    model.dtype)).shape
     if len(shape) != 2:
         raise ValueError(f"observable(y) must return a scalar or shape (m,), got shape "
                          f"{shape[1:]}.")

@@ -447,7 +447,7 @@ def simulate(model, y0, *, t1, dt, n_samples, key, method=LiePoisson(), save_eve
     if save_every is None:
         ts = jnp.asarray([n_steps * dt], dtype)
     else:
-        ys = jnp.concatenate([jnp.broadcast_to(y0, (ys.shape[0], 1, 3)), ys], axis=1)
+        ys = jnp.concatenate([jnp.broadcast_to(y0, (ys.shape[0], 1, *y0.shape)), ys], axis=1)
         ts = jnp.arange(0, n_steps + 1, k, dtype=dtype) * dt
     failed = fail_step >= 0
     stats = {"n_failed": jnp.sum(failed)}

@@ -10,7 +10,8 @@ import numpy as np
 
 from . import _so3
 from ._checks import concrete, float_dtype, real_array
-from ._system import RIGID_BODY, LiePoissonSystem, _noise_or_c
+from ._algebra import so
+from ._system import QUADRATIC, RIGID_BODY, LiePoissonSystem, _noise_or_c
 
 
 def _rigid_body_hamiltonian(y, inertia):
@@ -83,7 +84,8 @@ class RigidBody(LiePoissonSystem):
 
     @property
     def structure(self):
-        return super().structure | {RIGID_BODY}
+        quadratic = {QUADRATIC} if self.noise is None else set()
+        return super().structure | {RIGID_BODY} | quadratic
 
     @property
     def params(self):
@@ -112,3 +114,70 @@ class RigidBody(LiePoissonSystem):
 
 
 PAPER_Y0 = (0.7, 0.7, 0.0)
+
+
+def _generalised_rigid_body_hamiltonian(y, j):
+    return 0.25 * jnp.sum(y ** 2 / (j[..., :, None] + j[..., None, :]), axis=(-2, -1))
+
+
+@jax.tree_util.register_pytree_node_class
+class GeneralisedRigidBody(LiePoissonSystem):
+    r"""The n-dimensional (Manakov) rigid body on so(n)*, with noise:
+    $dY = [Y, \Omega]\,(dt + c\circ dW)$, or with noises of its own
+    ($dY = [Y, \Omega]\,dt + \sum_r [Y, \nabla H_r] \circ dW_r$).
+
+    $Y = J\Omega + \Omega J$ with $J = \mathrm{diag}(J_1, \dots, J_n) > 0$, so
+    $\Omega_{ij} = Y_{ij}/(J_i + J_j)$ and $H(Y) = \tfrac12\langle Y, \Omega\rangle
+    = \tfrac14\sum_{ij} Y_{ij}^2/(J_i + J_j)$, $\nabla H = \Omega$ (written out). For
+    $n = 3$ it is the rigid body with $I_1 = J_2 + J_3$ and cyclic. States are skew `(n, n)`
+    matrices (`algebra = so(n)`); the Casimirs $\operatorname{tr}(Y^{2k})$ are kept by the
+    Lie–Poisson methods.
+
+    **Arguments:** `j`: $(J_1, \dots, J_n)$, shape `(n,)` with `n >= 3`, finite and positive (a
+    pytree leaf, like `c` and a noise family's parameters); `c` or `noise` as for
+    `LiePoissonSystem` (its `params` are `j`).
+    """
+
+    hamiltonian_fn = staticmethod(_generalised_rigid_body_hamiltonian)
+
+    def __init__(self, j, c=None, noise=None):
+        j = real_array("j", j)
+        j = j.astype(float_dtype(j))
+        if j.ndim != 1 or j.shape[0] < 3:
+            raise ValueError(f"j must have shape (n,) with n >= 3, got shape {j.shape}.")
+        j_np = concrete(j)
+        if j_np is not None and not (np.all(np.isfinite(j_np)) and np.all(j_np > 0)):
+            raise ValueError(f"j must be finite and positive, got {j_np}.")
+        self.algebra = so(j.shape[0])
+        self.c, self.noise = _noise_or_c(c, noise, j, [j], self.algebra)
+        self.j = j.astype(float_dtype(j, *jax.tree_util.tree_leaves((self.c, self.noise))))
+
+    def tree_flatten(self):
+        return (self.j, self.c, self.noise), self.algebra
+
+    @classmethod
+    def tree_unflatten(cls, aux, children):
+        obj = object.__new__(cls)
+        obj.algebra = aux
+        obj.j, obj.c, obj.noise = children
+        return obj
+
+    def __repr__(self):
+        return (f"GeneralisedRigidBody(j={self.j!r}, "
+                + (f"c={self.c!r})" if self.noise is None else f"noise={self.noise!r})"))
+
+    @property
+    def structure(self):
+        return super().structure | ({QUADRATIC} if self.noise is None else set())
+
+    @property
+    def params(self):
+        """$J$: the parameters of the Hamiltonian."""
+        return self.j
+
+    def hamiltonian(self, y):
+        return _generalised_rigid_body_hamiltonian(jnp.asarray(y), self.j)
+
+    def gradient(self, y):
+        r"""$\Omega$, $\Omega_{ij} = Y_{ij}/(J_i + J_j)$, over the last two axes of `y`."""
+        return jnp.asarray(y) / (self.j[:, None] + self.j[None, :])

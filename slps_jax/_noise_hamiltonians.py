@@ -25,6 +25,8 @@ class AbstractNoise:
     - `values(y, params)`: $(H_1(y), \\dots, H_s(y))$ for `y` of shape `(3,)`.
     - `gradient_c(v, w, params)`: $u = \\sum_r w_r \\nabla H_r(v)$ on components.
     - `gradient_jacobian_c(v, w, params)`: $(u, \\partial u/\\partial v)$ on components.
+    - `gradient(y, w, params, algebra)`: $u$ for a state array of any algebra (matrix methods).
+    - `check_algebra(algebra)`: raise `ValueError` if the family does not fit its states.
 
     `params` are the system's parameters (families with their own leaves ignore them).
     """
@@ -41,6 +43,12 @@ class AbstractNoise:
     def gradient_jacobian_c(self, v, w, params):
         raise NotImplementedError
 
+    def gradient(self, y, w, params, algebra):
+        raise NotImplementedError
+
+    def check_algebra(self, algebra):
+        pass
+
 
 def _weighted(w, rows):
     """$\\sum_r w_r\\,\\mathrm{rows}_r$ for `rows` of shape `(s, 3)`, on components."""
@@ -48,15 +56,24 @@ def _weighted(w, rows):
     return _so3.vec(total)
 
 
-def _parameter_matrix(name, x, what):
+def _parameter_matrix(name, x, what, matrices=False):
+    """A family's parameter: shape `(s, 3)`, or with `matrices` also `(s, n, n)` skew (one
+    element of so(n) per noise)."""
     x = real_array(name, x)
     x = x.astype(float_dtype(x))
-    if x.ndim != 2 or x.shape[1] != 3 or x.shape[0] < 1:
-        raise ValueError(f"{name} must have shape (s, 3), one row per noise ({what}), got "
-                         f"shape {x.shape}.")
+    square = matrices and x.ndim == 3 and x.shape[1] == x.shape[2] >= 3
+    if not (x.ndim == 2 and x.shape[1] == 3 or square) or x.shape[0] < 1:
+        raise ValueError(f"{name} must have shape (s, 3), one row per noise ({what})"
+                         + (", or (s, n, n), one skew matrix per noise on so(n)" if matrices
+                            else "") + f", got shape {x.shape}.")
     x_np = concrete(x)
     if x_np is not None and not np.all(np.isfinite(x_np)):
         raise ValueError(f"{name} must be finite, got {x_np}.")
+    if square and x_np is not None:
+        asym = np.max(np.abs(x_np + np.swapaxes(x_np, 1, 2)))
+        if asym > 1e-12 * max(1.0, float(np.max(np.abs(x_np)))):
+            raise ValueError(f"{name}[r] must be skew-symmetric matrices (elements of so(n)); "
+                             f"max |{name} + {name}^T| = {asym:.3g}.")
     return x
 
 
@@ -88,6 +105,13 @@ class _MatrixNoise(AbstractNoise):
     def __repr__(self):
         return f"{self.builder}({self.matrix!r})"
 
+    def check_algebra(self, algebra):
+        if self.matrix.shape[1:] != algebra.shape:
+            raise ValueError(
+                f"{self.builder}: {self.parameter_name} of shape {self.matrix.shape} does not fit "
+                f"the states of {algebra.name}, shape {algebra.shape}: pass shape "
+                f"(s, {', '.join(map(str, algebra.shape))}).")
+
 
 @jax.tree_util.register_pytree_node_class
 class SaltNoise(_MatrixNoise):
@@ -98,10 +122,15 @@ class SaltNoise(_MatrixNoise):
     parameter_name, builder = "chi", "salt_noise"
 
     def values(self, y, params):
-        return self.chi @ y
+        if self.chi.ndim == 2:
+            return self.chi @ y
+        return 0.5 * jnp.sum(self.chi * y, axis=(-2, -1))  # <chi_r, Y> on so(n)
 
     def gradient_c(self, v, w, params):
         return _weighted(w, self.chi)
+
+    def gradient(self, y, w, params, algebra):
+        return jnp.tensordot(w, self.chi, axes=1).astype(y.dtype)
 
     def gradient_jacobian_c(self, v, w, params):
         zero = jnp.zeros_like(v[0])
@@ -110,12 +139,13 @@ class SaltNoise(_MatrixNoise):
 
 def salt_noise(chi):
     r"""Stochastic advection by Lie transport (Holm 2015): $s$ linear noise Hamiltonians
-    $H_r(y) = \chi_r \cdot y$.
+    $H_r(y) = \chi_r \cdot y$ on so(3), $H_r(Y) = \langle X_r, Y\rangle$ on so(n).
 
     **Arguments:** `chi`, shape `(s, 3)`: row $r$ is the axis (times the strength) of noise
-    $r$. A pytree leaf: `jax.grad` reaches it.
+    $r$; on so(n) shape `(s, n, n)`, one skew matrix $X_r$ per noise. A pytree leaf:
+    `jax.grad` reaches it.
     """
-    return SaltNoise(_parameter_matrix("chi", chi, "the axis of each noise"))
+    return SaltNoise(_parameter_matrix("chi", chi, "the axis of each noise", matrices=True))
 
 
 @jax.tree_util.register_pytree_node_class
@@ -136,6 +166,9 @@ class RandomInertiaNoise(_MatrixNoise):
         zero = 0.0 * (v[0] + d[0])
         return _so3.mul(d, v), ((d[0] + zero, zero, zero), (zero, d[1] + zero, zero),
                                 (zero, zero, d[2] + zero))
+
+    def gradient(self, y, w, params, algebra):
+        return (w @ self.sigma) * y
 
 
 def random_inertia_noise(sigma):
@@ -186,20 +219,25 @@ class FunctionNoise(AbstractNoise):
         jac, u = jax.jacfwd(lambda x: (grad(x), grad(x)), has_aux=True)(_so3.unvec(v))
         return _so3.vec(u), _so3.mat(jac)
 
+    def gradient(self, y, w, params, algebra):
+        return algebra.gradient(jax.grad(self._weighted_h(w, params))(y))
 
-def as_noise(noise, params, dtype):
-    """`noise` as a noise family: a family is returned as it is; a function
-    `noise(y, params) -> (s,)` is wrapped in `FunctionNoise` after its output shape is checked
-    (by `jax.eval_shape`, nothing is computed)."""
+
+def as_noise(noise, params, dtype, algebra):
+    """`noise` as a noise family for states of `algebra`: a family is returned as it is
+    (after checking that it fits the states); a function `noise(y, params) -> (s,)` is
+    wrapped in `FunctionNoise` after its output shape is checked (by `jax.eval_shape`,
+    nothing is computed)."""
     if isinstance(noise, AbstractNoise):
+        noise.check_algebra(algebra)
         return noise
     if not callable(noise):
         raise TypeError(f"noise must be a function noise(y, params) -> shape (s,) or a noise "
                         f"family such as salt_noise(chi), got {type(noise).__name__}.")
     try:
-        out = jax.eval_shape(noise, jax.ShapeDtypeStruct((3,), dtype), params)
+        out = jax.eval_shape(noise, jax.ShapeDtypeStruct(algebra.shape, dtype), params)
     except Exception as err:  # noqa: BLE001 - reported with the function's name
-        raise ValueError(f"noise(y, params) failed on y of shape (3,): {err}") from err
+        raise ValueError(f"noise(y, params) failed on y of shape {algebra.shape}: {err}") from err
     shape = getattr(out, "shape", None)
     if shape is None or len(shape) != 1 or shape[0] < 1:
         raise ValueError(f"noise(y, params) must return the s noise Hamiltonians, shape (s,) "

@@ -102,7 +102,7 @@ def _chunk(state, offset, n_samples, method, model, y0, key, dt, bound, n_blocks
         keys = jax.lax.with_sharding_constraint(keys, sharding)
     ys, fail_step, _, _, _ = _ensemble(method, model, y0, keys, dt, bound, n_blocks,
                                        block_len, False, retry=retry)
-    ys = jnp.concatenate([jnp.broadcast_to(y0, (chunk_size, 1, 3)), ys], axis=1)
+    ys = jnp.concatenate([jnp.broadcast_to(y0, (chunk_size, 1, *y0.shape)), ys], axis=1)
     obs = _observe(observable, ys)
     valid = idx < n_samples
     ok = valid & (fail_step < 0)
@@ -179,7 +179,7 @@ def ensemble_statistics(model, y0, *, t1, dt, n_samples, key, chunk_size, method
     # The zero state: its shapes from an abstract evaluation of one chunk's moments.
     shapes = jax.eval_shape(
         lambda: _chunk_moments(
-            _observe(observable, jnp.zeros((chunk_size, n_blocks + 1, 3), dtype)),
+            _observe(observable, jnp.zeros((chunk_size, n_blocks + 1, *y0.shape), dtype)),
             jnp.ones(chunk_size, bool), want_cov))
     zero = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
     state = (jnp.zeros((), jnp.int32), zero)

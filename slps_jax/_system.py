@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _so3
-from ._algebra import SO3
+from ._algebra import SO3, SOnAlgebra, SO3Algebra
 from ._checks import concrete, float_dtype, real_array
 from ._noise_hamiltonians import as_noise
 
@@ -15,7 +15,9 @@ from ._noise_hamiltonians import as_noise
 # What a system offers, which methods may declare they need (`AbstractMethod.requires`).
 NOISE_PROPORTIONAL_TO_DRIFT = "noise proportional to the drift"  # one noise, H_1 = c H_0
 RIGID_BODY = "rigid body"  # H_0 = y^T I^{-1} y / 2 on so(3)*, `inverse_inertia()` available
-LINEAR_NOISE = "linear noise"  # H_r = chi_r . y (SALT), `noise.chi` of shape (s, 3) available
+LINEAR_NOISE = "linear noise"  # H_r = <chi_r, y> (SALT), `noise.chi` available
+SO3_VECTORS = "so(3)* as 3-vectors"  # the state is y in R^3 (component fast paths)
+QUADRATIC = "quadratic Hamiltonians"  # H_0 and every H_r quadratic: y -> y/s is a time change
 
 
 @jax.tree_util.register_pytree_node_class
@@ -59,31 +61,35 @@ class LiePoissonSystem:
 
     algebra = SO3
 
-    def __init__(self, hamiltonian, params=None, c=None, noise=None):
+    def __init__(self, hamiltonian, params=None, c=None, noise=None, algebra=SO3):
         if not callable(hamiltonian):
             raise TypeError(f"hamiltonian must be callable as hamiltonian(y, params), got "
                             f"{type(hamiltonian).__name__}.")
+        if not isinstance(algebra, (SO3Algebra, SOnAlgebra)):
+            raise TypeError(f"algebra must be slps_jax.SO3 or slps_jax.so(n), got {algebra!r}.")
         params = jax.tree_util.tree_map(jnp.asarray, params)
         leaves = [x for x in jax.tree_util.tree_leaves(params)
                   if jnp.issubdtype(x.dtype, jnp.inexact)]
         self.hamiltonian_fn = hamiltonian
         self.params = params
-        self.c, self.noise = _noise_or_c(c, noise, params, leaves)
+        self.algebra = algebra
+        self.c, self.noise = _noise_or_c(c, noise, params, leaves, algebra)
 
     def tree_flatten(self):
-        return (self.params, self.c, self.noise), self.hamiltonian_fn
+        return (self.params, self.c, self.noise), (self.hamiltonian_fn, self.algebra)
 
     @classmethod
     def tree_unflatten(cls, aux, children):
         obj = object.__new__(cls)
-        obj.hamiltonian_fn = aux
+        obj.hamiltonian_fn, obj.algebra = aux
         obj.params, obj.c, obj.noise = children
         return obj
 
     def __repr__(self):
         name = getattr(self.hamiltonian_fn, "__name__", repr(self.hamiltonian_fn))
         return (f"LiePoissonSystem(hamiltonian={name}, params={self.params!r}, "
-                + (f"c={self.c!r})" if self.noise is None else f"noise={self.noise!r})"))
+                + (f"c={self.c!r}" if self.noise is None else f"noise={self.noise!r}")
+                + ("" if self.algebra is SO3 else f", algebra={self.algebra!r}") + ")")
 
     # What the system is.
 
@@ -95,9 +101,10 @@ class LiePoissonSystem:
     @property
     def structure(self):
         """The structures the system offers (methods declare which they need)."""
+        vectors = frozenset({SO3_VECTORS}) if self.algebra is SO3 else frozenset()
         if self.noise is None:
-            return frozenset({NOISE_PROPORTIONAL_TO_DRIFT})
-        return frozenset({LINEAR_NOISE}) if self.noise.linear else frozenset()
+            return vectors | {NOISE_PROPORTIONAL_TO_DRIFT}
+        return vectors | ({LINEAR_NOISE} if self.noise.linear else frozenset())
 
     @property
     def dtype(self):
@@ -109,29 +116,57 @@ class LiePoissonSystem:
     def _h(self, y):
         return self.hamiltonian_fn(y, self.params)
 
+    def _signature(self, out):
+        state = "(3)" if self.algebra is SO3 else "(n,n)"
+        return f"{state}->{state if out == 'state' else out}"
+
     def hamiltonian(self, y):
-        """$H_0(y)$ over the last axis of `y`."""
-        return jnp.vectorize(self._h, signature="(3)->()")(jnp.asarray(y))
+        """$H_0(y)$ over the state axes of `y` (the last one on so(3), the last two on so(n))."""
+        return jnp.vectorize(self._h, signature=self._signature("()"))(jnp.asarray(y))
 
     def noise_hamiltonians(self, y):
-        r"""$(H_1(y), \dots, H_s(y))$ over the last axis of `y`, shape `(..., s)`."""
+        r"""$(H_1(y), \dots, H_s(y))$ over the state axes of `y`, shape `(..., s)`."""
         if self.noise is None:
             return (self.c * self.hamiltonian(y))[..., None]
         return jnp.vectorize(lambda u: self.noise.values(u, self.params),
-                             signature="(3)->(s)")(jnp.asarray(y))
+                             signature=self._signature("(s)"))(jnp.asarray(y))
 
     def casimir(self, y):
-        r"""$C(y) = \tfrac12 |y|^2$, over the last axis of `y`."""
+        r"""The first Casimir: $C(y) = \tfrac12 |y|^2$ on so(3), $\operatorname{tr}(Y^2)$ on
+        so(n) (all of them: `algebra.casimirs`)."""
         return self.algebra.casimirs(y)[..., 0]
 
     def gradient(self, y):
-        r"""$\nabla H_0(y)$ over the last axis of `y`."""
-        return jnp.vectorize(jax.grad(self._h), signature="(3)->(3)")(jnp.asarray(y))
+        r"""$\nabla H_0(y)$ over the state axes of `y` (a skew matrix on so(n), for the
+        pairing $\langle X, Y\rangle = \tfrac12\operatorname{tr}X^TY$)."""
+        return jnp.vectorize(lambda u: self.algebra.gradient(jax.grad(self._h)(u)),
+                             signature=self._signature("state"))(jnp.asarray(y))
 
     def vector_field(self, y):
-        r"""The drift $f_0(y) = B(y)\nabla H_0(y) = y \times \nabla H_0(y)$."""
+        r"""The drift $f_0(y) = B(y)\nabla H_0(y)$: $y \times \nabla H_0(y)$ on so(3),
+        $[Y, \nabla H_0(Y)]$ on so(n)."""
         y = jnp.asarray(y)
         return self.algebra.bracket(y, self.gradient(y))
+
+    # Array forms of one sample's step (any algebra): what the matrix methods need.
+
+    def noise_gradient(self, y, dW):
+        r"""$u(y) = \sum_r \Delta W_r \nabla H_r(y)$ for one state `y`."""
+        if self.noise is None:
+            return self.noise_time(dW) * self.gradient(y)
+        return self.noise.gradient(y, dW, self.params, self.algebra)
+
+    def step_hamiltonian(self, y, dt, dW):
+        r"""$K(y) = hH_0(y) + \sum_r \Delta W_r H_r(y)$ for one state `y`."""
+        if self.noise is None:
+            return (dt + self.noise_time(dW)) * self.hamiltonian(y)
+        return dt * self.hamiltonian(y) + jnp.dot(dW, self.noise.values(y, self.params))
+
+    def step_gradient(self, y, dt, dW):
+        r"""$\nabla K(y)$ for one state `y`."""
+        if self.noise is None:
+            return (dt + self.noise_time(dW)) * self.gradient(y)
+        return dt * self.gradient(y) + self.noise_gradient(y, dW)
 
     def noise_time(self, dW):
         r"""$c\,\Delta W$: how far one step's noise moves the random time
@@ -183,14 +218,14 @@ class LiePoissonSystem:
         return _so3.add(_so3.scale(dt, self.gradient_c(v)), u), u, ju
 
 
-def _noise_or_c(c, noise, params, leaves):
+def _noise_or_c(c, noise, params, leaves, algebra=SO3):
     """`(c, noise)` of a system: `c` a scalar of the system's dtype and `noise` `None`, or
     `c` `None` and `noise` a noise family. Refuses both together and bad values by name."""
     if noise is not None:
         if c is not None:
             raise ValueError("Pass either c (one noise proportional to the drift, H_1 = c H_0) "
                              "or noise (the noise Hamiltonians), not both.")
-        return None, as_noise(noise, params, float_dtype(*leaves))
+        return None, as_noise(noise, params, float_dtype(*leaves), algebra)
     c = real_array("c", 0.0 if c is None else c)
     c = c.astype(float_dtype(c, *leaves))
     if c.shape != ():

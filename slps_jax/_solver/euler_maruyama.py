@@ -20,6 +20,9 @@ class EulerMaruyama(AbstractMethod):
     """
 
     def step(self, model, y, dt, dW):
+        if model.algebra.matrix:
+            y_next = y + model.algebra.bracket(y, model.step_gradient(y, dt, dW))
+            return y_next.astype(y.dtype), explicit_info(y_next)
         yc = so3.vec(y)
         f = so3.cross(yc, model.step_gradient_c(yc, dt, dW))
         y_next = so3.unvec(so3.add(yc, f)).astype(y.dtype)

@@ -6,13 +6,14 @@ import dataclasses
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from .. import _so3 as so3
 from .._checks import check_options
 from .._solution import RESULTS
-from .._system import NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
+from .._system import NOISE_PROPORTIONAL_TO_DRIFT, QUADRATIC, RIGID_BODY
 from .base import AbstractMethod, StepInfo, default_tol, finite_result
-from .newton import implicit_root, newton
+from .newton import implicit_root, jacobian_mode, newton, solve_array
 
 
 def branch_rotation(v):
@@ -197,6 +198,43 @@ def solve_on_branch(sine_fn, z, *, tol, max_iter, feasible=True, unroll=0):
     return v, result.astype(jnp.int32), iterations.astype(jnp.int32), residual
 
 
+def branch_point(y):
+    r"""$A_0 = Y + (I + Y^2)^{1/2}$ for a skew matrix $Y$ with $\|Y\|_2 < 1$: orthogonal
+    (since $Y$ commutes with $(I + Y^2)^{1/2}$), with $\mathrm{skew}\,A_0 = Y$ and
+    positive definite symmetric part: the root of scheme (42)'s in-map for a step of size 0,
+    on the branch. For $n = 3$ it is `branch_rotation`. Also returns the smallest eigenvalue
+    $1 - \|Y\|_2^2$ of $I + Y^2$ (the distance to the fold)."""
+    eye = jnp.eye(y.shape[-1], dtype=y.dtype)
+    m = eye + y @ y
+    w, q = jnp.linalg.eigh(0.5 * (m + m.T))
+    return y + (q * jnp.sqrt(jnp.maximum(w, 0.0))) @ q.T, w[0]
+
+
+def cayley_matrix(x):
+    r"""The Cayley map so(n) -> SO(n), $(I - X)^{-1}(I + X)$ (so $I + 2X + O(X^2)$)."""
+    eye = jnp.eye(x.shape[-1], dtype=x.dtype)
+    return jnp.linalg.solve(eye - x, eye + x)
+
+
+def matrix_in_map(model, a, dt, dW, second):
+    r"""Scheme (42)'s in-map on SO(n), $-2\,\mathrm{skew}(A^T \partial\bar S/\partial A)$, for
+    the truncated generating function
+    $\bar S(A) = \tfrac12\operatorname{tr}A - K(V) - \tfrac14\operatorname{tr}(A\,u^Tu)$,
+    $V = \mathrm{skew}A$, $K = hH_0 + \sum_r\Delta W_rH_r$, $u = \sum_r \Delta W_r\nabla H_r(V)$
+    (`second` times: 0 drops the second-order term). For $n = 3$ and $A$ a rotation, the
+    last term is $\tfrac14(u^TAu - \operatorname{tr}A|u|^2)$ of so(3)
+    (`docs/so-n.md`); $\partial\bar S/\partial A$ by reverse-mode autodiff."""
+
+    def sbar(a):
+        v = 0.5 * (a - a.T)
+        u = second * model.noise_gradient(v, dW)
+        return (0.5 * jnp.trace(a) - model.step_hamiltonian(v, dt, dW)
+                - 0.25 * jnp.trace(a @ u.T @ u))
+
+    m = a.T @ jax.grad(sbar)(a)
+    return m.T - m
+
+
 @dataclasses.dataclass(frozen=True)
 class LiePoisson(AbstractMethod):
     r"""Scheme (42) of Liu & Wang: the stochastic Lie–Poisson reduction integrator.
@@ -234,11 +272,15 @@ class LiePoisson(AbstractMethod):
     **Arguments:**
 
     - `tol`: max-norm residual tolerance; default `64 eps` of the dtype.
-    - `max_iter`: Newton updates allowed per continuation stage (default 12).
+    - `max_iter`: Newton updates allowed per continuation stage (default `None`: 12; on
+      so(n) 48 with `jacobian="frozen"`, which converges linearly).
     - `scale` (`RigidBody` with `c=` only): $\lambda > 0$ to integrate $z = y/\lambda$ (time
       scaled by $\lambda$): needed when
       $|y_0| \ge 1$, where the in-map has no solution; choose $\lambda > |y_0|$. It moves the
       solve away from the fold at $|y| = 1$ but costs accuracy (`docs/scheme.md`).
+    - `jacobian` (so(n) only): how Newton solves with the Jacobian, `"auto"` (default:
+      `"newton"` up to so(6), `"frozen"` above), `"newton"` (by autodiff at every update),
+      `"frozen"` (at the start, factorised once per step).
     - `unroll`: Newton updates made as straight-line code before the loop (default 0).
       `unroll=3` (the updates almost every step needs) makes a step on a CPU about 1.5x
       faster at about three times the compile time (`benchmarks/compile_time.py`): worth it for
@@ -249,28 +291,35 @@ class LiePoisson(AbstractMethod):
     """
 
     tol: float | None = None
-    max_iter: int = 12
+    max_iter: int | None = None
     scale: float | None = None
     unroll: int = 0
+    jacobian: str = "auto"
 
     def __post_init__(self):
         check_options(self)
+        if self.jacobian not in ("auto", "newton", "frozen"):
+            raise ValueError(f"LiePoisson: jacobian must be 'auto', 'newton' or 'frozen', got "
+                             f"{self.jacobian!r}.")
 
     def check_initial(self, model, y0):
-        if self.scale is not None and not _ANALYTIC <= model.structure:
+        needs = {QUADRATIC} if model.algebra.matrix else _ANALYTIC
+        if self.scale is not None and not needs <= model.structure:
             raise ValueError(
-                "LiePoisson(scale=...) needs a RigidBody with one noise proportional to the "
+                "LiePoisson(scale=...) needs a rigid body with one noise proportional to the "
                 "drift (c=): scaling y is a time change only for a quadratic Hamiltonian "
                 "and noise; this system has not that structure.")
         lam = 1.0 if self.scale is None else self.scale
-        norm = float((y0 ** 2).sum() ** 0.5)
+        matrix = model.algebra.matrix
+        norm = float(np.linalg.norm(y0, 2) if matrix else (y0 ** 2).sum() ** 0.5)
+        name = "the spectral norm ||Y0||_2" if matrix else "|y0|"
         if norm / lam >= 1.0:
             raise ValueError(
-                f"LiePoisson needs |y0| < 1 (the in-map has no solution on the paper's branch "
-                f"otherwise), got |y0| = {norm:.6g}"
+                f"LiePoisson needs {name} < 1 (the in-map has no solution on the paper's "
+                f"branch otherwise), got {norm:.6g}"
                 + ("" if self.scale is None else f" with scale={self.scale}")
                 + f". Pass LiePoisson(scale=s) with s > {norm:.6g}, for example "
-                f"s = {1.5 * norm:.3g}; |y| is conserved, so |y0|/s < 1 suffices."
+                f"s = {1.5 * norm:.3g}; the norm is conserved, so it suffices at the start."
             )
 
     # The second-order terms of the generating function, c^2 dW^2 of (41) for one noise and
@@ -284,6 +333,8 @@ class LiePoisson(AbstractMethod):
     def step(self, model, y, dt, dW):
         dtype = y.dtype
         tol = default_tol(dtype) if self.tol is None else self.tol
+        if model.algebra.matrix:
+            return self._step_matrix(model, y, dt, dW, tol)
         z = so3.vec(y)
         if _ANALYTIC <= model.structure:
             lam = 1.0 if self.scale is None else self.scale
@@ -308,11 +359,48 @@ class LiePoisson(AbstractMethod):
 
         feasible = so3.dot(z, z) < 1.0
         v, result, iterations, residual = solve_on_branch(
-            sine_fn, z, tol=tol, max_iter=self.max_iter, feasible=feasible, unroll=self.unroll)
+            sine_fn, z, tol=tol, max_iter=12 if self.max_iter is None else self.max_iter,
+            feasible=feasible, unroll=self.unroll)
         a, _, _ = branch_rotation(v)
         y_next = so3.unvec(so3.mv(a, so3.vec(y))).astype(dtype)
         return y_next, StepInfo(finite_result(y_next, result), iterations,
                                 residual.astype(dtype))
+
+    def _step_matrix(self, model, y, dt, dW, tol):
+        r"""The step on so(n): Newton in Cayley coordinates $A = A_0\,\mathrm{cay}(X)$ about
+        the branch point $A_0$ of $Y_n$ (`branch_point`), on the `n(n-1)/2` entries of $X$,
+        with the same continuation as on so(3); $Y_{n+1} = A Y_n A^T$."""
+        alg = model.algebra
+        lam = 1.0 if self.scale is None else self.scale
+        z = y / lam
+        dt_s, dW_s = lam * dt, lam * dW
+        # (the chart's base point: constant for derivatives, which the implicit function
+        # theorem gives through the residual; eigh's derivative is singular here anyway)
+        a0, gap = jax.tree_util.tree_map(jax.lax.stop_gradient, branch_point(z))
+        second = 1.0 if self._second_order else 0.0
+
+        def rotation(x):
+            return a0 @ cayley_matrix(alg.from_coordinates(x))
+
+        def residual(x, lam_):
+            a = rotation(x)
+            return alg.coordinates(matrix_in_map(model, a, lam_ * dt_s, lam_ * dW_s, second) - z)
+
+        def admissible(x):  # the branch: a positive definite symmetric part
+            a = rotation(x)
+            return jnp.all(jnp.isfinite(jnp.linalg.cholesky(0.5 * (a + a.T))))
+
+        zero = jnp.zeros((alg.dim,), y.dtype)
+        x, result, iterations, res = solve_array(
+            residual, zero, zero, tol=tol, max_iter=self.max_iter,
+            jacobian=jacobian_mode(self.jacobian, alg.dim), active=gap > 0.0,
+            admissible=admissible, continuation=CONTINUATION)
+        a = rotation(x)
+        # (the skew part: a symmetric part left by rounding would add up over the steps and
+        # move the Casimirs)
+        m = a @ y @ a.T
+        y_next = (0.5 * (m - m.T)).astype(y.dtype)
+        return y_next, StepInfo(finite_result(y_next, result), iterations, res.astype(y.dtype))
 
 
 # The structure for which `LiePoisson` has its closed-form residual and Jacobian.

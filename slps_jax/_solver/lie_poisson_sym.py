@@ -10,6 +10,7 @@ import jax.numpy as jnp
 from .. import _so3 as so3
 from .._solution import RESULTS
 from .._checks import check_options
+from .._system import SO3_VECTORS
 from .base import AbstractMethod, StepInfo, default_tol, finite_result
 from .composition import TRIPLE_JUMP, combine
 from .lie_poisson import branch_rotation, solve_on_branch
@@ -118,6 +119,8 @@ def _check_unit_ball(name, y0):
 
 
 class _SymmetricLiePoisson(AbstractMethod):
+    requires = frozenset({SO3_VECTORS})  # (the sine chart of so(3); so(n): LiePoisson)
+
     def __post_init__(self):
         check_options(self)
 

@@ -9,7 +9,7 @@ from .. import _so3 as so3
 from .._checks import check_options
 from .._solution import RESULTS
 from .base import AbstractMethod, StepInfo, default_tol, finite_result
-from .newton import implicit_root, newton
+from .newton import implicit_root, jacobian_mode, newton, solve_array
 
 
 @dataclasses.dataclass(frozen=True)
@@ -25,13 +25,17 @@ class Midpoint(AbstractMethod):
     predictor, with the Jacobian $\mathrm{Id} - \tfrac12 F_n'(m)$,
     $F_n'(m) = \hat m\, \nabla^2 K_n(m) - \widehat{\nabla K_n(m)}$: from the system (analytic
     for the `RigidBody` and the noise families, by autodiff of a Hamiltonian function).
-    Works for any system.
+    Works for any system. On so(n) ($F_n(Y) = [Y, \nabla K_n(Y)]$) it keeps
+    $\operatorname{tr}Y^2$ (quadratic) but not the higher Casimirs $\operatorname{tr}Y^{2k}$,
+    $k \ge 2$: what `IsospectralMidpoint` is for. There Newton runs on the `n(n-1)/2`
+    entries, its Jacobian by autodiff.
 
-    **Arguments:** `tol` (default `64 eps`), `max_iter` (default 12).
+    **Arguments:** `tol` (default `64 eps`), `max_iter` (default `None`: 12; on so(n) above
+    so(5), where the Jacobian is frozen at the start of the step, 48).
     """
 
     tol: float | None = None
-    max_iter: int = 12
+    max_iter: int | None = None
 
     def __post_init__(self):
         check_options(self)
@@ -39,6 +43,8 @@ class Midpoint(AbstractMethod):
     def step(self, model, y, dt, dW):
         dtype = y.dtype
         tol = default_tol(dtype) if self.tol is None else self.tol
+        if model.algebra.matrix:
+            return self._step_matrix(model, y, dt, dW, tol)
         y0 = so3.vec(y)
 
         def f(u):  # the step's increment field y x grad K(y), K = h H_0 + sum_r dW_r H_r
@@ -57,7 +63,8 @@ class Midpoint(AbstractMethod):
 
         def solve():
             start = so3.add(y0, f(y0))
-            s = newton(system, start, tol=tol, max_iter=self.max_iter)
+            s = newton(system, start, tol=tol,
+                       max_iter=12 if self.max_iter is None else self.max_iter)
             return s.x, s.result == RESULTS.successful, (s.result, s.iterations, s.residual)
 
         # Derivatives by the implicit function theorem at the root, not through Newton.
@@ -65,3 +72,20 @@ class Midpoint(AbstractMethod):
         y_next = so3.unvec(y1).astype(dtype)
         return y_next, StepInfo(finite_result(y_next, result.astype(jnp.int32)),
                                 it.astype(jnp.int32), res.astype(dtype))
+
+    def _step_matrix(self, model, y, dt, dW, tol):
+        alg = model.algebra
+        x0 = alg.coordinates(y)
+
+        def f(u):
+            return alg.bracket(u, model.step_gradient(u, dt, dW))
+
+        def residual(x, lam):
+            m = 0.5 * (y + alg.from_coordinates(x))
+            return x - x0 - alg.coordinates(f(m))
+
+        x, result, it, res = solve_array(
+            residual, x0 + alg.coordinates(f(y)), x0, tol=tol, max_iter=self.max_iter,
+            jacobian=jacobian_mode("auto", alg.dim))
+        y_next = alg.from_coordinates(x).astype(dtype := y.dtype)
+        return y_next, StepInfo(finite_result(y_next, result), it, res.astype(dtype))

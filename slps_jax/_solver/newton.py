@@ -36,10 +36,10 @@ class NewtonState(NamedTuple):
 
 
 def max_norm(r):
-    """Max-norm of a component vector."""
-    out = jnp.abs(r[0])
+    """Max-norm of a component vector (components may be arrays)."""
+    out = jnp.max(jnp.abs(r[0]))
     for ri in r[1:]:
-        out = jnp.maximum(out, jnp.abs(ri))
+        out = jnp.maximum(out, jnp.max(jnp.abs(ri)))
     return out
 
 
@@ -63,8 +63,11 @@ def newton(fn, x0, *, tol, max_iter, active=True, admissible=None, continuation=
 
     - `fn(x) -> (r, J)`: the residual (`n` components) and its Jacobian (`n` rows of `n`);
       with `continuation > 0`, `fn(x, lam) -> (r, J)` for a family of problems whose member `lam = 1` is the one
-      to solve and whose member `lam = 0` has the root `x0`.
-    - `x0`: the start, `n` components.
+      to solve and whose member `lam = 0` has the root `x0`. `J` may also be a function
+      `J(r) -> dx` that solves with it (a factorisation computed once, a fixed-point map).
+    - `x0`: the start, `n` components; or one array of shape `(n,)` (then `r` is an array,
+      `J` an `(n, n)` array or a function, and `x` of the result an array): for many
+      unknowns, where the component form would trace `n^2` scalar products.
     - `tol`: stop when `max|r| <= tol`; `max_iter`: at most this many updates per stage.
     - `active`: samples with `False` do no work and report `RESULTS.outside_domain`.
     - `admissible(x) -> bool`: the branch of roots sought (for example the sine chart's open
@@ -87,8 +90,15 @@ def newton(fn, x0, *, tol, max_iter, active=True, admissible=None, continuation=
     **Returns:** the final `NewtonState`; `residual` is that of the returned `x` (for a
     successful sample), and a failed sample reports the reason of its last attempt.
     """
+    if not isinstance(x0, tuple):  # one array of unknowns: a tuple of one component
+        inner = fn
+        fn = lambda x, *lam: _as_component(*inner(x[0], *lam))  # noqa: E731
+        admissible_array = admissible
+        admissible = None if admissible is None else (lambda x: admissible_array(x[0]))
+        s = newton(fn, (x0,), tol=tol, max_iter=max_iter, active=active, admissible=admissible,
+                   continuation=continuation, unroll=unroll)
+        return s._replace(x=s.x[0])
     dtype = x0[0].dtype
-    x0 = tuple(x0)
     zero = jnp.zeros((), jnp.int32)
     init = NewtonState(x0, zero, jnp.asarray(jnp.inf, dtype),
                        jnp.where(active, _RUNNING, RESULTS.outside_domain).astype(jnp.int32),
@@ -122,7 +132,8 @@ def newton(fn, x0, *, tol, max_iter, active=True, admissible=None, continuation=
                           result=result)
 
     def update(s, r, jac, go):
-        x = tuple(jnp.where(go, xi - di, xi) for xi, di in zip(s.x, solve_linear(jac, r)))
+        delta = jac(r) if callable(jac) else solve_linear(jac, r)
+        x = tuple(jnp.where(go, xi - di, xi) for xi, di in zip(s.x, delta))
         return s._replace(x=x, iterations=s.iterations + go, updates=s.updates + go)
 
     def body(s):
@@ -139,6 +150,13 @@ def newton(fn, x0, *, tol, max_iter, active=True, admissible=None, continuation=
     return jax.lax.while_loop(lambda s: s.result == _RUNNING, body, s)
 
 
+def _as_component(r, jac):
+    """An array residual and its Jacobian (a matrix or a solver) as one component."""
+    if callable(jac):
+        return (r,), lambda rr: (jac(rr[0]),)
+    return (r,), lambda rr: (jnp.linalg.solve(jac, rr[0]),)
+
+
 def implicit_root(residual, solve, safe):
     """A root of `residual` found by `solve`, differentiable by the implicit function theorem.
 
@@ -152,24 +170,28 @@ def implicit_root(residual, solve, safe):
     driver freezes) yields finite, unused derivatives instead of NaNs that would leak through
     `where` into the gradient.
 
+    The unknowns are components (a tuple) or one array of shape `(n,)`.
+
     **Returns:** `(x, ok, aux)`.
     """
+    array = not isinstance(safe, tuple)  # one array of unknowns
     n = len(safe)
 
     def unvec(x):
-        return jnp.stack(jnp.broadcast_arrays(*x), axis=-1)
+        return x if array else jnp.stack(jnp.broadcast_arrays(*x), axis=-1)
 
     def vec(x):
-        return tuple(x[..., i] for i in range(n))
+        return x if array else tuple(x[..., i] for i in range(n))
 
     def f(x):
         return unvec(residual(vec(x)))
 
-    dtype = safe[0].dtype
+    dtype = (safe if array else safe[0]).dtype
 
     def run(_, __):
         x, ok, aux = solve()
-        x = tuple(jnp.where(ok, xi, si) for xi, si in zip(x, safe))
+        x = jnp.where(ok, x, safe) if array else tuple(
+            jnp.where(ok, xi, si) for xi, si in zip(x, safe))
         # custom_root wants floating auxiliary outputs; integers and flags travel as floats
         return unvec(x), tuple(jnp.asarray(t, dtype) for t in (ok, *aux))
 
@@ -177,9 +199,61 @@ def implicit_root(residual, solve, safe):
         # g is f linearised at the root: its Jacobian, materialised, in a linear solve. Only
         # derivative passes run this.
         jac = jax.jacfwd(g)(b)
+        if array:
+            return jnp.linalg.solve(jac, b)
         return unvec(solve_linear(tuple(vec(row) for row in
                                         (jac[..., i, :] for i in range(n))), vec(b)))
 
     x, aux = jax.lax.custom_root(f, unvec(safe), run, tangent_solve, has_aux=True)
     aux = jax.lax.stop_gradient(aux)
     return vec(x), aux[0] > 0.5, aux[1:]
+
+
+# How the Newton iterations of a matrix method solve with the Jacobian (`solve_array`).
+JACOBIANS = ("auto", "newton", "frozen", "identity")
+
+
+def jacobian_mode(jacobian, dim, *, large="frozen", largest_newton=10):
+    """The mode `"auto"` stands for: the full Jacobian at every update (`"newton"`) up to
+    `largest_newton` unknowns (so(5)), `large` above (`benchmarks/so_n.py` measures
+    them)."""
+    if jacobian != "auto":
+        return jacobian
+    return "newton" if dim <= largest_newton else large
+
+
+def solve_array(residual, x0, safe, *, tol, max_iter, jacobian, active=True, admissible=None,
+                continuation=0):
+    """A root of `residual(x, lam)` (one array of `n` unknowns, `lam = 1` the problem) by
+    `newton` from `x0`, differentiable by the implicit function theorem (`implicit_root`,
+    `safe` where a sample failed). With `continuation`, the family `lam` as in `newton`.
+
+    `jacobian`: `"newton"` (the Jacobian by forward-mode autodiff, `n` tangents, at every
+    update: quadratic convergence), `"frozen"` (that Jacobian at `x0` and `lam = 1`, LU
+    factorised once, reused by every update: linear convergence at a rate of the step's
+    size, and no `n`-tangent pass per update), or `"identity"` (a fixed-point iteration, for
+    residuals whose Jacobian is the identity up to the step's size). `max_iter=None`: 12
+    updates for `"newton"`, 48 for the linearly converging modes.
+
+    **Returns:** `(x, result, iterations, residual)`.
+    """
+    jac = jax.jacfwd(residual)
+    if max_iter is None:
+        max_iter = 12 if jacobian == "newton" else 48
+
+    def solve():
+        if jacobian == "newton":
+            fn = lambda x, lam: (residual(x, lam), jac(x, lam))  # noqa: E731
+        elif jacobian == "frozen":
+            lu = jax.scipy.linalg.lu_factor(jac(x0, jnp.ones((), x0.dtype)))
+            fn = lambda x, lam: (residual(x, lam),  # noqa: E731
+                                 lambda r: jax.scipy.linalg.lu_solve(lu, r))
+        else:
+            fn = lambda x, lam: (residual(x, lam), lambda r: r)  # noqa: E731
+        s = newton(fn if continuation else (lambda x: fn(x, 1.0)), x0, tol=tol,
+                   max_iter=max_iter, active=active, admissible=admissible,
+                   continuation=continuation)
+        return s.x, s.result == RESULTS.successful, (s.result, s.iterations, s.residual)
+
+    x, _, (result, iterations, res) = implicit_root(lambda x: residual(x, 1.0), solve, safe)
+    return x, result.astype(jnp.int32), iterations.astype(jnp.int32), res
