@@ -13,7 +13,7 @@ from .._checks import check_options
 from .._solution import RESULTS
 from .._system import NOISE_PROPORTIONAL_TO_DRIFT, QUADRATIC, RIGID_BODY
 from .base import AbstractMethod, StepInfo, default_tol, finite_result
-from .newton import implicit_root, jacobian_mode, newton, solve_array
+from .newton import implicit_root, newton, solve_array
 
 
 def branch_rotation(v):
@@ -210,12 +210,6 @@ def branch_point(y):
     return y + (q * jnp.sqrt(jnp.maximum(w, 0.0))) @ q.T, w[0]
 
 
-def cayley_matrix(x):
-    r"""The Cayley map so(n) -> SO(n), $(I - X)^{-1}(I + X)$ (so $I + 2X + O(X^2)$)."""
-    eye = jnp.eye(x.shape[-1], dtype=x.dtype)
-    return jnp.linalg.solve(eye - x, eye + x)
-
-
 def matrix_in_map(model, a, dt, dW, second):
     r"""Scheme (42)'s in-map on SO(n), $-2\,\mathrm{skew}(A^T \partial\bar S/\partial A)$, for
     the truncated generating function
@@ -273,14 +267,18 @@ class LiePoisson(AbstractMethod):
 
     - `tol`: max-norm residual tolerance; default `64 eps` of the dtype.
     - `max_iter`: Newton updates allowed per continuation stage (default `None`: 12; on
-      so(n) 48 with `jacobian="frozen"`, which converges linearly).
+      so(n) 48 for the chord iteration, which converges linearly).
     - `scale` (`RigidBody` with `c=` only): $\lambda > 0$ to integrate $z = y/\lambda$ (time
       scaled by $\lambda$): needed when
       $|y_0| \ge 1$, where the in-map has no solution; choose $\lambda > |y_0|$. It moves the
       solve away from the fold at $|y| = 1$ but costs accuracy (`docs/scheme.md`).
-    - `jacobian` (so(n) only): how Newton solves with the Jacobian, `"auto"` (default:
-      `"newton"` up to so(6), `"frozen"` above), `"newton"` (by autodiff at every update),
-      `"frozen"` (at the start, factorised once per step).
+    - `jacobian` (so(n) only): how the in-map is solved. `"chart"` (the default, `"auto"`):
+      a chord iteration with the Jacobian of the chart at the start of the step (the in-map
+      of a step of size 0), factorised once per step: linear convergence at a rate
+      $O(h^{1/2})$, about 8 updates, with no autodiff Jacobian; `"newton"`: the full
+      Jacobian by forward-mode autodiff at every update (quadratic convergence, 3 updates,
+      but `n(n-1)/2` tangents each: 3–8x slower per step, measured in
+      `benchmarks/so_n.py`).
     - `unroll`: Newton updates made as straight-line code before the loop (default 0).
       `unroll=3` (the updates almost every step needs) makes a step on a CPU about 1.5x
       faster at about three times the compile time (`benchmarks/compile_time.py`): worth it for
@@ -298,8 +296,8 @@ class LiePoisson(AbstractMethod):
 
     def __post_init__(self):
         check_options(self)
-        if self.jacobian not in ("auto", "newton", "frozen"):
-            raise ValueError(f"LiePoisson: jacobian must be 'auto', 'newton' or 'frozen', got "
+        if self.jacobian not in ("auto", "chart", "newton"):
+            raise ValueError(f"LiePoisson: jacobian must be 'auto', 'chart' or 'newton', got "
                              f"{self.jacobian!r}.")
 
     def check_initial(self, model, y0):
@@ -380,22 +378,29 @@ class LiePoisson(AbstractMethod):
         second = 1.0 if self._second_order else 0.0
 
         def rotation(x):
-            return a0 @ cayley_matrix(alg.from_coordinates(x))
+            return a0 @ alg.cayley(alg.from_coordinates(x))
 
         def residual(x, lam_):
             a = rotation(x)
             return alg.coordinates(matrix_in_map(model, a, lam_ * dt_s, lam_ * dW_s, second) - z)
 
-        def admissible(x):  # the branch: a positive definite symmetric part
-            a = rotation(x)
-            return jnp.all(jnp.isfinite(jnp.linalg.cholesky(0.5 * (a + a.T))))
-
         zero = jnp.zeros((alg.dim,), y.dtype)
+
+        def chart():  # d skew(A_0 cay(X)) / dX at X = 0: the in-map of a step of size 0
+            return jax.jacfwd(lambda x: alg.coordinates(0.5 * (rotation(x) - rotation(x).T)))(
+                zero)
+
+        mode = "newton" if self.jacobian == "newton" else chart
         x, result, iterations, res = solve_array(
-            residual, zero, zero, tol=tol, max_iter=self.max_iter,
-            jacobian=jacobian_mode(self.jacobian, alg.dim), active=gap > 0.0,
-            admissible=admissible, continuation=CONTINUATION)
+            residual, zero, zero, tol=tol, max_iter=self.max_iter, jacobian=mode,
+            active=gap > 0.0, continuation=CONTINUATION)
         a = rotation(x)
+        # The branch: a positive definite symmetric part. Tested once, at the root (a
+        # Cholesky factorisation in every update would cost a third of the step at so(4));
+        # a root off it is a failure the driver reports (and `retry_substeps` splits).
+        on_branch = jnp.all(jnp.isfinite(jnp.linalg.cholesky(0.5 * (a + a.T))))
+        result = jnp.where((result == RESULTS.successful) & ~on_branch, RESULTS.off_branch,
+                           result).astype(jnp.int32)
         # (the skew part: a symmetric part left by rounding would add up over the steps and
         # move the Casimirs)
         m = a @ y @ a.T

@@ -27,11 +27,11 @@ class Midpoint(AbstractMethod):
     for the `RigidBody` and the noise families, by autodiff of a Hamiltonian function).
     Works for any system. On so(n) ($F_n(Y) = [Y, \nabla K_n(Y)]$) it keeps
     $\operatorname{tr}Y^2$ (quadratic) but not the higher Casimirs $\operatorname{tr}Y^{2k}$,
-    $k \ge 2$: what `IsospectralMidpoint` is for. There Newton runs on the `n(n-1)/2`
-    entries, its Jacobian by autodiff.
+    $k \ge 2$: what `IsospectralMidpoint` is for. There it is solved on the `n(n-1)/2`
+    entries, by Newton (Jacobian by autodiff) up to so(5), by fixed-point iteration above.
 
     **Arguments:** `tol` (default `64 eps`), `max_iter` (default `None`: 12; on so(n) above
-    so(5), where the Jacobian is frozen at the start of the step, 48).
+    so(5), where the fixed-point iteration $Y_{n+1} = Y_n + F_n(M)$ replaces Newton, 48).
     """
 
     tol: float | None = None
@@ -86,6 +86,6 @@ class Midpoint(AbstractMethod):
 
         x, result, it, res = solve_array(
             residual, x0 + alg.coordinates(f(y)), x0, tol=tol, max_iter=self.max_iter,
-            jacobian=jacobian_mode("auto", alg.dim))
+            jacobian=jacobian_mode("auto", alg.dim, large="identity"))
         y_next = alg.from_coordinates(x).astype(dtype := y.dtype)
         return y_next, StepInfo(finite_result(y_next, result), it, res.astype(dtype))

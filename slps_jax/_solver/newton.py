@@ -209,14 +209,9 @@ def implicit_root(residual, solve, safe):
     return vec(x), aux[0] > 0.5, aux[1:]
 
 
-# How the Newton iterations of a matrix method solve with the Jacobian (`solve_array`).
-JACOBIANS = ("auto", "newton", "frozen", "identity")
-
-
-def jacobian_mode(jacobian, dim, *, large="frozen", largest_newton=10):
-    """The mode `"auto"` stands for: the full Jacobian at every update (`"newton"`) up to
-    `largest_newton` unknowns (so(5)), `large` above (`benchmarks/so_n.py` measures
-    them)."""
+def jacobian_mode(jacobian, dim, *, large, largest_newton=10):
+    """The mode `"auto"` stands for: Newton with the full Jacobian up to `largest_newton`
+    unknowns (so(5)), `large` above (`benchmarks/so_n.py` measures them)."""
     if jacobian != "auto":
         return jacobian
     return "newton" if dim <= largest_newton else large
@@ -229,11 +224,11 @@ def solve_array(residual, x0, safe, *, tol, max_iter, jacobian, active=True, adm
     `safe` where a sample failed). With `continuation`, the family `lam` as in `newton`.
 
     `jacobian`: `"newton"` (the Jacobian by forward-mode autodiff, `n` tangents, at every
-    update: quadratic convergence), `"frozen"` (that Jacobian at `x0` and `lam = 1`, LU
-    factorised once, reused by every update: linear convergence at a rate of the step's
-    size, and no `n`-tangent pass per update), or `"identity"` (a fixed-point iteration, for
-    residuals whose Jacobian is the identity up to the step's size). `max_iter=None`: 12
-    updates for `"newton"`, 48 for the linearly converging modes.
+    update: quadratic convergence), `"identity"` (a fixed-point iteration, for residuals
+    whose Jacobian is the identity up to the step's size), or a function `() -> M` of an
+    approximate Jacobian, LU-factorised once and used by every update (a chord iteration:
+    linear convergence, no `n`-tangent pass per update). `max_iter=None`: 12 updates for
+    `"newton"`, 48 for the linearly converging iterations.
 
     **Returns:** `(x, result, iterations, residual)`.
     """
@@ -244,12 +239,12 @@ def solve_array(residual, x0, safe, *, tol, max_iter, jacobian, active=True, adm
     def solve():
         if jacobian == "newton":
             fn = lambda x, lam: (residual(x, lam), jac(x, lam))  # noqa: E731
-        elif jacobian == "frozen":
-            lu = jax.scipy.linalg.lu_factor(jac(x0, jnp.ones((), x0.dtype)))
+        elif jacobian == "identity":
+            fn = lambda x, lam: (residual(x, lam), lambda r: r)  # noqa: E731
+        else:
+            lu = jax.scipy.linalg.lu_factor(jacobian())
             fn = lambda x, lam: (residual(x, lam),  # noqa: E731
                                  lambda r: jax.scipy.linalg.lu_solve(lu, r))
-        else:
-            fn = lambda x, lam: (residual(x, lam), lambda r: r)  # noqa: E731
         s = newton(fn if continuation else (lambda x: fn(x, 1.0)), x0, tol=tol,
                    max_iter=max_iter, active=active, admissible=admissible,
                    continuation=continuation)
