@@ -337,7 +337,7 @@ def weak_convergence(model, y0, *, t1, dts, n_samples, key, methods, observable,
 
     **Arguments:** as `strong_convergence`, and
 
-    - `observable`: `g(y) -> scalar or shape (m,)`, for `y` of shape `(3,)`, traceable by JAX
+    - `observable`: `g(y) -> scalar or shape (m,)`, for one state `y`, traceable by JAX
       (for example `lambda y: y` for the mean, or `model.hamiltonian`).
     - `confidence`: the level of the intervals (default 0.95).
     - `n_nodes`: Gauss–Hermite nodes for the exact expectation (default 64).

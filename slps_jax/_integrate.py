@@ -117,7 +117,7 @@ def _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats, retry=No
     `k^2`, ... equal substeps (`_retry_step`, a `while_loop`: no reverse mode) before the
     sample is given up.
 
-    Returns the saved states `(n_blocks, 3)`, the step of failure (-1 if none), the number
+    Returns the saved states `(n_blocks, *state_shape)`, the step of failure (-1 if none), the number
     of retried steps, and the Newton statistics `(iterations sum, iterations max, residual
     max)` or `()`.
     """
@@ -341,7 +341,7 @@ def integrate(model, y0, dW, dt, *, method=LiePoisson(), save_every=None, throw=
 
     - `model`: a `RigidBody` or a `LiePoissonSystem`; its dtype is the computation's (`y0`,
       `dW` are cast to it).
-    - `y0`: initial value, shape `(3,)`.
+    - `y0`: initial value, shape `(3,)` (so(3)*), or a skew `(n, n)` matrix (`algebra=so(n)`).
     - `dW`: Brownian increments, shape `(n_steps, n_noises)` (one column per noise;
       `(n_steps,)` for a system with one noise).
     - `dt`: the step size.
@@ -354,7 +354,7 @@ def integrate(model, y0, dW, dt, *, method=LiePoisson(), save_every=None, throw=
       then `k^2`, then `k^3` equal substeps of `(dt, dW)` before the path is given up.
       Steps that succeed are untouched, so results without failures are identical.
 
-    **Returns:** the final state `(3,)`, or `(n_steps // save_every + 1, 3)`.
+    **Returns:** the final state (the shape of `y0`), or `(n_steps // save_every + 1, *y0.shape)`.
     """
     check_model(model)
     check_method(method)
@@ -400,7 +400,8 @@ def simulate(model, y0, *, t1, dt, n_samples, key, method=LiePoisson(), save_eve
     **Arguments:**
 
     - `model`: a `RigidBody` or a `LiePoissonSystem`, whose dtype is the computation's;
-      `y0`: the initial value `(3,)`, shared by all samples (cast to the model's dtype).
+      `y0`: the initial value (`(3,)`, or `(n, n)` skew on so(n)), shared by all samples
+      (cast to the model's dtype).
     - `t1`: final time, a multiple of `dt`; `dt`: step size.
     - `n_samples`: number of Brownian samples; `key`: a `jax.random.key` (a legacy
       `jax.random.PRNGKey`, `uint32[2]`, is accepted too; a plain integer is not).

@@ -48,8 +48,9 @@ class Solution:
     """An ensemble solution.
 
     - `ts`: the saved times, shape `(n_saved,)`.
-    - `ys`: the saved states, shape `(n_samples, n_saved, 3)`. A failed sample keeps its last
-      good state from the failing step on (see `result` and `fail_step`); it is never NaN.
+    - `ys`: the saved states, shape `(n_samples, n_saved, 3)` (`(n_samples, n_saved, n, n)`
+      on so(n)). A failed sample keeps its last good state from the failing step on (see
+      `result` and `fail_step`); it is never NaN.
     - `result`: `RESULTS` code per sample, shape `(n_samples,)`.
     - `fail_step`: index of the step at which each sample failed, `-1` if it did not.
     - `stats`: a dict; `n_failed` always; with `newton_stats=True` also

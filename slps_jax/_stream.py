@@ -133,7 +133,7 @@ def ensemble_statistics(model, y0, *, t1, dt, n_samples, key, chunk_size, method
     - `statistics`: which of `"mean"` (always computed), `"var"`, `"cov"`, `"skewness"`,
       `"kurtosis"` to return.
     - `observable`: `None` for the state itself, or a function of one sample's saved states
-      `(n_saved, 3)` giving an array `(n_saved, ...)` (for example
+      `(n_saved, *state_shape)` giving an array `(n_saved, ...)` (for example
       `lambda ys: model.hamiltonian(ys)` under `vmap`) whose moments are taken instead. It
       must be hashable (a module-level function or a lambda kept alive by the caller) to be
       compiled once.

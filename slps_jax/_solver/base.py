@@ -30,7 +30,8 @@ class StepInfo(NamedTuple):
 
 class AbstractMethod:
     """A one-step method for
-    $dy = y \\times \\nabla H_0(y)\\,dt + \\sum_r y \\times \\nabla H_r(y) \\circ dW_r$.
+    $dy = y \\times \\nabla H_0(y)\\,dt + \\sum_r y \\times \\nabla H_r(y) \\circ dW_r$ (on so(n):
+    $dY = [Y, \\nabla H_0]\\,dt + \\sum_r [Y, \\nabla H_r] \\circ dW_r$).
 
     A method is a small immutable (hashable) object; the driver owns the loop, the noise,
     saving and failure handling. Subclasses implement `step`, and may override `check_initial`
@@ -49,15 +50,16 @@ class AbstractMethod:
     def step(self, model, y, dt, dW):
         """Advance one sample by one step.
 
-        **Arguments:** `model` (a system offering `requires`), `y` shape `(3,)`, the step
-        `dt` (a scalar) and the step's Brownian increments `dW`, shape `(model.n_noises,)`.
+        **Arguments:** `model` (a system offering `requires`), `y` a state (shape
+        `model.algebra.shape`), the step `dt` (a scalar) and the step's Brownian increments
+        `dW`, shape `(model.n_noises,)`.
 
         **Returns:** `(y_next, StepInfo)`.
         """
         raise NotImplementedError
 
     def check_initial(self, model, y0):
-        """Raise `ValueError` if the concrete initial value `y0` (NumPy, shape (3,)) is outside
+        """Raise `ValueError` if the concrete initial value `y0` (NumPy, of the state's shape) is outside
         the method's domain."""
 
 
