@@ -15,6 +15,10 @@ matrix of spectral norm 0.8 (seed 1), T = 1.
   h = 2^-3 ... 2^-7, against run time; fitted strong orders.
 - Casimirs over 10^4 steps: so(6) with two linear (SALT) noises, h = 0.01, 8 paths: the
   largest relative drift of tr(Y^2), tr(Y^4), tr(Y^6) along the paths.
+- Stress: so(4) and so(8), one noise c = 0.4 or three SALT noises of strength 0.4,
+  ||Y0||_2 = 0.5, 0.9, 0.99, h = 2^-2 and 2^-4, T = 1, 200 samples: failed samples (flagged,
+  frozen at their last good state) without and with `retry_substeps=4`, and non-finite
+  entries (there must be none).
 
 Writes `so_n.csv`, `so_n.json`, `so_n.md` into --out (default benchmarks/results) and the
 figure `so_n.png` there.
@@ -175,6 +179,47 @@ def casimirs(n_steps, n_paths):
     return rows
 
 
+def stress(fast):
+    import warnings
+
+    rows = []
+    ns, norms, dts = ((4,), (0.99,), (0.25,)) if fast else ((4, 8), (0.5, 0.9, 0.99),
+                                                             (0.25, 0.0625))
+    for n in ns:
+        j = jnp.asarray([0.6, 1.1, 1.7, 2.3]) if n == 4 else jnp.linspace(0.6, 2.3, n)
+        chi = np.random.default_rng(2).normal(size=(3, n, n))
+        chi = 0.4 * (chi - np.swapaxes(chi, 1, 2)) / np.sqrt(2 * n)
+        models = {"c=0.4": sj.GeneralisedRigidBody(j, c=C),
+                  "3 SALT": sj.GeneralisedRigidBody(j, noise=sj.salt_noise(chi))}
+        a = np.random.default_rng(1).normal(size=(n, n))
+        for label, model in models.items():
+            if fast and label != "c=0.4":
+                continue
+            for norm in norms:
+                y0 = jnp.asarray(norm * (a - a.T) / np.linalg.norm(a - a.T, 2))
+                for dt in dts:
+                    for name, m in {"LiePoisson": sj.LiePoisson(),
+                                    "IsospectralMidpoint": sj.IsospectralMidpoint(),
+                                    "Midpoint": sj.Midpoint()}.items():
+                        row = dict(n=n, noise=label, norm=norm, h=dt, method=name)
+                        for retry in (None, 4):
+                            with warnings.catch_warnings():
+                                warnings.simplefilter("ignore", RuntimeWarning)
+                                sol = sj.simulate(model, y0, t1=1.0, dt=dt,
+                                                  n_samples=8 if fast else 200,
+                                                  key=jax.random.key(0), method=m,
+                                                  throw=False, retry_substeps=retry)
+                            key = "failed" if retry is None else "failed_retry4"
+                            row[key] = int(sol.stats["n_failed"])
+                            row["nonfinite"] = row.get("nonfinite", 0) + int(
+                                jnp.sum(~jnp.isfinite(sol.ys)))
+                        rows.append(row)
+                        print(f"stress n={n} {label:6s} |Y0|={norm} h={dt} {name:20s} failed "
+                              f"{row['failed']}, with retry {row['failed_retry4']}, non-finite "
+                              f"{row['nonfinite']}", flush=True)
+    return rows
+
+
 def figure(path, cost_rows, wp_rows):
     plt = _common.pyplot()
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
@@ -215,10 +260,11 @@ def main(argv=None):
     cost_rows = cost((3,) if fast else (3, 4, 6, 8, 12, 16), 8 if fast else 32, 32)
     wp_rows, orders = work_precision(range(3, 5) if fast else range(3, 8), 8 if fast else 200)
     cas_rows = casimirs(200 if fast else 10_000, 2 if fast else 8)
+    stress_rows = stress(fast)
     _common.write_csv(os.path.join(args.out, "so_n.csv"), cost_rows)
     _common.write_json(os.path.join(args.out, "so_n.json"),
                        dict(machine=info, cost=cost_rows, work_precision=wp_rows,
-                            strong_orders=orders, casimirs=cas_rows))
+                            strong_orders=orders, casimirs=cas_rows, stress=stress_rows))
     with open(os.path.join(args.out, "so_n.md"), "w") as fh:
         fh.write(f"Measured on {info['cpu_model']} ({info['cpu_count']} cores), jax "
                  f"{info['jax']}, diffrax {info['diffrax']}, {info['date'][:10]}.\n\n")
@@ -231,6 +277,9 @@ def main(argv=None):
                  + ", ".join(f"{k} {v:.2f}" for k, v in sorted(orders.items())) + "\n\n")
         fh.write(_common.markdown_table(cas_rows, ["method", "steps", "tr_y2", "tr_y4", "tr_y6"],
                                         {"tr_y2": ".1e", "tr_y4": ".1e", "tr_y6": ".1e"}))
+        fh.write("\nStress (200 samples, T = 1): failed samples without / with retry_substeps=4\n\n")
+        fh.write(_common.markdown_table(stress_rows, ["n", "noise", "norm", "h", "method",
+                                                      "failed", "failed_retry4", "nonfinite"]))
     figure(os.path.join(args.out, "so_n.png"), cost_rows, wp_rows)
 
 

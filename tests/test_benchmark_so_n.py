@@ -29,3 +29,4 @@ def test_so_n(tmp_path):
     for name in ("LiePoisson", "IsospectralMidpoint"):
         assert max(cas[name]["tr_y2"], cas[name]["tr_y4"], cas[name]["tr_y6"]) < 1e-12
     assert cas["Midpoint"]["tr_y2"] < 1e-10 < 1e-6 < cas["Midpoint"]["tr_y4"]
+    assert all(r["nonfinite"] == 0 for r in out["stress"])
