@@ -25,34 +25,39 @@ def _methods():
 
 
 def summary(n_samples=500, fast=False, seed=0):
+    import functools
+
     import jax
     import jax.numpy as jnp
     import numpy as np
 
     import slps_jax as sj
 
+    say = functools.partial(print, flush=True)  # each line as it is produced (logs, pipes)
     model, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
     key = jax.random.key(seed)
     levels = range(5, 8) if fast else range(5, 10)
     dts = [2.0 ** -k for k in levels]
     methods = _methods()
-    print(f"slps-jax {sj.__version__}, jax {jax.__version__} on {jax.default_backend()}, "
-          f"dtype {y0.dtype}")
-    print(f"Stochastic rigid body: I = {np.round(np.asarray(model.inertia), 6)}, "
-          f"c = {float(model.c)}, y0 = {sj.PAPER_Y0}\n")
+    say(f"slps-jax {sj.__version__}, jax {jax.__version__} on {jax.default_backend()}, "
+        f"dtype {y0.dtype}")
+    say(f"Stochastic rigid body: I = {np.round(np.asarray(model.inertia), 6)}, "
+        f"c = {float(model.c)}, y0 = {sj.PAPER_Y0}\n")
 
+    say(f"Strong errors: {len(methods)} methods x {len(dts)} step sizes, {n_samples} samples "
+        f"(compiling and running) ...")
     start = time.perf_counter()
     conv = sj.strong_convergence(model, y0, t1=1.0, dts=dts, n_samples=n_samples, key=key,
                                  methods=methods)
-    print(f"Strong error at T = 1 against the exact solution phi_(T + cW(T))(y0), "
-          f"{n_samples} samples ({time.perf_counter() - start:.1f} s):\n")
-    print(conv.table())
+    say(f"Strong error at T = 1 against the exact solution phi_(T + cW(T))(y0), "
+        f"{n_samples} samples ({time.perf_counter() - start:.1f} s):\n")
+    say(conv.table())
 
     n_steps, dt = (1000, 0.01) if fast else (10_000, 0.01)
     n_inv = 20 if fast else 100
-    print(f"Invariants after {n_steps} steps of h = {dt} (T = {n_steps * dt:g}), "
-          f"{n_inv} samples, max over samples:\n")
-    print("| method | rel. Casimir drift | rel. energy drift | seconds |\n|---|---|---|---|")
+    say(f"Invariants after {n_steps} steps of h = {dt} (T = {n_steps * dt:g}), "
+        f"{n_inv} samples, max over samples:\n")
+    say("| method | rel. Casimir drift | rel. energy drift | seconds |\n|---|---|---|---|")
     c0, h0 = float(model.casimir(y0)), float(model.hamiltonian(y0))
     for name, method in methods.items():
         start = time.perf_counter()
@@ -61,18 +66,18 @@ def summary(n_samples=500, fast=False, seed=0):
         y_end = sol.ys[:, -1]
         dc = float(jnp.max(jnp.abs(model.casimir(y_end) / c0 - 1)))
         dh = float(jnp.max(jnp.abs(model.hamiltonian(y_end) / h0 - 1)))
-        print(f"| {name} | {dc:.2e} | {dh:.2e} | {time.perf_counter() - start:.1f} |")
+        say(f"| {name} | {dc:.2e} | {dh:.2e} | {time.perf_counter() - start:.1f} |")
 
-    print(f"\nNewton solves of scheme (42), T = 1, {n_samples} samples:\n")
-    print("| h | mean iterations | max iterations | max residual | failed samples |\n"
-          "|---|---|---|---|---|")
+    say(f"\nNewton solves of scheme (42), T = 1, {n_samples} samples:\n")
+    say("| h | mean iterations | max iterations | max residual | failed samples |\n"
+        "|---|---|---|---|---|")
     for dt in dts:
         sol = sj.simulate(model, y0, t1=1.0, dt=dt, n_samples=n_samples, key=key,
                           newton_stats=True, throw=False)
         s = sol.stats
-        print(f"| 2^{np.log2(dt):.0f} | {float(s['newton_iterations_mean']):.2f} | "
-              f"{int(s['newton_iterations_max'])} | {float(s['residual_max']):.1e} | "
-              f"{int(s['n_failed'])} |")
+        say(f"| 2^{np.log2(dt):.0f} | {float(s['newton_iterations_mean']):.2f} | "
+            f"{int(s['newton_iterations_max'])} | {float(s['residual_max']):.1e} | "
+            f"{int(s['n_failed'])} |")
     return conv
 
 

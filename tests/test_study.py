@@ -115,6 +115,30 @@ def test_paper_command_output_folders(monkeypatch, capsys):
     assert "paper-output-fast" in text and "Command line:" not in text
 
 
+def test_summary_writes_each_line_as_it_is_produced():
+    """Into a pipe (a log file, `| tee`), `slps-jax summary` shows what it is doing before
+    the first long computation ends: its lines are flushed, not held in a block buffer
+    until the process exits."""
+    import os
+    import pathlib
+    import subprocess
+    import sys
+
+    root = pathlib.Path(__file__).resolve().parents[1]
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [str(root)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
+    proc = subprocess.Popen([sys.executable, "-m", "slps_jax", "summary", "--fast"],
+                            stdout=subprocess.PIPE, text=True, env=env, cwd=root)
+    try:
+        lines = [proc.stdout.readline() for _ in range(4)]
+        still_running = proc.poll() is None
+    finally:
+        proc.kill()
+        proc.wait()
+    assert lines[0].startswith("slps-jax ") and lines[3].startswith("Strong errors:")
+    assert still_running  # the study had not finished when its announcement arrived
+
+
 def test_plus_minus_gives_the_error_one_significant_digit():
     from slps_jax._paper import plus_minus
 
