@@ -87,5 +87,5 @@ class Midpoint(AbstractMethod):
         x, result, it, res = solve_array(
             residual, x0 + alg.coordinates(f(y)), x0, tol=tol, max_iter=self.max_iter,
             jacobian=jacobian_mode("auto", alg.dim, large="identity"))
-        y_next = alg.from_coordinates(x).astype(dtype := y.dtype)
-        return y_next, StepInfo(finite_result(y_next, result), it, res.astype(dtype))
+        y_next = alg.from_coordinates(x).astype(y.dtype)
+        return y_next, StepInfo(finite_result(y_next, result), it, res.astype(y.dtype))
