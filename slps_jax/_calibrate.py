@@ -6,7 +6,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import sys
-import warnings
 
 import jax
 import jax.numpy as jnp
@@ -14,7 +13,7 @@ import numpy as np
 import optax
 
 from . import _noise
-from ._integrate import simulate
+from ._integrate import simulate_unreported
 from ._model import RigidBody
 from ._noise_hamiltonians import _MatrixNoise
 from ._solver.lie_poisson import LiePoisson
@@ -94,7 +93,8 @@ class _Parameters:
 
 def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
               observed_stderr=None, observed_n_samples=None, fixed=(), method=LiePoisson(),
-              optimizer=None, steps=50, truncate_k=4, rtol=1e-10, progress=True):
+              optimizer=None, steps=50, truncate_k=4, retry_substeps=4, rtol=1e-10,
+              progress=True):
     r"""Fit `inertia` and the noise (`c`, or a noise family's parameters) of a `RigidBody` to
     observed ensemble statistics.
 
@@ -122,7 +122,7 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
 
     - `observed`: array `(len(ts), k)`, the statistics to match.
     - `y0`: the initial value; `ts`: increasing observation times, multiples of `dt`.
-    - `dt`, `n_samples`, `key`, `method`, `truncate_k`: as in `simulate`.
+    - `dt`, `n_samples`, `key`, `method`, `truncate_k`, `retry_substeps`: as in `simulate`.
     - `init`: a `RigidBody` (with `c=` or with a noise family), the starting guess.
     - `statistic`: `(n_samples, 3) -> (k,)`; default `moments` (means of `y` and `y**2`).
     - `observed_stderr`: standard errors of `observed` (same shape), used as weights and for
@@ -186,12 +186,11 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
 
     def statistics(theta):
         """The statistics at `theta`, and (aux) the number of failed samples."""
-        with warnings.catch_warnings():
-            # failures are counted here and raised by `check` with calibrate's own advice
-            warnings.filterwarnings("ignore", "simulate: .* samples failed", RuntimeWarning)
-            sol = simulate(params.model(full(theta)), y0, t1=float(ts[-1]), dt=dt,
-                           n_samples=n_samples, key=key, method=method, save_every=every,
-                           truncate_k=truncate_k, throw=False)
+        # failures are counted here and raised by `check` with calibrate's own advice
+        sol = simulate_unreported(params.model(full(theta)), y0, t1=float(ts[-1]), dt=dt,
+                                  n_samples=n_samples, key=key, method=method,
+                                  save_every=every, truncate_k=truncate_k, newton_stats=False,
+                                  retry_substeps=retry_substeps, sharding=None)
         ys = sol.ys[:, idx // every]  # (n_samples, len(ts), 3)
         return jax.vmap(statistic, in_axes=1)(ys), jnp.sum(sol.fail_step >= 0)
 

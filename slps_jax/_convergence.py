@@ -7,6 +7,7 @@ import functools
 import math
 import statistics
 import time
+import warnings
 
 import jax
 import jax.numpy as jnp
@@ -17,7 +18,7 @@ from ._exact import exact_flow, exact_solution
 from ._flow import deterministic_flow
 from ._checks import (check_count, check_method, check_model, check_positive, check_retry,
                       check_y0)
-from ._integrate import _ensemble_dynamic_jit, _failure_message
+from ._integrate import _ensemble_dynamic_jit, failure_summary
 from ._system import NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
 from ._solver.base import AbstractMethod
 from ._solver.midpoint import Midpoint
@@ -36,6 +37,8 @@ class ConvergenceResult:
       different step sizes share their paths, so they are correlated).
     - `seconds`: wall time of each method's runs (all step sizes, compilation included).
     - `reference_error`: the size of the reference's own error (see `strong_convergence`).
+    - `n_failed`: samples left out of each method's estimates because it (or a method
+      reference) failed on them at some step size, even split into substeps (0: none).
     """
 
     dts: np.ndarray
@@ -45,6 +48,7 @@ class ConvergenceResult:
     order_stderr: dict
     seconds: dict
     reference_error: float = 0.0
+    n_failed: dict = dataclasses.field(default_factory=dict)
 
     def table(self):
         """A Markdown table of errors and orders."""
@@ -89,6 +93,7 @@ class _Study:
     """What a convergence study shares: the step sizes (largest first), the methods, the
     final states of a method at a step on the shared paths, and the reference's."""
 
+    caller: str
     dts: np.ndarray
     methods: dict
     final_states: object
@@ -99,6 +104,8 @@ class _Study:
     t1: float
     kind: str  # "exact", "method" or "flow"
     y_ref_coarse: jax.Array | None  # a method reference at twice its step
+    ref_failed: np.ndarray  # samples on which a method reference failed
+    ref_why: str | None  # what failed there, in words
 
 
 def _study(caller, model, y0, t1, dts, n_samples, key, methods, reference, reference_dt,
@@ -174,23 +181,27 @@ def _study(caller, model, y0, t1, dts, n_samples, key, methods, reference, refer
             raise ValueError(f"t1={t1} must be a multiple of every step size, not of dt={dt}.")
 
     def final_states(method, dt, name="dt"):
+        """The final states, the failed samples (a NumPy mask) and what failed, in words
+        (`None` if nothing)."""
         s = _substeps(dt, fine_dt, name)
         ys, fail_step, result, _, _ = _ensemble_dynamic_jit(
             method, model, y0, keys, jnp.asarray(dt, dtype), bound, 1, jnp.asarray(n_fine // s),
             False, jnp.asarray(s), retry=retry)
-        msg = _failure_message(f"{caller} ({type(method).__name__} at dt={dt})",
-                               fail_step, result)
-        if msg is not None:
-            raise RuntimeError(msg + " Use smaller dts.")
-        return ys[:, -1]
+        summary = failure_summary(fail_step, result)
+        why = None if summary is None else f"{summary[0]} at dt={dt:g} ({summary[3]})"
+        return ys[:, -1], np.asarray(fail_step) >= 0, why
 
     half = None  # a method reference at twice its step
+    ref_failed, ref_why = np.zeros(int(n_samples), bool), None
     if is_method:
-        y_ref = final_states(reference, fine_dt, "reference_dt")
+        y_ref, ref_failed, ref_why = final_states(reference, fine_dt, "reference_dt")
         # (at twice its step: possible when that divides t1)
-        half = final_states(reference, 2 * fine_dt, "reference_dt") if n_fine % 2 == 0 else None
-        reference_error = (math.nan if half is None else
-                           float(jnp.sqrt(jnp.mean(model.algebra.norm_sq(half - y_ref)))))
+        half, half_failed, _ = (final_states(reference, 2 * fine_dt, "reference_dt")
+                                if n_fine % 2 == 0 else (None, None, None))
+        if half is not None:
+            ref_failed = ref_failed | half_failed
+        reference_error = (math.nan if half is None or ref_failed.all() else float(jnp.sqrt(
+            jnp.mean(model.algebra.norm_sq(half - y_ref)[~ref_failed]))))
     elif callable(reference):
         # The time change: y(t1) = phi_{t1 + c W(t1)}(y0) for the deterministic flow phi.
         w_t = _brownian_endpoints(keys, jnp.asarray(fine_dt, dtype), bound, n_fine)
@@ -207,13 +218,37 @@ def _study(caller, model, y0, t1, dts, n_samples, key, methods, reference, refer
         reference_error = 0.0
 
     kind = "method" if is_method else "flow" if callable(reference) else "exact"
-    return _Study(dts, methods, final_states, y_ref, reference_error, int(n_samples), y0, t1,
-                  kind, half)
+    return _Study(caller, dts, methods, final_states, y_ref, reference_error, int(n_samples),
+                  y0, t1, kind, half, ref_failed, ref_why)
+
+
+def _runs(st, name, method):
+    """The final states of `method` at every step size of the study, `(n_dts, n_samples,
+    ...)`, and the samples its estimates use: those on which the reference and every one
+    of its runs succeeded (failing steps are split into substeps first, `retry_substeps`).
+    The others are left out of all its step sizes alike, so that its errors stay paired,
+    and a `RuntimeWarning` says how many, where and why."""
+    runs = [st.final_states(method, float(dt)) for dt in st.dts]
+    failed = st.ref_failed | np.any([f for _, f, _ in runs], axis=0)
+    n_failed = int(failed.sum())
+    if n_failed:
+        why = "; ".join(w for w in [st.ref_why and f"reference {st.ref_why}"]
+                        + [w for _, _, w in runs] if w)
+        if st.n_samples - n_failed < 2:
+            raise RuntimeError(f"{st.caller}: {name} failed on {n_failed} of {st.n_samples} "
+                               f"samples ({why}): nothing left to estimate from. Use "
+                               f"smaller dts.")
+        warnings.warn(f"{st.caller}: {n_failed} of {st.n_samples} samples failed for {name} "
+                      f"(failed samples: {why}; failing steps are split into substeps unless "
+                      f"retry_substeps=None), and are left out of "
+                      f"{name}'s estimates at every step size (n_failed). Smaller dts usually "
+                      f"help.", RuntimeWarning, stacklevel=3)
+    return np.stack([np.asarray(y) for y, _, _ in runs]), ~failed
 
 
 def strong_convergence(model, y0, *, t1, dts, n_samples, key, methods, reference="exact",
                        reference_dt=None, reference_factor=None, truncate_k=4,
-                       n_bootstrap=200, retry_substeps=None):
+                       n_bootstrap=200, retry_substeps=4):
     r"""Root-mean-square error at `t1` of each method at each step size, on shared paths.
 
     Every step size integrates the same Brownian paths: a coarse increment is the sum of the
@@ -246,7 +281,13 @@ def strong_convergence(model, y0, *, t1, dts, n_samples, key, methods, reference
       which it is finer than `min(dts)` (not both).
     - `truncate_k`: the truncation parameter of the fine increments (`None` for none).
     - `n_bootstrap`: resamples for the order's standard error.
-    - `retry_substeps`: as in `simulate`: redo failing steps as `k, k^2, k^3` substeps.
+    - `retry_substeps`: as in `simulate`: redo failing steps as `k, k^2, k^3` substeps
+      (default 4; `None`: not).
+
+    Samples on which a method fails (even split into substeps) are left out of that
+    method's estimates at every step size, counted in `n_failed`, with a `RuntimeWarning`:
+    as in `simulate` and `ensemble_statistics`, a long run returns its results and failures
+    are never used as data.
 
     **Returns:** a `ConvergenceResult`. For a method reference its `reference_error` is the
     RMS difference between the reference and the same method at twice its step, on the same
@@ -256,24 +297,24 @@ def strong_convergence(model, y0, *, t1, dts, n_samples, key, methods, reference
     n_bootstrap = check_count("n_bootstrap", n_bootstrap, minimum=2)
     st = _study("strong_convergence", model, y0, t1, dts, n_samples, key, methods, reference,
                 reference_dt, reference_factor, truncate_k, retry_substeps)
-    dts, n_samples, y_ref = st.dts, st.n_samples, st.y_ref
-    errors, stderr, order, order_se, seconds = {}, {}, {}, {}, {}
-    rng = np.random.default_rng(0)
-    boot = rng.integers(0, n_samples, size=(n_bootstrap, n_samples))
+    dts, y_ref = st.dts, st.y_ref
+    errors, stderr, order, order_se, seconds, n_failed = {}, {}, {}, {}, {}, {}
     log_h = np.log(dts)
     for name, method in st.methods.items():
         start = time.perf_counter()
-        e2 = np.stack([np.asarray(model.algebra.norm_sq(st.final_states(method, float(dt)) - y_ref))
-                       for dt in dts], axis=1)  # (n_samples, n_dts)
+        ys, ok = _runs(st, name, method)
         seconds[name] = time.perf_counter() - start
+        e2 = np.asarray(model.algebra.norm_sq(ys[:, ok] - np.asarray(y_ref)[ok])).T
+        n_samples, n_failed[name] = e2.shape[0], st.n_samples - e2.shape[0]  # (n, n_dts)
         ms = e2.mean(0)
         errors[name] = np.sqrt(ms)
         stderr[name] = e2.std(0, ddof=1) / math.sqrt(n_samples) / (2 * np.sqrt(ms))
+        boot = np.random.default_rng(0).integers(0, n_samples, size=(n_bootstrap, n_samples))
         order[name] = float(np.polyfit(log_h, np.log(errors[name]), 1)[0])
         slopes = [np.polyfit(log_h, 0.5 * np.log(e2[b].mean(0)), 1)[0] for b in boot]
         order_se[name] = float(np.std(slopes, ddof=1))
     return ConvergenceResult(dts, errors, stderr, order, order_se, seconds,
-                             st.reference_error)
+                             st.reference_error, n_failed)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -294,6 +335,7 @@ class WeakConvergenceResult:
     - `reference_error`: the reference's own weak error: 0 for `"exact"`; for a method, the
       coupled mean difference between it and the same method at twice its step.
     - `seconds`: wall time of each method's runs.
+    - `n_failed`: samples left out of each method's estimates (see `ConvergenceResult`).
     """
 
     dts: np.ndarray
@@ -303,6 +345,7 @@ class WeakConvergenceResult:
     reference_mean: np.ndarray
     reference_error: np.ndarray
     seconds: dict
+    n_failed: dict = dataclasses.field(default_factory=dict)
 
     def table(self):
         """A Markdown table of |bias| ± CI per step size (one column per method and
@@ -321,7 +364,7 @@ class WeakConvergenceResult:
 
 def weak_convergence(model, y0, *, t1, dts, n_samples, key, methods, observable,
                      reference="exact", reference_dt=None, reference_factor=None,
-                     truncate_k=4, confidence=0.95, n_nodes=64, retry_substeps=None):
+                     truncate_k=4, confidence=0.95, n_nodes=64, retry_substeps=4):
     r"""Weak error $|E_h[g(y_N)] - E[g(y(t_1))]|$ of each method at each step size, for an
     observable $g$ you choose, on shared paths, with confidence intervals and fitted orders.
 
@@ -361,7 +404,6 @@ def weak_convergence(model, y0, *, t1, dts, n_samples, key, methods, observable,
                 reference_dt, reference_factor, truncate_k, retry_substeps)
     z = statistics.NormalDist().inv_cdf(0.5 + confidence / 2)
     g_ref = np.asarray(g(st.y_ref))
-    n = st.n_samples
     if st.kind == "exact":
         x, w = np.polynomial.hermite_e.hermegauss(n_nodes)
         times = st.t1 + float(model.c) * math.sqrt(st.t1) * x
@@ -369,25 +411,28 @@ def weak_convergence(model, y0, *, t1, dts, n_samples, key, methods, observable,
         reference_mean = np.asarray(w @ np.asarray(g(states))) / math.sqrt(2 * math.pi)
         reference_error = np.zeros(shape[1])
     else:
-        reference_mean = g_ref.mean(0)
+        good = ~st.ref_failed
+        reference_mean = g_ref[good].mean(0)
         reference_error = np.full(shape[1], np.nan)
         if st.y_ref_coarse is not None:
-            reference_error = np.abs((np.asarray(g(st.y_ref_coarse)) - g_ref).mean(0))
+            reference_error = np.abs(
+                (np.asarray(g(st.y_ref_coarse)) - g_ref)[good].mean(0))
 
-    bias, ci, order, seconds = {}, {}, {}, {}
+    bias, ci, order, seconds, n_failed = {}, {}, {}, {}, {}
     log_h = np.log(st.dts)
     for name, method in st.methods.items():
         start = time.perf_counter()
-        diffs = np.stack([np.asarray(g(st.final_states(method, float(dt)))) - g_ref
-                          for dt in st.dts])  # (n_dts, n_samples, m)
+        ys, ok = _runs(st, name, method)
+        diffs = np.stack([np.asarray(g(y[ok])) - g_ref[ok] for y in ys])  # (n_dts, n, m)
         seconds[name] = time.perf_counter() - start
+        n, n_failed[name] = diffs.shape[1], st.n_samples - diffs.shape[1]
         bias[name] = diffs.mean(1)
         ci[name] = z * diffs.std(1, ddof=1) / math.sqrt(n)
         order[name] = np.array([
             np.polyfit(log_h, np.log(np.maximum(np.abs(b), np.finfo(float).tiny)), 1)[0]
             for b in bias[name].T])
     return WeakConvergenceResult(st.dts, bias, ci, order, reference_mean, reference_error,
-                                 seconds)
+                                 seconds, n_failed)
 
 
 @jax.jit

@@ -17,54 +17,7 @@ from ._checks import (check_grid, check_count, check_method, check_model, check_
 from ._solution import RESULTS, Solution
 from ._solver.base import finite_result
 from ._solver.lie_poisson import LiePoisson
-
-
-# Split a failed step into k, k^2, ..., k^_RETRY_LEVELS equal parts before giving up.
-_RETRY_LEVELS = 3
-
-
-def _retry_step(method, model, y, need, dt, dW, k):
-    """Redo a failed step as `k^j` equal substeps of `(dt/k^j, dW/k^j)`, `j = 1, 2, ...`.
-
-    The SDE is the free rigid body flow run for `tau = dt + c dW`, and that flow is a group,
-    `phi_tau = phi_{tau/m}^m`, so `m` steps of `tau/m` approximate the same thing as one
-    step of `tau`, more accurately. For `LiePoisson` each substep has its own second-order
-    term `kappa = c^2 (dW/m)^2`, the square of its own random time, as in a step of size
-    `dt/m`: the substeps are the scheme itself run on a finer grid through the same point
-    `W(t_{n+1})`. Only samples with `need` do work (the others step with `dt = dW = 0`).
-
-    **Returns:** `(y_next, ok, iterations, residual_max)`.
-    """
-    dtype = y.dtype
-    zero_i = jnp.zeros((), jnp.int32)
-    zero_f = jnp.zeros((), dtype)
-
-    def substeps(m, y_start, its, res):
-        sub_dt = jnp.where(need, dt / m, 0.0).astype(dtype)
-        sub_dW = jnp.where(need, dW / m, 0.0).astype(dtype)
-
-        def body(state):
-            i, ys, ok, its, res = state
-            y2, info = method.step(model, ys, jnp.where(ok, sub_dt, 0.0).astype(dtype),
-                                   jnp.where(ok, sub_dW, 0.0).astype(dtype))
-            ok2 = ok & (finite_result(y2, info.result) == RESULTS.successful)
-            its = its + jnp.where(ok, info.iterations, 0)
-            res = jnp.maximum(res, jnp.where(ok2, info.residual, 0.0).astype(dtype))
-            return i + 1, jnp.where(ok2, y2, ys), ok2, its, res
-
-        _, ys, ok, its, res = jax.lax.while_loop(
-            lambda s: (s[0] < m) & s[2], body, (zero_i, y_start, need, its, res))
-        return ys, ok, its, res
-
-    def level(state):
-        j, m, done, y_out, its, res = state
-        ys, ok, its, res = substeps(m, y, its, res)
-        return j + 1, m * k, done | ok, jnp.where(ok, ys, y_out), its, res
-
-    init = (jnp.ones((), jnp.int32), jnp.asarray(k, jnp.int32), ~need, y, zero_i, zero_f)
-    _, _, done, y_out, its, res = jax.lax.while_loop(
-        lambda s: ~s[2] & (s[0] <= _RETRY_LEVELS), level, init)
-    return y_out, need & done, its, res
+from ._retry import robust_step
 
 
 @functools.partial(jax.jit, static_argnames=("method", "want_stats", "retry"))
@@ -83,22 +36,18 @@ def _step(method, model, dt, carry, dW, live, *, want_stats, retry):
     dtype = y.dtype
     live = jnp.asarray(live)  # (a Python bool under jax.disable_jit)
     act = (result == RESULTS.successful) & live
-    # A failed sample idles at its last good state: with dt = dW = 0 every method's
-    # step is trivial, so it costs no Newton iterations.
-    y_new, info = method.step(model, y, jnp.where(act, dt, 0.0).astype(dtype),
-                              jnp.where(act, dW, 0.0).astype(dtype))
-    code = finite_result(y_new, info.result)
+    if retry is None:
+        # A failed sample idles at its last good state: with dt = dW = 0 every method's
+        # step is trivial, so it costs no Newton iterations.
+        y_new, info = method.step(model, y, jnp.where(act, dt, 0.0).astype(dtype),
+                                  jnp.where(act, dW, 0.0).astype(dtype))
+        code = finite_result(y_new, info.result)
+        it = jnp.where(act, info.iterations, 0)
+        res = jnp.where(act & (code == RESULTS.successful), info.residual, 0.0)
+    else:
+        y_new, code, it, res, retried = robust_step(method, model, y, dt, dW, act, retry)
+        n_retried = n_retried + retried.astype(jnp.int32)
     ok = code == RESULTS.successful
-    it = jnp.where(act, info.iterations, 0)
-    res = jnp.where(act & ok, info.residual, 0.0)
-    if retry is not None:
-        need = act & ~ok
-        y_re, ok_re, it_re, res_re = _retry_step(method, model, y, need, dt, dW, retry)
-        y_new = jnp.where(need, y_re, y_new)
-        ok = ok | ok_re
-        it = it + it_re
-        res = jnp.maximum(res, res_re)
-        n_retried = n_retried + need.astype(jnp.int32)
     fail_step = jnp.where(act & ~ok, n, fail_step)
     result = jnp.where(act & ~ok, code, result)
     if want_stats:
@@ -266,40 +215,55 @@ _ensemble_dynamic_jit = jax.jit(_ensemble, static_argnames=("method", "n_blocks"
                                                            "retry"))
 
 
-def _failure_message(caller, fail_step, result):
-    """What failed, where and why, for the error or warning of `caller`; `None` if nothing
-    failed. `fail_step`, `result`: per path (any shape), `-1` / `successful` where none."""
+def failure_summary(fail_step, result):
+    """`(n_failed, n, first_step, why)` of the paths that failed, `None` if none did.
+    `fail_step`, `result`: per path (any shape), `-1` / `successful` where none failed;
+    `why` counts the `RESULTS` messages."""
     fail_step, result = np.ravel(fail_step), np.ravel(result)
     failed = fail_step >= 0
     if not np.any(failed):
         return None
-    first = int(np.argmin(np.where(failed, fail_step, np.iinfo(fail_step.dtype).max)))
+    first = int(np.min(fail_step[failed]))
     codes, counts = np.unique(result[failed], return_counts=True)
     why = "; ".join(f"{int(n)} x {RESULTS.message(c)}" for c, n in zip(codes, counts))
-    n_failed, n = int(np.sum(failed)), fail_step.size
+    return int(np.sum(failed)), fail_step.size, first, why
+
+
+def _failure_message(caller, fail_step, result, retried=True):
+    """What failed, where and why, for the error or warning of `caller`; `None` if nothing
+    failed. `retried`: failing steps were split into substeps (`retry_substeps`)."""
+    summary = failure_summary(fail_step, result)
+    if summary is None:
+        return None
+    n_failed, n, first, why = summary
+    even = (", even split into substeps (retry_substeps)" if retried else
+            " (retry_substeps=None: failing steps were not split into substeps; the "
+            "default, 4, splits them)")
     if caller == "integrate":
         which = f" (first failure; {n_failed} of {n} paths failed)" if n > 1 else ""
-        return (f"integrate: step {int(fail_step[first])} could not be solved{which}: {why}. "
-                f"The path is frozen at its last good state from there on. Pass throw=False "
-                f"to return it anyway, retry_substeps=4 to split failing steps, or use a "
-                f"smaller dt (or LiePoisson(scale=...) near |y| = 1).")
-    return (f"{caller}: {n_failed} of {n} samples failed (first at step "
-            f"{int(fail_step[first])}): {why}. They are frozen at their last good state; see "
-            f"Solution.result and fail_step. A smaller dt usually helps, or retry_substeps=4 "
-            f"to split failing steps.")
+        return (f"integrate: step {first} could not be solved{which}: {why}{even}. The path is frozen at its last good state from "
+                f"there on. Pass throw=False to return it anyway, or use a smaller dt (or "
+                f"LiePoisson(scale=...) near |y| = 1).")
+    return (f"{caller}: {n_failed} of {n} samples failed (first at step {first}): {why}{even}. "
+            f"They are frozen at their last good "
+            f"state: leave them out with Solution.ok (Solution.result and fail_step say why "
+            f"and where). A smaller dt usually helps.")
 
 
-def _raise_on_failure(caller, fail_step, result):
-    msg = _failure_message(caller, fail_step, result)
-    if msg is not None:
+def _report_failures(caller, throw, retried, fail_step, result):
+    msg = _failure_message(caller, fail_step, result, retried)
+    if msg is None:
+        return
+    if throw:
         raise RuntimeError(msg + (" Pass throw=False to get the other samples."
                                   if caller != "integrate" else ""))
+    warnings.warn(msg, RuntimeWarning, stacklevel=4)
 
 
 @functools.cache
-def _reporter(caller):
-    """Raise (through a host callback) if any path failed: for `throw=True` under `jit`,
-    `vmap` or `grad`, where the failures are not known in Python.
+def _reporter(caller, throw, retried):
+    """Raise or warn (through a host callback) if any path failed: for failures under `jit`,
+    `vmap` or `grad`, which are not known in Python.
 
     Under `vmap` the callback gets the whole batch, once: `jax.debug.callback`'s own rule
     unrolls the batch into one host call per sample, which made a `vmap`ped `integrate`
@@ -308,7 +272,8 @@ def _reporter(caller):
 
     @jax.custom_batching.custom_vmap
     def report(fail_step, result):
-        jax.debug.callback(functools.partial(_raise_on_failure, caller), fail_step, result)
+        jax.debug.callback(functools.partial(_report_failures, caller, throw, retried),
+                           fail_step, result)
         return fail_step
 
     @report.def_vmap
@@ -318,12 +283,13 @@ def _reporter(caller):
     return report
 
 
-def _throw(caller, fail_step, result):
-    """Raise now if the failures are concrete, or through a callback if they are traced."""
+def _report(caller, throw, retried, fail_step, result):
+    """Raise (`throw`) or warn if any path failed: now if the failures are concrete, through
+    a callback when the compiled function runs if they are traced."""
     if isinstance(fail_step, jax.core.Tracer):
-        _reporter(caller)(fail_step, result)
+        _reporter(caller, throw, retried)(fail_step, result)
     else:
-        _raise_on_failure(caller, fail_step, result)
+        _report_failures(caller, throw, retried, fail_step, result)
 
 
 # --------------------------------------------------------------------------------------
@@ -331,7 +297,7 @@ def _throw(caller, fail_step, result):
 
 
 def integrate(model, y0, dW, dt, *, method=LiePoisson(), save_every=None, throw=True,
-              retry_substeps=None):
+              retry_substeps=4):
     r"""Integrate one path of $dy = f(y)(dt + c \circ dW)$ with the given increments.
 
     Uses `dW` exactly as given (no truncation). Works under `jax.jit`, `jax.vmap` and
@@ -350,9 +316,10 @@ def integrate(model, y0, dW, dt, *, method=LiePoisson(), save_every=None, throw=
       `0, k, 2k, ..., n_steps` (`k` must divide `n_steps`).
     - `throw`: raise `RuntimeError` if a step cannot be solved, quoting the reason (a
       `RESULTS` message). With `throw=False` a failed path is frozen at its last good state.
-    - `retry_substeps`: `None` (default), or `k >= 2`: a step that fails is redone as `k`,
-      then `k^2`, then `k^3` equal substeps of `(dt, dW)` before the path is given up.
-      Steps that succeed are untouched, so results without failures are identical.
+    - `retry_substeps`: `k >= 2` (default 4): a step that fails is redone as `k`, then `k^2`,
+      then `k^3` equal substeps of `(dt, dW)` before the path is given up; `None`: not
+      redone. Steps that succeed are untouched, so results without failures are identical.
+      Differentiable (forward and reverse mode) through retried steps too.
 
     **Returns:** the final state (the shape of `y0`), or `(n_steps // save_every + 1, *y0.shape)`.
     """
@@ -382,14 +349,14 @@ def integrate(model, y0, dW, dt, *, method=LiePoisson(), save_every=None, throw=
     ys, fail_step, result, _, _ = _integrate_jit(method, model, y0, dW.astype(dtype), dt, k,
                                                  False, retry)
     if throw:
-        _throw("integrate", fail_step, result)
+        _report("integrate", True, retry is not None, fail_step, result)
     if save_every is None:
         return ys[-1]
     return jnp.concatenate([y0[None], ys], axis=0)
 
 
 def simulate(model, y0, *, t1, dt, n_samples, key, method=LiePoisson(), save_every=None,
-             truncate_k=4, newton_stats=False, throw=True, retry_substeps=None, sharding=None):
+             truncate_k=4, newton_stats=False, throw=False, retry_substeps=4, sharding=None):
     r"""Simulate an ensemble of paths of $dy = f(y)(dt + c \circ dW)$ on $[0, t_1]$.
 
     Sample `i` draws its increments from `fold_in(key, i)` inside the time loop, truncated as
@@ -409,13 +376,15 @@ def simulate(model, y0, *, t1, dt, n_samples, key, method=LiePoisson(), save_eve
     - `save_every`: `None` (final state only) or `k` (states at steps `0, k, ..., n`).
     - `truncate_k`: the `k` of the truncation (default 4, the paper's), `None` for none.
     - `newton_stats`: also report Newton iteration counts and residuals in `stats`.
-    - `throw`: raise `RuntimeError` if any sample failed, naming how many failed and why
-      (inside `jax.jit` or `jax.grad`, through a host callback when the compiled function
-      runs); with `throw=False` a warning is issued (outside `jit` only) and `result`
-      (a `RESULTS` code per sample) and `fail_step` say which samples failed, why and where.
-    - `retry_substeps`: `None` (default), or `k >= 2`: a step that fails is redone as `k`,
-      then `k^2`, then `k^3` equal substeps before the sample is given up; `stats` then has
-      `n_retried_steps`. Steps that succeed are untouched.
+    - `throw`: `False` (default): if samples failed (even split into substeps), the
+      `Solution` is returned with them flagged (`Solution.ok`, `result`: a `RESULTS` code
+      per sample, `fail_step`) and a `RuntimeWarning` says how many failed, why and where;
+      `True`: raise `RuntimeError` instead. Inside `jax.jit` or `jax.grad` the warning or
+      error comes through a host callback when the compiled function runs.
+    - `retry_substeps`: `k >= 2` (default 4): a step that fails is redone as `k`, then
+      `k^2`, then `k^3` equal substeps before the sample is given up; `stats` then has
+      `n_retried_steps`. `None`: not redone. Steps that succeed are untouched, and the
+      retry is differentiable.
     - `sharding`: `None` (default), `"auto"` (all local devices, when there are several),
       or a `jax.sharding.Sharding` of the sample axis, such as
       `NamedSharding(Mesh(jax.devices(), ("samples",)), PartitionSpec("samples"))`. The
@@ -425,9 +394,21 @@ def simulate(model, y0, *, t1, dt, n_samples, key, method=LiePoisson(), save_eve
 
     **Returns:** a `Solution`.
     """
+    check_throw(throw)
+    sol = simulate_unreported(model, y0, t1=t1, dt=dt, n_samples=n_samples, key=key,
+                              method=method, save_every=save_every, truncate_k=truncate_k,
+                              newton_stats=newton_stats, retry_substeps=retry_substeps,
+                              sharding=sharding)
+    _report("simulate", throw, retry_substeps is not None, sol.fail_step, sol.result)
+    return sol
+
+
+def simulate_unreported(model, y0, *, t1, dt, n_samples, key, method, save_every, truncate_k,
+                        newton_stats, retry_substeps, sharding):
+    """`simulate` without the failure report (for callers that report failures their own
+    way, such as `calibrate`)."""
     check_model(model)
     check_method(method)
-    check_throw(throw)
     y0 = check_y0(y0, method, model)
     dt, n_steps = check_grid("simulate", t1, dt)
     n_samples = check_count("n_samples", n_samples)
@@ -458,12 +439,5 @@ def simulate(model, y0, *, t1, dt, n_samples, key, method=LiePoisson(), save_eve
         stats["newton_iterations_mean"] = jnp.sum(acc[0]) / (n_samples * n_steps)
         stats["newton_iterations_max"] = jnp.max(acc[1])
         stats["residual_max"] = jnp.max(acc[2])
-    sol = Solution(ts=ts, ys=ys, result=result.astype(jnp.int8), fail_step=fail_step,
-                   stats=stats)
-    if throw:
-        _throw("simulate", fail_step, result)
-    elif not isinstance(fail_step, jax.core.Tracer):
-        msg = _failure_message("simulate", fail_step, result)
-        if msg is not None:
-            warnings.warn(msg, RuntimeWarning, stacklevel=2)
-    return sol
+    return Solution(ts=ts, ys=ys, result=result.astype(jnp.int8), fail_step=fail_step,
+                    stats=stats)

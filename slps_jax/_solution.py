@@ -51,12 +51,13 @@ class Solution:
     - `ys`: the saved states, shape `(n_samples, n_saved, 3)` (`(n_samples, n_saved, n, n)`
       on so(n)). A failed sample keeps its last good state from the failing step on (see
       `result` and `fail_step`); it is never NaN.
-    - `result`: `RESULTS` code per sample, shape `(n_samples,)`.
+    - `result`: `RESULTS` code per sample, shape `(n_samples,)`; `ok` (a property): the
+      samples that did not fail, for leaving the others out (`sol.ys[sol.ok]`).
     - `fail_step`: index of the step at which each sample failed, `-1` if it did not.
     - `stats`: a dict; `n_failed` always; with `newton_stats=True` also
       `newton_iterations_max`, `newton_iterations_mean` (per sample-step) and `residual_max`
-      (largest final Newton residual of any successful step); with `retry_substeps` also
-      `n_retried_steps` (steps redone as substeps, over all samples).
+      (largest final Newton residual of any successful step); unless `retry_substeps=None`
+      also `n_retried_steps` (steps redone as substeps, over all samples).
     """
 
     ts: jax.Array
@@ -64,3 +65,8 @@ class Solution:
     result: jax.Array
     fail_step: jax.Array
     stats: dict
+
+    @property
+    def ok(self):
+        """Per sample: it did not fail (`fail_step == -1`), shape `(n_samples,)`."""
+        return self.fail_step < 0

@@ -112,7 +112,7 @@ def _chunk(state, offset, n_samples, method, model, y0, key, dt, bound, n_blocks
 
 def ensemble_statistics(model, y0, *, t1, dt, n_samples, key, chunk_size, method=LiePoisson(),
                         save_every=None, statistics=("mean", "var"), observable=None,
-                        truncate_k=4, retry_substeps=None, sharding=None, progress=True):
+                        truncate_k=4, retry_substeps=4, sharding=None, progress=True):
     r"""Moments of an ensemble of $dy = f(y)(dt + c \circ dW)$, run in chunks of samples.
 
     The same samples as `simulate(..., n_samples=n_samples, key=key)` (sample `i` draws from
@@ -141,8 +141,9 @@ def ensemble_statistics(model, y0, *, t1, dt, n_samples, key, chunk_size, method
       of the number of shards).
     - `progress`: show a progress bar across chunks on stderr.
 
-    **Returns:** an `EnsembleStatistics` (NumPy arrays). Failed samples are left out of the
-    moments and counted in `n_failed`, with a `RuntimeWarning`.
+    **Returns:** an `EnsembleStatistics` (NumPy arrays). Samples that fail (even split into
+    substeps, `retry_substeps`) are left out of the moments and counted in `n_failed`, with a
+    `RuntimeWarning`: the run returns its results, and failures are never used as data.
     """
     check_model(model)
     check_method(method)
@@ -198,8 +199,11 @@ def ensemble_statistics(model, y0, *, t1, dt, n_samples, key, chunk_size, method
     n = int(n)
     if n_failed:
         warnings.warn(f"ensemble_statistics: {n_failed} of {n_samples} samples failed and are "
-                      f"left out of the moments; a smaller dt or retry_substeps=4 usually "
-                      f"helps.", RuntimeWarning, stacklevel=2)
+                      f"left out of the moments ("
+                      + ("failing steps were split into substeps first" if retry else
+                         "retry_substeps=None: failing steps were not split into substeps; "
+                         "the default, 4, splits them")
+                      + "); a smaller dt usually helps.", RuntimeWarning, stacklevel=2)
     with np.errstate(divide="ignore", invalid="ignore"):
         var = m2 / (n - 1) if n > 1 else np.full_like(m2, np.nan)
         mom2 = m2 / n

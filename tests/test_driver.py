@@ -64,7 +64,7 @@ def test_final_state_only_by_default(paper):
     full = sj.simulate(model, y0, t1=0.5, dt=0.01, n_samples=3, key=key, save_every=25)
     assert sol.ys.shape == (3, 1, 3) and sol.ts.shape == (1,)
     np.testing.assert_allclose(sol.ys[:, 0], full.ys[:, -1], atol=0)
-    assert set(sol.stats) == {"n_failed"}
+    assert set(sol.stats) == {"n_failed", "n_retried_steps"}
     assert int(sol.stats["n_failed"]) == 0 and np.all(sol.result == sj.RESULTS.successful)
 
 
@@ -116,7 +116,8 @@ def test_failed_sample_is_flagged_frozen_and_does_not_poison_others(paper):
     y0 = y0 * 0.99
     dW = sj.brownian_increments(jax.random.key(11), 40, 0.01, n_samples=3)
     dW = dW.at[1, 20].set(400.0)  # tau = 80 at step 20: no root on the branch theta < pi/2
-    run = jax.jit(jax.vmap(lambda w: sj.integrate(model, y0, w, 0.01, throw=False)))
+    run = jax.jit(jax.vmap(lambda w: sj.integrate(model, y0, w, 0.01, throw=False,
+                                                  retry_substeps=None)))
     out = np.asarray(run(dW))
     assert np.all(np.isfinite(out))
     for i in (0, 2):
@@ -124,7 +125,10 @@ def test_failed_sample_is_flagged_frozen_and_does_not_poison_others(paper):
     # Sample 1 keeps its last good state: the state after steps 0..19.
     np.testing.assert_allclose(out[1], sj.integrate(model, y0, dW[1, :20], 0.01), atol=1e-15)
     with pytest.raises(RuntimeError, match="step 20"):
-        sj.integrate(model, y0, dW[1], 0.01)
+        sj.integrate(model, y0, dW[1], 0.01, retry_substeps=None)
+    # By default that step is redone as 4, 16, 64 substeps: tau/64 = 1.25 has a root.
+    y1 = sj.integrate(model, y0, dW[1], 0.01)
+    np.testing.assert_allclose(np.linalg.norm(y1), np.linalg.norm(y0), rtol=1e-13)
 
 
 def test_vmapped_integrate_raises_once_for_the_batch(paper):
@@ -132,13 +136,15 @@ def test_vmapped_integrate_raises_once_for_the_batch(paper):
     # jax.debug.callback's own vmap rule would compile one callback per sample.
     model, y0 = paper
     dW = sj.brownian_increments(jax.random.key(11), 40, 0.01, n_samples=6)
-    run = jax.jit(jax.vmap(lambda w: sj.integrate(model, y0 * 0.99, w, 0.01)))
+    run = jax.jit(jax.vmap(lambda w: sj.integrate(model, y0 * 0.99, w, 0.01,
+                                                  retry_substeps=None)))
     assert run.lower(dW).as_text().count("callback") <= 2  # (the call and its declaration)
     assert np.all(np.isfinite(np.asarray(run(dW))))
     bad = dW.at[1, 20].set(400.0).at[4, 30].set(400.0)
     with pytest.raises(Exception, match=r"step 20 could not be solved \(first failure; 2 of 6"):
         jax.block_until_ready(run(bad))
-    nested = jax.jit(jax.vmap(jax.vmap(lambda w: sj.integrate(model, y0 * 0.99, w, 0.01))))
+    nested = jax.jit(jax.vmap(jax.vmap(lambda w: sj.integrate(model, y0 * 0.99, w, 0.01,
+                                                              retry_substeps=None))))
     with pytest.raises(Exception, match="2 of 6 paths failed"):
         jax.block_until_ready(nested(bad.reshape(2, 3, 40)))
 
@@ -155,7 +161,7 @@ def test_loop_layout_takes_exactly_n_steps(paper, n):
     assert every.shape == (n + 1, 3)
     np.testing.assert_array_equal(final, every[-1])
     with pytest.raises(RuntimeError, match=f"step {n - 1} could not"):
-        sj.integrate(model, y0 * 0.99, dW.at[n - 1].set(400.0), 1.0 / n)
+        sj.integrate(model, y0 * 0.99, dW.at[n - 1].set(400.0), 1.0 / n, retry_substeps=None)
 
 
 def test_the_step_is_compiled_once_whatever_the_step_count(paper):
@@ -175,12 +181,13 @@ def test_simulate_reports_failures(paper):
     model, y0 = paper
     # Three Newton updates per parameterisation are too few for some steps at this size.
     method = sj.LiePoisson(max_iter=3)
-    kwargs = dict(t1=1.0, dt=0.05, n_samples=50, key=jax.random.key(12), method=method)
+    kwargs = dict(t1=1.0, dt=0.05, n_samples=50, key=jax.random.key(12), method=method,
+                  retry_substeps=None)
     with pytest.raises(RuntimeError, match="samples failed"):
-        sj.simulate(model, y0, **kwargs)
+        sj.simulate(model, y0, throw=True, **kwargs)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        sol = sj.simulate(model, y0, throw=False, **kwargs)
+        sol = sj.simulate(model, y0, **kwargs)  # by default: returned, with a warning
     assert any("samples failed" in str(w.message) for w in caught)
     failed = np.asarray(sol.result) != sj.RESULTS.successful
     assert 0 < failed.sum() < 50 and int(sol.stats["n_failed"]) == failed.sum()
@@ -194,11 +201,11 @@ def test_simulate_reports_failures(paper):
     assert codes == {sj.RESULTS.max_iterations_reached}, codes
     msg = sj.RESULTS.message(sj.RESULTS.max_iterations_reached)
     with pytest.raises(RuntimeError, match=f"{int(failed.sum())} x {msg}"):
-        sj.simulate(model, y0, **kwargs)
+        sj.simulate(model, y0, throw=True, **kwargs)
     # Under jit the failures are traced: throw=True raises when the program runs.
     with pytest.raises(Exception, match="samples failed"):
         jax.block_until_ready(jax.jit(lambda c: sj.simulate(
-            sj.RigidBody(model.inertia, c), y0, **kwargs).ys)(model.c))
+            sj.RigidBody(model.inertia, c), y0, throw=True, **kwargs).ys)(model.c))
 
 
 def test_scaling_option_handles_norm_above_one():

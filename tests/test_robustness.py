@@ -46,7 +46,7 @@ def test_simulate_failed_samples_frozen_at_last_good_state():
     model = sj.RigidBody(model.inertia, 1.0)
     y0 = 0.99 * PAPER_DIR
     sol = quiet_simulate(model, y0, t1=0.5, dt=2 ** -5, n_samples=16, key=jax.random.key(20),
-                         save_every=1)
+                         save_every=1, retry_substeps=None)
     ys, fail = np.asarray(sol.ys), np.asarray(sol.fail_step)
     failed = np.asarray(sol.result) != sj.RESULTS.successful
     assert failed.any() and (fail[failed] >= 0).all() and (fail[~failed] == -1).all()
@@ -88,14 +88,84 @@ def test_failure_at_an_injected_increment(paper, method, step):
 # retry_substeps: recovers failed steps, changes nothing else, keeps the order.
 
 
+def test_readme_streaming_example_succeeds_with_default_arguments(paper):
+    # The README's streaming example (paper setup, dt = 2^-5, key 0), reduced to its first
+    # 42822 samples: without the retry, sample 42821's second step has no root (a non-finite
+    # residual); by default that step is split into substeps and every sample succeeds.
+    model, y0 = paper
+    run = dict(t1=1.0, dt=2 ** -5, n_samples=42822, chunk_size=14274, key=jax.random.key(0),
+               statistics=("mean", "var", "cov"), progress=False)
+    with pytest.warns(RuntimeWarning, match="1 of 42822 samples failed"):
+        plain = sj.ensemble_statistics(model, y0, retry_substeps=None, **run)
+    assert plain.n_failed == 1 and plain.n == 42821
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        st = sj.ensemble_statistics(model, y0, **run)
+    assert st.n_failed == 0 and st.n == 42822
+    # The recovered sample against the exact solution on its own increments; its error is
+    # that of a good sample at this step (LiePoisson's RMS error at 2^-5 is ~1e-3).
+    dW = np.asarray(sj.brownian_increments(run["key"], 32, 2 ** -5, n_samples=42822)[42821])
+    with pytest.raises(RuntimeError, match="step 1 could not be solved"):
+        sj.integrate(model, y0, dW, 2 ** -5, retry_substeps=None)
+    y1 = np.asarray(sj.integrate(model, y0, dW, 2 ** -5))
+    ref = exact_sde_solution(model.inertia, model.c, y0, [dW.sum()], 1.0)[0]
+    assert np.linalg.norm(y1 - ref) < 1e-2
+    np.testing.assert_allclose(np.linalg.norm(y1), np.linalg.norm(y0), rtol=1e-13)
+    # The moments differ from those without that sample by about one sample's weight.
+    np.testing.assert_allclose(st.mean[-1], plain.mean[-1], atol=3 / 42822)
+
+
+def test_gradient_through_retried_steps_matches_finite_differences():
+    # c = 1, |y0| = 0.99, h = 0.1: 66 of the 240 sample-steps fail at once and are redone as
+    # substeps. The retry is differentiable: reverse and forward mode agree with central
+    # differences (which do not cross a change of the substeps taken: h = 1e-6).
+    inertia = sj.RigidBody.paper().inertia
+    y0 = 0.99 * PAPER_DIR
+    run = dict(t1=1.0, dt=0.1, n_samples=24, key=jax.random.key(23))
+    sol = sj.simulate(sj.RigidBody(inertia, 1.0), y0, **run)
+    assert int(sol.stats["n_retried_steps"]) > 30 and int(sol.stats["n_failed"]) == 0
+
+    def f(inertia, c):
+        ys = sj.simulate(sj.RigidBody(inertia, c), y0, throw=True, **run).ys[:, -1]
+        return jnp.mean(ys[:, 0] ** 2 + 0.3 * ys[:, 2])
+
+    g_inertia, g_c = jax.grad(f, argnums=(0, 1))(inertia, 1.0)
+    eps, e = 1e-6, np.eye(3)
+    fd = [(f(inertia + eps * e[i], 1.0) - f(inertia - eps * e[i], 1.0)) / (2 * eps)
+          for i in range(3)]
+    np.testing.assert_allclose(g_inertia, fd, rtol=1e-6, atol=1e-9)
+    fd_c = (f(inertia, 1.0 + eps) - f(inertia, 1.0 - eps)) / (2 * eps)
+    np.testing.assert_allclose(g_c, fd_c, rtol=1e-6)
+    np.testing.assert_allclose(jax.jacfwd(f, argnums=1)(inertia, 1.0), fd_c, rtol=1e-6)
+
+
+def test_simulate_returns_failures_flagged_and_warns():
+    # c = 1, |y0| = 0.99, h = 2^-3, no retry: samples fail. simulate returns them flagged
+    # and warns (under jit too, through a callback); throw=True raises. (The studies:
+    # test_retry_keeps_strong_order_one.)
+    model = sj.RigidBody(sj.RigidBody.paper().inertia, 1.0)
+    y0 = 0.99 * PAPER_DIR
+    run = dict(t1=1.0, dt=2 ** -3, n_samples=24, key=jax.random.key(20), retry_substeps=None)
+    with pytest.warns(RuntimeWarning, match=r"samples failed.*Solution.ok"):
+        sol = sj.simulate(model, y0, **run)
+    n_failed = int(sol.stats["n_failed"])
+    assert 0 < n_failed < 24 and int((~sol.ok).sum()) == n_failed
+    with pytest.raises(RuntimeError, match=f"{n_failed} of 24 samples failed"):
+        sj.simulate(model, y0, throw=True, **run)
+    with pytest.warns(RuntimeWarning, match=f"{n_failed} of 24 samples failed"):
+        jax.block_until_ready(jax.jit(lambda m: sj.simulate(m, y0, **run).ys)(model))
+        jax.effects_barrier()  # (the callback's warning may come after the result)
+
+
+
 RETRY_RUN = dict(t1=1.0, dt=0.1, n_samples=24, key=jax.random.key(23))  # shared compilations
 
 
 def test_retry_changes_nothing_when_no_step_fails(paper):
     model, _ = paper
     y0 = 0.9 * PAPER_DIR
-    a = sj.simulate(model, y0, **RETRY_RUN)
-    b = sj.simulate(model, y0, retry_substeps=4, **RETRY_RUN)
+    a = sj.simulate(model, y0, retry_substeps=None, **RETRY_RUN)
+    b = sj.simulate(model, y0, **RETRY_RUN)  # the default, retry_substeps=4
     np.testing.assert_array_equal(a.ys, b.ys)
     assert int(b.stats["n_retried_steps"]) == 0 and "n_retried_steps" not in a.stats
 
@@ -103,9 +173,9 @@ def test_retry_changes_nothing_when_no_step_fails(paper):
 def test_retry_recovers_failed_samples_accurately():
     model = sj.RigidBody(sj.RigidBody.paper().inertia, 1.0)
     y0 = 0.99 * PAPER_DIR
-    plain = quiet_simulate(model, y0, **RETRY_RUN)
+    plain = quiet_simulate(model, y0, retry_substeps=None, **RETRY_RUN)
     assert int(plain.stats["n_failed"]) > 12
-    sol = sj.simulate(model, y0, retry_substeps=4, **RETRY_RUN)  # throw=True: none may fail
+    sol = sj.simulate(model, y0, throw=True, **RETRY_RUN)  # by default: none may fail
     assert int(sol.stats["n_failed"]) == 0 and int(sol.stats["n_retried_steps"]) > 0
     y1 = np.asarray(sol.ys[:, -1])
     np.testing.assert_allclose(np.linalg.norm(y1, axis=-1), 0.99, rtol=1e-13)
@@ -125,9 +195,13 @@ def test_retry_keeps_strong_order_one():
     y0 = 0.999 * PAPER_DIR
     kwargs = dict(t1=1.0, dts=[2.0 ** -k for k in range(4, 9)], n_samples=200,
                   key=jax.random.key(24), methods={"LP": sj.LiePoisson()}, n_bootstrap=20)
-    with pytest.raises(RuntimeError, match="retry_substeps"):
-        sj.strong_convergence(model, y0, **kwargs)
+    # Without the retry, failed samples are left out of every step size, counted, and warned
+    # about (never used as data, and the study returns).
+    with pytest.warns(RuntimeWarning, match="left out of LP's estimates at every step size"):
+        plain = sj.strong_convergence(model, y0, retry_substeps=None, **kwargs)
+    assert 0 < plain.n_failed["LP"] < 200 and np.all(np.isfinite(plain.errors["LP"]))
     res = sj.strong_convergence(model, y0, retry_substeps=2, **kwargs)
+    assert res.n_failed == {"LP": 0}
     assert 0.85 < res.order["LP"] < 1.3, res.order
     assert res.errors["LP"][-1] < res.errors["LP"][0] / 10
 

@@ -1,0 +1,163 @@
+"""A step that is redone as substeps when it fails, traced once and differentiable.
+
+The driver calls `robust_step` for every step when `retry_substeps = k` (the default, 4).
+A step that fails is redone from its start as `k` equal substeps of `(dt/k, dW/k)`, then
+`k^2`, then `k^3`, before the sample is given up. The substeps are the scheme run on a finer
+grid through the same point `W(t_{n+1})`: for a system whose noise is proportional to the
+drift, the flow of the time `tau = dt + c dW` is a group, `phi_tau = phi_{tau/m}^m`, so `m`
+substeps approximate the same thing as one step, more accurately; for several noises they
+are the scheme with the increments split evenly, a path of the same Brownian bridge family.
+
+**One traced copy of the step.** The attempts are one `while_loop` whose body is the method's
+step at the size `dt/m` of the current attempt: a step that succeeds at once runs the body
+exactly once, with `m = 1`, so its arithmetic is that of a plain step, and the compiled
+program holds the step once (LiePoisson's step takes seconds to compile).
+
+**Differentiation.** A `while_loop` has no reverse mode, so `robust_step` is a
+`jax.custom_jvp` function. Its tangent is that of the plain step where the step succeeded at
+once (the method's own derivative, for implicit methods by the implicit function theorem),
+and for a retried sample the derivative of the `m` substeps actually taken, accumulated as
+Jacobian matrices inside a loop that runs only while some sample of the batch was retried.
+The tangent is then a matrix product outside any loop: linear, hence transposable, so
+`jax.grad` works through retried steps and costs nothing extra where no step was retried.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+
+from ._solution import RESULTS
+from ._solver.base import finite_result
+
+# A failed step is split into k, k^2, ..., k^RETRY_LEVELS equal parts before giving up.
+RETRY_LEVELS = 3
+
+
+def _attempts(method, model, y, dt, dW, act, k, m0, jacobians=False):
+    """Step `y` by `(dt, dW)` where `act`, as `m0` substeps; on failure as `k` times as many,
+    up to `k^RETRY_LEVELS`.
+
+    **Returns:** `(y_next, code, iterations, residual, retried, J)`: `code` the `RESULTS`
+    code of the last failure if every attempt failed; the iterations of every attempt; the
+    largest residual of a successful substep; `retried`: the first attempt failed. With
+    `jacobians`, `J` is the derivative of the substeps that succeeded with respect to
+    `(y, dt, dW, the model's inexact leaves)`, as matrices with the state flattened (see
+    `_jacobian_tools`); else `()`.
+    """
+    dtype = y.dtype
+    m_max = k ** RETRY_LEVELS
+    zero_i = jnp.zeros((), jnp.int32)
+    substep, j0, chain = _jacobian_tools(method, model, y, dW) if jacobians else (
+        lambda ys, h, w: (*method.step(model, ys, h, w), ()), (), None)
+
+    def body(s):
+        i, m, yc, code, its, res, going, jac = s
+        mf = m.astype(dtype)
+        y2, info, d = substep(yc, jnp.where(going, dt / mf, 0.0).astype(dtype),
+                              jnp.where(going, dW / mf, 0.0).astype(dtype))
+        c2 = finite_result(y2, info.result)
+        ok = going & (c2 == RESULTS.successful)
+        fail = going & ~ok
+        refine = fail & (m < m_max)
+        its = its + jnp.where(going, info.iterations, 0)
+        res = jnp.maximum(res, jnp.where(ok, info.residual, 0.0).astype(dtype))
+        i = jnp.where(ok, i + 1, jnp.where(refine, 0, i))
+        yc = jnp.where(ok, y2, jnp.where(refine, y, yc))
+        if jacobians:  # chained where a substep succeeded, restarted where it is refined
+            jac = jax.tree_util.tree_map(lambda new, start, old: jnp.where(
+                ok, new, jnp.where(refine, start, old)), chain(jac, d, mf), j0, jac)
+        m = jnp.where(refine, m * k, m)
+        code = jnp.where(fail & ~refine, c2, code)
+        going = going & ~(fail & ~refine) & (i < m)
+        return i, m, yc, code, its, res, going, jac
+
+    init = (zero_i, jnp.asarray(m0, jnp.int32), y, jnp.asarray(RESULTS.successful, jnp.int32),
+            zero_i, jnp.zeros((), dtype), jnp.asarray(act), j0)
+    _, m, y_next, code, its, res, _, jac = jax.lax.while_loop(lambda s: s[-2], body, init)
+    retried = act & ((m > m0) | (code != RESULTS.successful))
+    return y_next, code, its, res, retried, jac
+
+
+def _inexact_leaves(model):
+    """The model's leaves, its tree structure, and the indices of the inexact (differentiable)
+    leaves."""
+    leaves, treedef = jax.tree_util.tree_flatten(model)
+    return leaves, treedef, [i for i, leaf in enumerate(leaves)
+                             if jnp.issubdtype(jnp.result_type(leaf), jnp.inexact)]
+
+
+def _jacobian_tools(method, model, y, dW):
+    """For `_attempts` with Jacobians: `substep(ys, h, w) -> (y_next, info, derivatives)`
+    (one `jacfwd` of the step with respect to `(ys, h, w, the model's inexact leaves)`), the
+    Jacobians of no step at all (the identity in `y`), and `chain(J, derivatives, m)`, the
+    Jacobians after one more substep of `(dt/m, dW/m)`."""
+    leaves, treedef, idx = _inexact_leaves(model)
+    p0 = [leaves[i] for i in idx]
+    dtype, d = y.dtype, y.size
+
+    def step(ys, h, w, p):
+        full = list(leaves)
+        for i, leaf in zip(idx, p):
+            full[i] = leaf
+        y2, info = method.step(treedef.unflatten(full), ys, h, w)
+        return y2, (y2, info)
+
+    def substep(ys, h, w):
+        (a, b, c, e), (y2, info) = jax.jacfwd(step, argnums=(0, 1, 2, 3), has_aux=True)(
+            ys, h, w, p0)
+        return y2, info, (a, b, c, e)
+
+    def chain(jac, derivatives, mf):
+        jy, jdt, jdw, jp = jac
+        a, b, c, e = derivatives
+        a = a.reshape(d, d)
+        # (h, w) = (dt/m, dW/m): d/d(dt) = (d/dh) / m
+        return (a @ jy, a @ jdt + b.reshape(d) / mf, a @ jdw + c.reshape(d, -1) / mf,
+                [a @ j + ei.reshape(d, -1) for j, ei in zip(jp, e)])
+
+    j0 = (jnp.eye(d, dtype=dtype), jnp.zeros(d, dtype), jnp.zeros((d, dW.size), dtype),
+          [jnp.zeros((d, p.size), dtype) for p in p0])
+    return substep, j0, chain
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0, 6))
+def robust_step(method, model, y, dt, dW, act, k):
+    """One step of one sample where `act`, redone as `k, k^2, k^3` substeps if it fails.
+    **Returns** `(y_next, code, iterations, residual, retried)` (see `_attempts`)."""
+    return _attempts(method, model, y, dt, dW, act, k, 1)[:5]
+
+
+@robust_step.defjvp
+def _robust_step_jvp(method, k, primals, tangents):
+    model, y, dt, dW, act = primals
+    t_model, t_y, t_dt, t_dW, _ = tangents
+    dtype = y.dtype
+    h, w = jnp.where(act, dt, 0.0).astype(dtype), jnp.where(act, dW, 0.0).astype(dtype)
+    (y1, info), (t_y1, _) = jax.jvp(
+        lambda mdl, ys, h, w: method.step(mdl, ys, h, w), (model, y, h, w),
+        (t_model, t_y, jnp.where(act, t_dt, 0.0), jnp.where(act, t_dW, 0.0)))
+    code1 = finite_result(y1, info.result)
+    need = act & (code1 != RESULTS.successful)
+    # Retried samples: the attempts again (a loop that runs only while some sample of the
+    # batch needs it), now with the Jacobians of the substeps that succeed.
+    y2, code2, its2, res2, _, (jy, jdt, jdw, jp) = _attempts(method, model, y, dt, dW, need,
+                                                            k, k, jacobians=True)
+    leaves, idx = jax.tree_util.tree_leaves(t_model), _inexact_leaves(model)[2]
+    t_re = jy @ t_y.reshape(-1) + jdt * t_dt + jdw @ jnp.reshape(t_dW, -1)
+    for i, j in zip(idx, jp):
+        t_re = t_re + j @ jnp.reshape(leaves[i], -1).astype(dtype)
+    y_next = jnp.where(need, y2, y1)
+    out = (y_next, jnp.where(need, code2, code1),
+           jnp.where(act, info.iterations, 0) + its2,
+           jnp.where(need, res2, jnp.where(act, info.residual, 0.0)).astype(dtype), need)
+    return out, _zero_tangents(out, jnp.where(need, t_re.reshape(y.shape), t_y1))
+
+
+def _zero_tangents(out, t_y):
+    y_next, code, its, res, retried = out
+    f0 = jax.dtypes.float0
+    return (t_y, jnp.zeros(code.shape, f0), jnp.zeros(its.shape, f0), jnp.zeros_like(res),
+            jnp.zeros(retried.shape, f0))
