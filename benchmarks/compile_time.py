@@ -7,6 +7,8 @@ cache of an earlier case helps a later one: what a notebook user pays for a new 
 
     python benchmarks/compile_time.py                 # all methods, 500 samples x 512 steps
     python benchmarks/compile_time.py --methods LiePoisson --fast
+    python benchmarks/compile_time.py --ab-retry none --methods LiePoisson --how simulate
+                                                      # the default retry against none
 """
 
 from __future__ import annotations
@@ -30,8 +32,9 @@ def _lines(lowered):
     return lowered.as_text().count("\n")
 
 
-def measure(name, how, n_samples, n_steps):
-    """Seconds to trace+lower and to compile, and StableHLO lines, of one case."""
+def measure(name, how, n_samples, n_steps, retry=None):
+    """Seconds to trace+lower and to compile, and StableHLO lines, of one case.
+    `retry`: `None` for the library's default `retry_substeps`, else `"none"` or `"k"`."""
     import jax
     import jax.numpy as jnp
 
@@ -58,14 +61,16 @@ def measure(name, how, n_samples, n_steps):
     else:
         # a class name, or a constructor call such as "LiePoisson(unroll=3)"
         method = eval(name if "(" in name else name + "()", {"__builtins__": {}}, vars(sj))
+        opts = {} if retry is None else {
+            "retry_substeps": None if retry == "none" else int(retry)}
         if how == "integrate":
             fn = jax.vmap(lambda dw: sj.integrate(model, y0, dw, dt, method=method,
-                                                  throw=False))
+                                                  throw=False, **opts))
             args = (dW,)
         else:
             def fn(key):
                 return sj.simulate(model, y0, t1=n_steps * dt, dt=dt, n_samples=n_samples,
-                                   key=key, method=method, throw=False).ys
+                                   key=key, method=method, throw=False, **opts).ys
             args = (jax.random.key(1),)
     start = time.perf_counter()
     lowered = jax.jit(fn).lower(*args)
@@ -82,21 +87,29 @@ def measure(name, how, n_samples, n_steps):
             "run_ns_per_sample_step_min": 1e9 * best / (n_samples * n_steps)}
 
 
-def child(python, name, how, args):
+def child(python, name, how, args, retry=None):
     """One case measured in a fresh process of `python`."""
     out = subprocess.run(
         [python, os.path.abspath(__file__), "--one", "--methods", name, "--how", how,
-         "--samples", str(args.samples), "--steps", str(args.steps)],
+         "--samples", str(args.samples), "--steps", str(args.steps)]
+        + ([] if retry is None else ["--retry", retry]),
         capture_output=True, text=True, check=True).stdout.strip().splitlines()[-1]
     return json.loads(out)
 
 
 def ab(args):
     """Medians over alternating fresh processes of two installations: B (`--ab`) against A
-    (`--python`), so that both see the same machine load."""
+    (`--python`), so that both see the same machine load; or, with `--ab-retry`, of the
+    library's default `retry_substeps` (A) against the given one (B)."""
     import statistics
 
-    print(f"A: {args.python}\nB: {args.ab}\n{args.samples} samples x {args.steps} steps, "
+    if args.ab_retry:
+        cases = (("A", args.python, None), ("B", args.python, args.ab_retry))
+        print(f"A: retry_substeps default\nB: retry_substeps={args.ab_retry}")
+    else:
+        cases = (("A", args.python, args.retry), ("B", args.ab, args.retry))
+        print(f"A: {args.python}\nB: {args.ab}")
+    print(f"{args.samples} samples x {args.steps} steps, "
           f"{args.repeats} processes each, alternating\n")
     print("| method | how | compile+trace A s | B s | A/B | run ns per sample-step A (min) | B | "
           "A/B |")
@@ -105,9 +118,9 @@ def ab(args):
         for name in args.methods.split(","):
             runs = {"A": [], "B": []}
             for _ in range(args.repeats):
-                for tag, python in (("A", args.python), ("B", args.ab)):
+                for tag, python, retry in cases:
                     try:
-                        row = child(python, name, how, args)
+                        row = child(python, name, how, args, retry)
                     except subprocess.CalledProcessError:  # (B may lack the method)
                         row = None
                     if row is not None:
@@ -137,6 +150,12 @@ def main(argv=None):
                         help="A/B: alternate this interpreter (another installation of "
                              "slps_jax, for example of an earlier commit) with --python, "
                              "--repeats fresh processes each, and print medians and ratios")
+    parser.add_argument("--ab-retry", default=None, metavar="K",
+                        help="A/B in this installation: the default retry_substeps against "
+                             "retry_substeps=K ('none' for no retry)")
+    parser.add_argument("--retry", default=None, metavar="K",
+                        help="retry_substeps of the measured cases: an integer or 'none' "
+                             "(default: the library's default)")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--python", default=sys.executable,
                         help="the interpreter of the measured processes, for an A/B against "
@@ -145,7 +164,7 @@ def main(argv=None):
     if args.fast:
         args.samples, args.steps = 50, 64
     if args.one:  # a child process: one case, JSON on stdout
-        row = measure(args.methods, args.how, args.samples, args.steps)
+        row = measure(args.methods, args.how, args.samples, args.steps, args.retry)
         print(json.dumps(row))
         return
     import jax
@@ -153,12 +172,12 @@ def main(argv=None):
     jax.config.update("jax_enable_x64", True)  # as in the measured processes
     from _common import DEFAULT_OUT, machine_info
 
-    if args.ab:
+    if args.ab or args.ab_retry:
         return ab(args)
     rows = []
     for how in args.how.split(","):
         for name in args.methods.split(","):
-            row = child(args.python, name, how, args)
+            row = child(args.python, name, how, args, args.retry)
             if row is None:
                 continue
             rows.append(row)

@@ -218,3 +218,21 @@ def test_gradients(tmp_path):
     growth = mem[-1]["temp_bytes"] / mem[0]["temp_bytes"]
     assert growth < 0.5 * mem[-1]["n_steps"] / mem[0]["n_steps"], mem
 
+
+
+def test_robust_default(tmp_path):
+    # The paper's setup at h = 2^-4, 10^4 samples of key 0: without the retry of failing
+    # steps LiePoisson loses samples (49 at the time of writing); by default none.
+    stdout = run_script("robust_default.py", tmp_path)
+    rows = json.loads((tmp_path / "robust_default.json").read_text())["rows"]
+    assert [r["dt"] for r in rows] == [2 ** -4]
+    assert rows[0]["failed_no_retry"] > 10 and rows[0]["failed_default"] == 0
+    assert "| 2^-4 |" in stdout
+
+
+def test_chunk_size(tmp_path):
+    stdout = run_script("chunk_size.py", tmp_path)
+    rows = json.loads((tmp_path / "chunk_size.json").read_text())["rows"]
+    assert [r["chunk_size"] for r in rows] == [500, 2000]
+    assert all(r["us_per_sample_step"] > 0 for r in rows)
+    assert "| 500 |" in stdout
