@@ -3,17 +3,20 @@ import subprocess
 import sys
 
 # The suite's time is compilation: its programs run for milliseconds on small ensembles but
-# take a second or more each to compile. XLA's CPU backend compiles them 1.1-1.6x faster with
-# its elemental emitters than with its fusion emitters (the default), while LiePoisson's step
-# runs 20-25% slower and the others' within 10% (benchmarks/README.md, "Compile time"); the
-# whole suite takes 7.6 instead of 9.9 minutes. The arithmetic is IEEE either way. The
-# benchmark scripts and notebook kernels that the tests start inherit the flag (the tests
-# assert no timing); speed is measured by running the benchmark scripts themselves.
-# A jaxlib that no longer knows the flag would abort at start-up, so it is tried first in a
+# take a second or more each to compile. Two options of XLA's CPU backend trade run time for
+# compile time: its elemental emitters instead of its fusion emitters (the default), and
+# LLVM's optimisation level 0 instead of 2. With both, a method's program compiles about 2x
+# faster and runs 2-9x slower (benchmarks/README.md, "Compile time", the A/B against XLA's
+# defaults); the whole suite takes about 6 instead of 10 minutes. Results agree with the
+# defaults' to round-off (1e-15 on the paper's setup: fast math is off at every level).
+# The benchmark scripts and notebook kernels that the tests start inherit the flags (the
+# tests assert no timing); speed is measured by running the benchmark scripts themselves,
+# with XLA's defaults.
+# A jaxlib that no longer knows a flag would abort at start-up, so they are tried first in a
 # subprocess (once: the xdist workers inherit the answer).
-_FLAG = "--xla_cpu_use_fusion_emitters=false"
+_FLAGS = "--xla_cpu_use_fusion_emitters=false --xla_backend_optimization_level=0"
 if "SLPS_TESTS_XLA_FLAGS" not in os.environ:
-    _env = dict(os.environ, XLA_FLAGS=f"{os.environ.get('XLA_FLAGS', '')} {_FLAG}".strip())
+    _env = dict(os.environ, XLA_FLAGS=f"{os.environ.get('XLA_FLAGS', '')} {_FLAGS}".strip())
     _probe = subprocess.run([sys.executable, "-c", "import jax; jax.numpy.zeros(1).block_until_ready()"],
                             env=_env, capture_output=True)
     os.environ["SLPS_TESTS_XLA_FLAGS"] = _env["XLA_FLAGS"] if _probe.returncode == 0 else (

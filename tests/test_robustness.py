@@ -91,13 +91,12 @@ def test_failure_at_an_injected_increment(paper, method, step):
 def test_readme_streaming_example_succeeds_with_default_arguments(paper):
     # The README's streaming example (paper setup, dt = 2^-5, key 0), reduced to its first
     # 42822 samples: without the retry, sample 42821's second step has no root (a non-finite
-    # residual); by default that step is split into substeps and every sample succeeds.
+    # residual, checked below on its own increments); by default that step is split into
+    # substeps and every sample succeeds. (Failure counts with and without the retry are
+    # robust_default.py's, at h = 2^-4 in tests/test_benchmarks.py.)
     model, y0 = paper
     run = dict(t1=1.0, dt=2 ** -5, n_samples=42822, chunk_size=14274, key=jax.random.key(0),
                statistics=("mean", "var", "cov"), progress=False)
-    with pytest.warns(RuntimeWarning, match="1 of 42822 samples failed"):
-        plain = sj.ensemble_statistics(model, y0, retry_substeps=None, **run)
-    assert plain.n_failed == 1 and plain.n == 42821
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         st = sj.ensemble_statistics(model, y0, **run)
@@ -111,8 +110,6 @@ def test_readme_streaming_example_succeeds_with_default_arguments(paper):
     ref = exact_sde_solution(model.inertia, model.c, y0, [dW.sum()], 1.0)[0]
     assert np.linalg.norm(y1 - ref) < 1e-2
     np.testing.assert_allclose(np.linalg.norm(y1), np.linalg.norm(y0), rtol=1e-13)
-    # The moments differ from those without that sample by about one sample's weight.
-    np.testing.assert_allclose(st.mean[-1], plain.mean[-1], atol=3 / 42822)
 
 
 def test_gradient_through_retried_steps_matches_finite_differences():
