@@ -88,10 +88,6 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
     stream = sys.stdout if stream is None else stream
     import jax
     import jax.numpy as jnp
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     import numpy as np
 
     import slps_jax as sj
@@ -141,6 +137,11 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
         study_futures = {name: pool.submit(sj.strong_convergence, model, y0, t1=1.0, dts=dts,
                                            n_samples=cfg["n_samples"], key=key, methods=m)
                          for name, m in studies.items()}
+        import matplotlib  # while the pool compiles
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
         paths = {k: f.result() for k, f in futures.items()}
         paths["4.1", "exact"], paths["4.3", "exact"] = paths.pop(("4.1 and 4.3", "exact"))
         paths = {k: np.asarray(p) for k, p in paths.items()}
