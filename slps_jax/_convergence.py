@@ -369,11 +369,11 @@ def weak_convergence(model, y0, *, t1, dts, n_samples, key, methods, observable,
     observable $g$ you choose, on shared paths, with confidence intervals and fitted orders.
 
     The paths, step sizes and references are those of `strong_convergence` (same arguments).
-    The weak error is estimated from the *coupled* differences $g(y_N) - g(y_	ext{ref})$ on
+    The weak error is estimated from the *coupled* differences $g(y_N) - g(y_\text{ref})$ on
     the same Brownian path, whose variance is far smaller than that of $g(y_N)$, so the
     confidence intervals are narrow for few samples. With `reference="exact"` (a `RigidBody`
     with one noise proportional to the drift) the pathwise reference is the exact solution,
-    so $E[g(y_	ext{ref})]$ is exactly $E[g(y(t_1))] = \int g(arphi_{t_1 + c\sqrt{t_1}z}(y_0))
+    so $E[g(y_\text{ref})]$ is exactly $E[g(y(t_1))] = \int g(\varphi_{t_1 + c\sqrt{t_1}z}(y_0))
     \,N(dz)$, which is also computed, by Gauss–Hermite quadrature with `n_nodes` nodes, as
     `reference_mean`. For other systems pass a method as the reference (for example
     `Midpoint()`, 64x finer by default); its own weak error is reported.

@@ -112,21 +112,18 @@ def sine_chart_in_map_noise(v, y, fields, jacobian=True):
     r"""The in-map of scheme (42) with several noises, in the sine chart, and $dR/dv$.
 
     The generating function of a step with increments $(h, \Delta W_1, \dots, \Delta W_s)$ is
-    $ar S(A) = 	frac12\operatorname{tr}A - K(v) + 	frac14(u^T A u - \operatorname{tr}A\,|u|^2)$
+    $\bar S(A) = \tfrac12\operatorname{tr}A - K(v) + \tfrac14(u^T A u - \operatorname{tr}A\,|u|^2)$
     with $v = v(A)$, the step's Hamiltonian $K = hH_0 + \sum_r \Delta W_r H_r$ and
-    $u = \sum_r \Delta W_r 
-abla H_r(v)$: the last term is
-    $	frac12\sum_{r,q}\Delta W_r\Delta W_q S_{rq}(A)$, and for one noise $H_1 = cH_0$ it is
+    $u = \sum_r \Delta W_r \nabla H_r(v)$: the last term is
+    $\tfrac12\sum_{r,q}\Delta W_r\Delta W_q S_{rq}(A)$, and for one noise $H_1 = cH_0$ it is
     the $\kappa$ term of (42) (`docs/several-noises.md`). Its in-map, with $A = A(v)$ of
     `branch_rotation`:
 
-    $R(v) = v + Q
-abla K - 	frac14 u	imes p - 	frac12|u|^2 v - 	frac12 Q J_u^T m - y_n$,
+    $R(v) = v + Q\nabla K - \tfrac14 u\times p - \tfrac12|u|^2 v - \tfrac12 Q J_u^T m - y_n$,
     $p = A^T u$, $m = (\mathrm{sym}A - \operatorname{tr}A)\,u$, $J_u = \partial u/\partial v$,
-    $Qx = 	frac12((1+c)x - v	imes x - g(v\cdot x)v)$.
+    $Qx = \tfrac12((1+c)x - v\times x - g(v\cdot x)v)$.
 
-    `fields(v)` returns $(
-abla K(v), u(v), J_u(v))$ on components. $dR/dv$ by forward-mode
+    `fields(v)` returns $(\nabla K(v), u(v), J_u(v))$ on components. $dR/dv$ by forward-mode
     autodiff of $R$ (three tangents), so `fields` must be differentiable (for a Hamiltonian
     given as a function this takes its third derivatives).
     """

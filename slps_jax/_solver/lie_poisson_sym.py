@@ -18,24 +18,17 @@ from .lie_poisson import branch_rotation, solve_on_branch
 
 def sine_chart_in_map_general(v, y, fields, jacobian=True):
     r"""The first-order in-map of any step Hamiltonian $K$, $R(A) = v(A) +
-    \mathrm{vee}(\mathrm{skew}(A^T\hat k)) - y$ with $k = 
-abla K(v(A))$ (the in-map of the
-    generating function $	frac12\operatorname{tr}A - K(v(A))$), in the sine chart
+    \mathrm{vee}(\mathrm{skew}(A^T\hat k)) - y$ with $k = \nabla K(v(A))$ (the in-map of the
+    generating function $\tfrac12\operatorname{tr}A - K(v(A))$), in the sine chart
     $A = A(v)$ of `branch_rotation`, and $dR/dv$.
 
-    $R(v) = v + Q\,k - y$, $Qx = 	frac12((1+c)x - v	imes x - g(v\cdot x)v)$,
+    $R(v) = v + Q\,k - y$, $Qx = \tfrac12((1+c)x - v\times x - g(v\cdot x)v)$,
     $c = \sqrt{1-|v|^2}$, $g = 1/(1+c)$ (`docs/scheme.md`), and
-    $dR/dv = \mathrm{Id} + \partial_v(Q)\,k + Q\,
-abla^2 K(v)$, where
-    $\partial_v(Qx) = 	frac12(x\,
-abla c^T + \hat x - v\,
-abla(g\,v\cdot x)^T
-    - g(v\cdot x)\mathrm{Id})$ at fixed $x$, $
-abla c = -v/c$, $
-abla g = g^2 v/c$.
-    `fields(v, jacobian)` returns $k$, or $(k, 
-abla^2 K)$, on components. For the rigid
-    body with $K = 	au H$ this is `sine_chart_in_map` with $\kappa = 0$.
+    $dR/dv = \mathrm{Id} + \partial_v(Q)\,k + Q\,\nabla^2 K(v)$, where
+    $\partial_v(Qx) = \tfrac12(x\,\nabla c^T + \hat x - v\,\nabla(g\,v\cdot x)^T
+    - g(v\cdot x)\mathrm{Id})$ at fixed $x$, $\nabla c = -v/c$, $\nabla g = g^2 v/c$.
+    `fields(v, jacobian)` returns $k$, or $(k, \nabla^2 K)$, on components. For the rigid
+    body with $K = \tau H$ this is `sine_chart_in_map` with $\kappa = 0$.
     """
     s2 = so3.dot(v, v)
     c = jnp.sqrt(jnp.maximum(1.0 - s2, 0.0))
