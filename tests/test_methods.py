@@ -1,0 +1,101 @@
+"""Every registered method (`slps_jax._solver.METHODS`) on every kind of system: one suite.
+
+A new method added to the registry is checked here without writing a test for it: on each
+system whose structures it declares (`requires`) it runs a small ensemble with every sample
+successful and finite, and keeps the quadratic Casimir (`|y|^2`, or `tr Y^2` on so(n)) to
+round-off if it is a Poisson integrator (a theorem); on the first such system it also runs in
+float32, within float32's accuracy of float64 on the same increments. On every other system
+it is refused before compiling, with a `TypeError` that names methods that would work.
+Orders and long-time behaviour are in the methods' own modules.
+"""
+
+import itertools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import slps_jax as sj
+from slps_jax._solver import METHODS
+
+# The methods that are not Poisson integrators (they drift off the coadjoint orbit).
+NOT_POISSON = {"EulerMaruyama", "Heun"}
+
+
+def _skew(n, norm):
+    a = np.random.default_rng(1).normal(size=(n, n))
+    return norm * (a - a.T) / np.linalg.norm(a - a.T, 2)
+
+
+def _quartic(y, p):
+    return 0.5 * jnp.sum(y ** 2 / p["inertia"]) + p["eps"] * jnp.sum(y ** 4)
+
+
+_CHI = 0.4 * np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.5, 1.0]])
+SYSTEMS = {  # one of each kind: the structures they offer differ
+    "paper rigid body": (sj.RigidBody.paper(), np.asarray(sj.PAPER_Y0)),
+    "rigid body, 3 SALT noises": (sj.RigidBody([1.0, 2.0, 3.0], noise=sj.salt_noise(_CHI)),
+                                  np.array([0.6, 0.5, 0.3])),
+    "quartic H": (sj.LiePoissonSystem(_quartic, {"inertia": jnp.asarray([1.0, 2.0, 3.0]),
+                                                 "eps": 0.5}, 0.2), np.array([0.6, 0.5, 0.3])),
+    "so(4) rigid body": (sj.GeneralisedRigidBody(jnp.asarray([0.6, 1.1, 1.7, 2.3]), c=0.4),
+                         _skew(4, 0.8)),
+}
+PAIRS = list(itertools.product(METHODS, SYSTEMS))
+N_SAMPLES, N_STEPS, DT = 4, 16, 2.0 ** -5
+
+
+def supports(cls, system):
+    return cls.requires <= SYSTEMS[system][0].structure
+
+
+def quadratic_casimir(model, ys):
+    return model.algebra.casimirs(ys)[..., 0] if model.algebra.matrix else jnp.sum(ys ** 2, -1)
+
+
+def test_the_registry_holds_every_public_method():
+    public = {name for name in dir(sj) if isinstance(getattr(sj, name), type)
+              and issubclass(getattr(sj, name), sj.AbstractMethod)
+              and getattr(sj, name) is not sj.AbstractMethod}
+    assert public == {cls.__name__ for cls in METHODS}
+    # every system is supported by some method, and every method by some system
+    assert all(any(supports(cls, s) for cls in METHODS) for s in SYSTEMS)
+    assert all(any(supports(cls, s) for s in SYSTEMS) for cls in METHODS)
+
+
+@pytest.mark.parametrize("cls,system", PAIRS, ids=[f"{c.__name__}-{s}" for c, s in PAIRS])
+def test_method_on_system(cls, system):
+    model, y0 = SYSTEMS[system]
+    method = cls()
+    key = jax.random.key(0)
+    if not supports(cls, system):
+        with pytest.raises(TypeError, match=cls.__name__) as err:
+            sj.simulate(model, y0, t1=N_STEPS * DT, dt=DT, n_samples=N_SAMPLES, key=key,
+                        method=method)
+        works = [c.__name__ for c in METHODS if supports(c, system)]
+        assert any(name in str(err.value) for name in works), str(err.value)
+        return
+    sol = sj.simulate(model, y0, t1=N_STEPS * DT, dt=DT, n_samples=N_SAMPLES, key=key,
+                      method=method, save_every=N_STEPS // 2)
+    assert sol.ys.shape == (N_SAMPLES, 3, *np.shape(y0))
+    assert bool(jnp.all(sol.ok)) and bool(jnp.all(jnp.isfinite(sol.ys)))
+    c0 = quadratic_casimir(model, jnp.asarray(y0))
+    drift = float(jnp.max(jnp.abs(quadratic_casimir(model, sol.ys) / c0 - 1)))
+    if cls.__name__ in NOT_POISSON:
+        assert drift > 1e-8  # the check below can fail: these methods leave the orbit
+    else:
+        assert drift < 1e-12
+    if system != next(s for s in SYSTEMS if supports(cls, s)):
+        return
+    # float32, on the first system the method supports: sample 0 on simulate's own increments
+    # (simulate equals integrate on them, tests/test_driver.py), within float32's accuracy:
+    # Newton stops at 64 float32 ulps (8e-6) per step, 16 steps (measured up to 2e-5).
+    dW = sj.brownian_increments(key, N_STEPS, DT, n_samples=N_SAMPLES, n_noises=model.n_noises)
+    model32 = jax.tree_util.tree_map(
+        lambda x: jnp.asarray(x, jnp.float32) if jnp.issubdtype(jnp.result_type(x), jnp.floating)
+        else x, model)
+    y32 = sj.integrate(model32, jnp.asarray(y0, jnp.float32), dW[0].astype(jnp.float32), DT,
+                       method=method)
+    assert y32.dtype == jnp.float32
+    np.testing.assert_allclose(np.asarray(y32, np.float64), sol.ys[0, -1], rtol=0, atol=1e-4)
