@@ -14,9 +14,14 @@ import os
 import platform
 import statistics
 import subprocess
+import sys
 import time
 
 DEFAULT_OUT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
+
+# A script's `--fast` run is a smoke run (the test suite's): its timings take `repeats` calls
+# and no more, whatever `min_total` asks.
+SMOKE = "--fast" in sys.argv[1:]
 
 
 def machine_info():
@@ -65,13 +70,14 @@ def time_call(fn, *args, repeats=3, min_total=0.5, max_repeats=30, warmup=True):
 
     At least `repeats` timed calls; fast calls are repeated until `min_total` seconds have
     been spent (at most `max_repeats` calls), so the median of a millisecond run is not one
-    scheduler hiccup on a shared machine.
+    scheduler hiccup on a shared machine; in a `--fast` run (`SMOKE`), `repeats` calls.
 
     **Returns:** `(median_s, min_s, n_repeats, last_output)`.
     """
     import jax
 
     out = jax.block_until_ready(fn(*args)) if warmup else None
+    min_total = 0.0 if SMOKE else min_total
     times = []
     while len(times) < repeats or (sum(times) < min_total and len(times) < max_repeats):
         start = time.perf_counter()

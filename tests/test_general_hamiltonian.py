@@ -123,8 +123,10 @@ def test_quartic_differs_from_the_rigid_body():
 
 @pytest.fixture(scope="module")
 def quartic_study():
+    # 64 samples: the fitted orders' standard errors are at most 0.03 (measured 1.05-1.08,
+    # and 2.02 for LiePoissonSym4), far inside the bounds below.
     return sj.strong_convergence(
-        quartic_model(), Y0, t1=1.0, dts=[2.0 ** -k for k in range(5, 10)], n_samples=200,
+        quartic_model(), Y0, t1=1.0, dts=[2.0 ** -k for k in range(5, 10)], n_samples=64,
         key=jax.random.key(1), reference=lambda ts: np.stack([quartic_flow(Y0, t) for t in ts]),
         methods={"LiePoissonSym2": sj.LiePoissonSym2(), "LiePoissonSym4": sj.LiePoissonSym4(),
                  "Midpoint": sj.Midpoint(), "LiePoisson": sj.LiePoisson()},

@@ -89,9 +89,11 @@ def test_flow_matches_the_exact_rigid_body_flow():
 
 @pytest.mark.parametrize("n", [4, 5])
 def test_strong_order_one_noise_against_the_time_change(n):
+    # 64 samples: the fitted orders' standard errors are at most 0.025 (measured 1.00 and
+    # 1.05-1.07), far inside the bounds.
     res = sj.strong_convergence(
         body(n, c=0.4), skew_state(n), t1=1.0, dts=[2.0 ** -k for k in range(4, 9)],
-        n_samples=200, key=jax.random.key(n),
+        n_samples=64, key=jax.random.key(n),
         methods={"LiePoisson": sj.LiePoisson(), "Isospectral": sj.IsospectralMidpoint()},
         reference="flow")
     for name, order in res.order.items():
