@@ -36,7 +36,7 @@ def _step(method, model, dt, carry, dW, live, *, want_stats, retry):
     dtype = y.dtype
     live = jnp.asarray(live)  # (a Python bool under jax.disable_jit)
     act = (result == RESULTS.successful) & live
-    if retry is None:
+    if retry is None or not method.can_fail:
         # A failed sample idles at its last good state: with dt = dW = 0 every method's
         # step is trivial, so it costs no Newton iterations.
         y_new, info = method.step(model, y, jnp.where(act, dt, 0.0).astype(dtype),

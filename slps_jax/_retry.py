@@ -1,6 +1,7 @@
 """A step that is redone as substeps when it fails, traced once and differentiable.
 
-The driver calls `robust_step` for every step when `retry_substeps = k` (the default, 4).
+The driver calls `robust_step` for every step when `retry_substeps = k` (the default, 4) and
+the method can fail (`can_fail`; not exact flows and compositions of exact rotations).
 A step that fails is redone from its start as `k` equal substeps of `(dt/k, dW/k)`, then
 `k^2`, then `k^3`, before the sample is given up. The substeps are the scheme run on a finer
 grid through the same point `W(t_{n+1})`: for a system whose noise is proportional to the

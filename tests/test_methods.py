@@ -99,3 +99,18 @@ def test_method_on_system(cls, system):
                        method=method)
     assert y32.dtype == jnp.float32
     np.testing.assert_allclose(np.asarray(y32, np.float64), sol.ys[0, -1], rtol=0, atol=1e-4)
+
+
+@pytest.mark.parametrize("cls", METHODS, ids=[c.__name__ for c in METHODS])
+def test_the_retry_wraps_only_steps_that_can_fail(cls):
+    """Methods that cannot fail (`can_fail = False`: compositions of exact rotations) are
+    traced without the retry of failing steps; the others with it."""
+    system = next(s for s in SYSTEMS if supports(cls, s))
+    model, y0 = SYSTEMS[system]
+    dW = jnp.zeros((N_STEPS, model.n_noises))
+
+    def traced(retry):
+        return str(jax.make_jaxpr(lambda d: sj.integrate(
+            model, y0, d, DT, method=cls(), throw=False, retry_substeps=retry))(dW))
+
+    assert (traced(4) == traced(None)) == (not cls.can_fail)

@@ -42,6 +42,13 @@ class AbstractMethod:
     # a pair that lacks one and names the methods that would work. Empty: any system.
     requires = frozenset()
 
+    # Whether a step can fail on finite input (an implicit solve without an admissible root,
+    # an explicit step that overflows). Exact flows and compositions of exact rotations
+    # cannot: for them the driver leaves out the retry of failing steps (`retry_substeps`),
+    # which would be dead code, and whose derivative rule would double the reverse pass's
+    # compile time.
+    can_fail = True
+
     # A method whose step with increments (h, dW) is a flow for the time h + c dW, composing
     # in time, sets this to that flow, `flow_in_time(model, y, tau)`: the driver then adds up
     # the times and evaluates the flow only where a state is saved (`Exact`).

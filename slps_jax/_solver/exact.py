@@ -23,6 +23,7 @@ class Exact(AbstractMethod):
     """
 
     requires = frozenset({RIGID_BODY, NOISE_PROPORTIONAL_TO_DRIFT})
+    can_fail = False  # a closed form: no solve
 
     # The flows compose: the driver sums the step times and evaluates the flow only at the
     # saved states (once for the final state), on the very same increments.

@@ -69,6 +69,7 @@ class Strang(AbstractMethod):
     """
 
     requires = frozenset({RIGID_BODY, NOISE_PROPORTIONAL_TO_DRIFT})
+    can_fail = False  # exact rotations: no solve
 
     def step(self, model, y, dt, dW):
         return _composed_step(model, y, dt + model.noise_time(dW), (1.0,))
@@ -118,6 +119,7 @@ class Strang4(AbstractMethod):
     """
 
     requires = frozenset({RIGID_BODY, NOISE_PROPORTIONAL_TO_DRIFT})
+    can_fail = False  # exact rotations: no solve
 
     def step(self, model, y, dt, dW):
         return _composed_step(model, y, dt + model.noise_time(dW), TRIPLE_JUMP)
@@ -147,6 +149,7 @@ class SaltSplitting(AbstractMethod):
     """
 
     requires = frozenset({RIGID_BODY, LINEAR_NOISE})
+    can_fail = False  # exact rotations: no solve
 
     def step(self, model, y, dt, dW):
         inv_i = model.inverse_inertia()
