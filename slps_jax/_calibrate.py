@@ -94,7 +94,7 @@ class _Parameters:
 def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
               observed_stderr=None, observed_n_samples=None, fixed=(), method=LiePoisson(),
               optimizer=None, steps=50, truncate_k=4, retry_substeps=4, rtol=1e-10,
-              progress=True):
+              progress=True, levy_area="auto"):
     r"""Fit `inertia` and the noise (`c`, or a noise family's parameters) of a `RigidBody` to
     observed ensemble statistics.
 
@@ -122,7 +122,8 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
 
     - `observed`: array `(len(ts), k)`, the statistics to match.
     - `y0`: the initial value; `ts`: increasing observation times, multiples of `dt`.
-    - `dt`, `n_samples`, `key`, `method`, `truncate_k`, `retry_substeps`: as in `simulate`.
+    - `dt`, `n_samples`, `key`, `method`, `truncate_k`, `retry_substeps`, `levy_area`: as in
+      `simulate`.
     - `init`: a `RigidBody` (with `c=` or with a noise family), the starting guess.
     - `statistic`: `(n_samples, 3) -> (k,)`; default `moments` (means of `y` and `y**2`).
     - `observed_stderr`: standard errors of `observed` (same shape), used as weights and for
@@ -190,7 +191,8 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
         sol = simulate_unreported(params.model(full(theta)), y0, t1=float(ts[-1]), dt=dt,
                                   n_samples=n_samples, key=key, method=method,
                                   save_every=every, truncate_k=truncate_k, newton_stats=False,
-                                  retry_substeps=retry_substeps, sharding=None)
+                                  retry_substeps=retry_substeps, sharding=None,
+                                  levy_area=levy_area)
         ys = sol.ys[:, idx // every]  # (n_samples, len(ts), 3)
         return jax.vmap(statistic, in_axes=1)(ys), jnp.sum(sol.fail_step >= 0)
 

@@ -85,6 +85,52 @@ def check_method(method):
     check_options(method)  # again here: a dataclass can be built around its constructor
 
 
+def _area_methods():
+    from ._solver import METHODS
+
+    return ", ".join(cls.__name__ for cls in METHODS if cls.uses_levy_area())
+
+
+def check_levy_area(area, n_steps, n_noises, method):
+    """The Lévy areas given to `integrate`: `None`, or an array of shape
+    `(n_steps, s, s)`, finite and antisymmetric, for a method that uses them. Returns the
+    array, or `None` for one noise (its areas are zero)."""
+    if area is None:
+        return None
+    if not method.uses_levy_area():
+        raise TypeError(f"{type(method).__name__} does not use Lévy areas (its step sees only "
+                        f"the increments); methods that do: {_area_methods()}.")
+    area = real_array("levy_area", area)
+    shape = (n_steps, n_noises, n_noises)
+    if area.shape != shape:
+        raise ValueError(f"levy_area must have shape (n_steps, s, s) = {shape}, one "
+                         f"antisymmetric (s, s) matrix per step, got shape {area.shape}.")
+    a_np = concrete(area)
+    if a_np is not None:
+        if not np.all(np.isfinite(a_np)):
+            bad = np.flatnonzero(~np.all(np.isfinite(a_np), axis=(1, 2)))
+            raise ValueError(f"levy_area must be finite; steps {bad[:5].tolist()} are not.")
+        asym = float(np.max(np.abs(a_np + np.swapaxes(a_np, 1, 2))))
+        if asym > 1e-12 * max(1.0, float(np.max(np.abs(a_np)))):
+            raise ValueError(f"levy_area must be antisymmetric, A[n, q, r] = -A[n, r, q]; "
+                             f"max |A + A^T| = {asym:.3g}.")
+    return None if n_noises == 1 else area
+
+
+def check_levy_option(levy_area, method, model):
+    """Whether an ensemble draws Lévy areas: `"auto"` (for a method that uses them and a
+    system with several noises), `True` (refused for a method that cannot use them) or
+    `False`. One noise never needs areas (they are zero): `False` then."""
+    if isinstance(levy_area, str) and levy_area == "auto":
+        return bool(method.uses_levy_area() and model.n_noises > 1)
+    if not isinstance(levy_area, (bool, np.bool_)):
+        raise TypeError(f"levy_area must be 'auto', True or False, got {levy_area!r}.")
+    if levy_area and not method.uses_levy_area():
+        raise TypeError(f"levy_area=True: {type(method).__name__} does not use Lévy areas; "
+                        f"methods that do: {_area_methods()}.")
+    return bool(levy_area) and model.n_noises > 1
+
+
 def check_y0(y0, method, model):
     check_pair(method, model)
     y0 = real_array("y0", y0)

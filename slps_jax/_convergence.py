@@ -16,8 +16,8 @@ import numpy as np
 from . import _noise
 from ._exact import exact_flow, exact_solution
 from ._flow import deterministic_flow
-from ._checks import (check_count, check_method, check_model, check_positive, check_retry,
-                      check_y0)
+from ._checks import (check_count, check_levy_option, check_method, check_model, check_positive,
+                      check_retry, check_y0)
 from ._integrate import _ensemble_dynamic_jit, failure_summary
 from ._system import NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
 from ._solver.base import AbstractMethod
@@ -67,12 +67,9 @@ class ConvergenceResult:
 
 @functools.partial(jax.jit, static_argnames=("n_fine",))
 def _brownian_endpoints(keys, fine_dt, bound, n_fine):
-    def one(key):
-        return jax.lax.fori_loop(
-            0, n_fine, lambda n, w: w + _noise.increment(key, n, fine_dt, bound, fine_dt.dtype)[0],
-            jnp.zeros((), fine_dt.dtype))
-
-    return jax.vmap(one)(keys)
+    """$W(t_1)$ of each sample: its `n_fine` fine steps joined into one (`_noise`)."""
+    return jax.vmap(lambda key: _noise.draw_joined(key, 0, n_fine, fine_dt, bound,
+                                                   fine_dt.dtype, 1).dW[0])(keys)
 
 
 @jax.jit
@@ -106,10 +103,11 @@ class _Study:
     y_ref_coarse: jax.Array | None  # a method reference at twice its step
     ref_failed: np.ndarray  # samples on which a method reference failed
     ref_why: str | None  # what failed there, in words
+    areas: dict  # method name -> whether it gets the Lévy areas
 
 
 def _study(caller, model, y0, t1, dts, n_samples, key, methods, reference, reference_dt,
-           reference_factor, truncate_k, retry_substeps):
+           reference_factor, truncate_k, retry_substeps, levy_area="auto"):
     """Validate a study's arguments (before anything compiles) and set up its shared paths
     and reference (see `strong_convergence`)."""
     check_model(model)
@@ -179,14 +177,28 @@ def _study(caller, model, y0, t1, dts, n_samples, key, methods, reference, refer
     for dt in dts:
         if n_fine % _substeps(float(dt), fine_dt, "dt"):
             raise ValueError(f"t1={t1} must be a multiple of every step size, not of dt={dt}.")
+    # Lévy areas (for the methods that use them): drawn at the finest step, joined over the
+    # coarse ones by Chen's relation; a dict chooses per method, the reference on "auto"
+    if isinstance(levy_area, dict):
+        unknown = sorted(set(levy_area) - set(methods))
+        if unknown:
+            raise ValueError(f"levy_area names methods {unknown} that are not in methods "
+                             f"({sorted(methods)}).")
+        areas = {n: check_levy_option(levy_area.get(n, "auto"), m, model)
+                 for n, m in methods.items()}
+        ref_areas = is_method and check_levy_option("auto", reference, model)
+    else:
+        areas = {n: check_levy_option(levy_area, m, model) for n, m in methods.items()}
+        ref_areas = is_method and check_levy_option(levy_area, reference, model)
+    fine_terms = _noise.levy_area_terms(fine_dt, model.n_noises)
 
-    def final_states(method, dt, name="dt"):
+    def final_states(method, dt, name="dt", areas=False):
         """The final states, the failed samples (a NumPy mask) and what failed, in words
-        (`None` if nothing)."""
+        (`None` if nothing); with `areas`, the method gets the Lévy areas."""
         s = _substeps(dt, fine_dt, name)
         ys, fail_step, result, _, _ = _ensemble_dynamic_jit(
             method, model, y0, keys, jnp.asarray(dt, dtype), bound, 1, jnp.asarray(n_fine // s),
-            False, jnp.asarray(s), retry=retry)
+            False, jnp.asarray(s), retry=retry, terms=fine_terms if areas else None)
         summary = failure_summary(fail_step, result)
         why = None if summary is None else f"{summary[0]} at dt={dt:g} ({summary[3]})"
         return ys[:, -1], np.asarray(fail_step) >= 0, why
@@ -194,9 +206,9 @@ def _study(caller, model, y0, t1, dts, n_samples, key, methods, reference, refer
     half = None  # a method reference at twice its step
     ref_failed, ref_why = np.zeros(int(n_samples), bool), None
     if is_method:
-        y_ref, ref_failed, ref_why = final_states(reference, fine_dt, "reference_dt")
+        y_ref, ref_failed, ref_why = final_states(reference, fine_dt, "reference_dt", ref_areas)
         # (at twice its step: possible when that divides t1)
-        half, half_failed, _ = (final_states(reference, 2 * fine_dt, "reference_dt")
+        half, half_failed, _ = (final_states(reference, 2 * fine_dt, "reference_dt", ref_areas)
                                 if n_fine % 2 == 0 else (None, None, None))
         if half is not None:
             ref_failed = ref_failed | half_failed
@@ -219,7 +231,7 @@ def _study(caller, model, y0, t1, dts, n_samples, key, methods, reference, refer
 
     kind = "method" if is_method else "flow" if callable(reference) else "exact"
     return _Study(caller, dts, methods, final_states, y_ref, reference_error, int(n_samples),
-                  y0, t1, kind, half, ref_failed, ref_why)
+                  y0, t1, kind, half, ref_failed, ref_why, areas)
 
 
 def _runs(st, name, method):
@@ -228,7 +240,7 @@ def _runs(st, name, method):
     of its runs succeeded (failing steps are split into substeps first, `retry_substeps`).
     The others are left out of all its step sizes alike, so that its errors stay paired,
     and a `RuntimeWarning` says how many, where and why."""
-    runs = [st.final_states(method, float(dt)) for dt in st.dts]
+    runs = [st.final_states(method, float(dt), areas=st.areas[name]) for dt in st.dts]
     failed = st.ref_failed | np.any([f for _, f, _ in runs], axis=0)
     n_failed = int(failed.sum())
     if n_failed:
@@ -248,7 +260,7 @@ def _runs(st, name, method):
 
 def strong_convergence(model, y0, *, t1, dts, n_samples, key, methods, reference="exact",
                        reference_dt=None, reference_factor=None, truncate_k=4,
-                       n_bootstrap=200, retry_substeps=4):
+                       n_bootstrap=200, retry_substeps=4, levy_area="auto"):
     r"""Root-mean-square error at `t1` of each method at each step size, on shared paths.
 
     Every step size integrates the same Brownian paths: a coarse increment is the sum of the
@@ -283,6 +295,13 @@ def strong_convergence(model, y0, *, t1, dts, n_samples, key, methods, reference
     - `n_bootstrap`: resamples for the order's standard error.
     - `retry_substeps`: as in `simulate`: redo failing steps as `k, k^2, k^3` substeps
       (default 4; `None`: not).
+    - `levy_area`: `"auto"` (default), `True` or `False`: whether a method that
+      `uses_levy_area()` gets the Lévy areas of its steps (as in `simulate`), drawn at the
+      finest step and joined over a coarse step by Chen's relation, so that every step size
+      and the reference integrate the same path. A method that does not use them never
+      gets them (with `True` it is refused). Or a dict `{method name: True/False}` to
+      choose per method (the others and the reference on `"auto"`): the same method with
+      and without areas against one reference.
 
     Samples on which a method fails (even split into substeps) are left out of that
     method's estimates at every step size, counted in `n_failed`, with a `RuntimeWarning`:
@@ -296,7 +315,7 @@ def strong_convergence(model, y0, *, t1, dts, n_samples, key, methods, reference
     """
     n_bootstrap = check_count("n_bootstrap", n_bootstrap, minimum=2)
     st = _study("strong_convergence", model, y0, t1, dts, n_samples, key, methods, reference,
-                reference_dt, reference_factor, truncate_k, retry_substeps)
+                reference_dt, reference_factor, truncate_k, retry_substeps, levy_area)
     dts, y_ref = st.dts, st.y_ref
     errors, stderr, order, order_se, seconds, n_failed = {}, {}, {}, {}, {}, {}
     log_h = np.log(dts)
@@ -328,7 +347,7 @@ class WeakConvergenceResult:
     - `ci`: half-width of its confidence interval at level `confidence` (normal
       approximation), from the coupled differences' standard deviation.
     - `order`: least-squares slope of `log |bias|` against `log dt`, per component
-      (meaningful where `|bias|` is well above `ci`).
+      (meaningful only where `|bias|` is above `ci` at every step: `resolved(name)`).
     - `reference_mean`: $E[g(y(t_1))]$: by Gauss–Hermite quadrature of the exact flow for
       `reference="exact"` (exact to quadrature accuracy), else the mean over the reference
       paths.
@@ -358,13 +377,22 @@ class WeakConvergenceResult:
             f"| 2^{math.log2(h):.0f} | " + " | ".join(
                 f"{abs(self.bias[n][i, j]):.2e} ± {self.ci[n][i, j]:.1e}" for n, j in cols)
             + " |\n" for i, h in enumerate(self.dts))
-        order = "| order | " + " | ".join(f"{self.order[n][j]:.2f}" for n, j in cols) + " |\n"
+        order = "| order | " + " | ".join(
+            f"{self.order[n][j]:.2f}" if self.resolved(n)[j] else "unresolved"
+            for n, j in cols) + " |\n"
         return head + rows + order
+
+    def resolved(self, name):
+        """Per observable component of method `name`: whether every step size's `|bias|`
+        exceeds its confidence interval, so that the fitted order means something (the table
+        prints the order only then)."""
+        return np.all(np.abs(self.bias[name]) > self.ci[name], axis=0)
 
 
 def weak_convergence(model, y0, *, t1, dts, n_samples, key, methods, observable,
                      reference="exact", reference_dt=None, reference_factor=None,
-                     truncate_k=4, confidence=0.95, n_nodes=64, retry_substeps=4):
+                     truncate_k=4, confidence=0.95, n_nodes=64, retry_substeps=4,
+                     levy_area="auto"):
     r"""Weak error $|E_h[g(y_N)] - E[g(y(t_1))]|$ of each method at each step size, for an
     observable $g$ you choose, on shared paths, with confidence intervals and fitted orders.
 
@@ -401,7 +429,7 @@ def weak_convergence(model, y0, *, t1, dts, n_samples, key, methods, observable,
         raise ValueError(f"observable(y) must return a scalar or shape (m,), got shape "
                          f"{shape[1:]}.")
     st = _study("weak_convergence", model, y0, t1, dts, n_samples, key, methods, reference,
-                reference_dt, reference_factor, truncate_k, retry_substeps)
+                reference_dt, reference_factor, truncate_k, retry_substeps, levy_area)
     z = statistics.NormalDist().inv_cdf(0.5 + confidence / 2)
     g_ref = np.asarray(g(st.y_ref))
     if st.kind == "exact":

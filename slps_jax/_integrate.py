@@ -12,8 +12,9 @@ import numpy as np
 
 from . import _noise
 from ._sharding import check_sharding
-from ._checks import (check_grid, check_count, check_method, check_model, check_positive,
-                      check_retry, check_save_every, check_throw, check_y0, concrete, real_array)
+from ._checks import (check_grid, check_count, check_levy_area, check_levy_option, check_method,
+                      check_model, check_positive, check_retry, check_save_every, check_throw,
+                      check_y0, concrete, real_array)
 from ._solution import RESULTS, Solution
 from ._solver.base import finite_result
 from ._solver.lie_poisson import LiePoisson
@@ -40,7 +41,7 @@ def _step(method, model, dt, carry, dW, live, *, want_stats, retry):
         # A failed sample idles at its last good state: with dt = dW = 0 every method's
         # step is trivial, so it costs no Newton iterations.
         y_new, info = method.step(model, y, jnp.where(act, dt, 0.0).astype(dtype),
-                                  jnp.where(act, dW, 0.0).astype(dtype))
+                                  _noise.where(act, dW))
         code = finite_result(y_new, info.result)
         it = jnp.where(act, info.iterations, 0)
         res = jnp.where(act & (code == RESULTS.successful), info.residual, 0.0)
@@ -88,7 +89,7 @@ def _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats, retry=No
         n0 = carry[3]
         dWs = jax.vmap(lambda j: draw(n0 + j))(jnp.arange(length, dtype=n0.dtype))
         return jax.lax.fori_loop(
-            0, length, lambda i, c: _step(method, model, dt, c, dWs[i], i < n_live,
+            0, length, lambda i, c: _step(method, model, dt, c, _index(dWs, i), i < n_live,
                                           want_stats=want_stats, retry=retry), carry)
 
     def block(carry, _):
@@ -179,29 +180,31 @@ def _checkpointed_loop(steps, n, carry):
     return jax.lax.fori_loop(0, n_chunks, jax.checkpoint(chunk, prevent_cse=False), carry)
 
 
+def _index(noise, i):
+    """Step `i` of a block of steps' noises."""
+    return jax.tree_util.tree_map(lambda x: x[i], noise)
+
+
 @functools.partial(jax.jit, static_argnames=("method", "save_every", "want_stats", "retry"))
-def _integrate_jit(method, model, y0, dW, dt, save_every, want_stats, retry=None):
-    return _path(method, model, y0, dt, lambda n: dW[n], dW.shape[0] // save_every,
-                 save_every, want_stats, retry)
+def _integrate_jit(method, model, y0, noise, dt, save_every, want_stats, retry=None):
+    return _path(method, model, y0, dt, lambda n: _index(noise, n),
+                 noise.dW.shape[0] // save_every, save_every, want_stats, retry)
 
 
 def _ensemble(method, model, y0, keys, dt, bound, n_blocks, block_len, want_stats,
-              substeps=1, retry=None):
-    """Each sample draws its increments from its key. With `substeps = s > 1`, step `n`'s
-    increment is the sum of the fine increments `n s, ..., n s + s - 1` of size `dt / s`:
-    coarse paths that are the very same Brownian paths as a run with step `dt / s`."""
+              substeps=1, retry=None, terms=None):
+    """Each sample draws its steps' noise from its key (`_noise.draw`; with `terms`, the
+    series length of the fine step's area sampler, also the Lévy areas). With
+    `substeps = m > 1`, step `n`'s noise joins the fine steps `n m, ..., n m + m - 1` of size
+    `dt / m` (`_noise.draw_joined`): coarse paths that are the very same Brownian paths as a
+    run with step `dt / m`."""
     dtype = y0.dtype
     fine_dt = dt / substeps
 
     def one(key):
         def draw(n):
-            if isinstance(substeps, int) and substeps == 1:
-                return _noise.increment(key, n, dt, bound, dtype, model.n_noises)
-            return jax.lax.fori_loop(
-                0, substeps,
-                lambda k, w: w + _noise.increment(key, n * substeps + k, fine_dt, bound, dtype,
-                                                  model.n_noises),
-                jnp.zeros((model.n_noises,), dtype))
+            return _noise.draw_joined(key, n, substeps, fine_dt, bound, dtype, model.n_noises,
+                                      terms)
 
         return _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats, retry)
 
@@ -209,10 +212,10 @@ def _ensemble(method, model, y0, keys, dt, bound, n_blocks, block_len, want_stat
 
 
 _ensemble_jit = jax.jit(_ensemble, static_argnames=("method", "n_blocks", "block_len",
-                                                   "want_stats", "substeps", "retry"))
+                                                   "want_stats", "substeps", "retry", "terms"))
 # Step count and substeps traced: one compilation for every step size of a study.
 _ensemble_dynamic_jit = jax.jit(_ensemble, static_argnames=("method", "n_blocks", "want_stats",
-                                                           "retry"))
+                                                           "retry", "terms"))
 
 
 def failure_summary(fail_step, result):
@@ -296,8 +299,8 @@ def _report(caller, throw, retried, fail_step, result):
 # Public API.
 
 
-def integrate(model, y0, dW, dt, *, method=LiePoisson(), save_every=None, throw=True,
-              retry_substeps=4):
+def integrate(model, y0, dW, dt, *, levy_area=None, method=LiePoisson(), save_every=None,
+              throw=True, retry_substeps=4):
     r"""Integrate one path of $dy = f(y)(dt + c \circ dW)$ with the given increments.
 
     Uses `dW` exactly as given (no truncation). Works under `jax.jit`, `jax.vmap` and
@@ -311,6 +314,12 @@ def integrate(model, y0, dW, dt, *, method=LiePoisson(), save_every=None, throw=
     - `dW`: Brownian increments, shape `(n_steps, n_noises)` (one column per noise;
       `(n_steps,)` for a system with one noise).
     - `dt`: the step size.
+    - `levy_area`: `None` (default), or the Lévy areas of the steps, shape
+      `(n_steps, s, s)`, antisymmetric: `A[n, q, r]` $= \tfrac12(J_{qr} - J_{rq})$,
+      $J_{qr} = \int_{t_n}^{t_{n+1}} (W_q(t) - W_q(t_n)) \circ dW_r(t)$
+      (`brownian_increments(..., levy_area=True)` draws them). With them a method that
+      `uses_levy_area` has strong order 1 for several non-commuting noises; refused for
+      one that does not.
     - `method`: a method instance (default `LiePoisson()`).
     - `save_every`: `None` for the final state only; `k` for the states at steps
       `0, k, 2k, ..., n_steps` (`k` must divide `n_steps`).
@@ -342,12 +351,13 @@ def integrate(model, y0, dW, dt, *, method=LiePoisson(), save_every=None, throw=
         bad = np.flatnonzero(~np.all(np.isfinite(dW_np), axis=1))
         raise ValueError(f"dW must be finite; entries {bad[:5].tolist()} are not.")
     n_steps = dW.shape[0]
+    area = check_levy_area(levy_area, n_steps, s, method)
     k = check_save_every(save_every, n_steps)
     retry = check_retry(retry_substeps)
     dtype = y0.dtype
     dt = jnp.asarray(dt if dt_np is None else float(dt_np), dtype)
-    ys, fail_step, result, _, _ = _integrate_jit(method, model, y0, dW.astype(dtype), dt, k,
-                                                 False, retry)
+    noise = _noise.BrownianStep(dW.astype(dtype), None if area is None else area.astype(dtype))
+    ys, fail_step, result, _, _ = _integrate_jit(method, model, y0, noise, dt, k, False, retry)
     if throw:
         _report("integrate", True, retry is not None, fail_step, result)
     if save_every is None:
@@ -356,7 +366,8 @@ def integrate(model, y0, dW, dt, *, method=LiePoisson(), save_every=None, throw=
 
 
 def simulate(model, y0, *, t1, dt, n_samples, key, method=LiePoisson(), save_every=None,
-             truncate_k=4, newton_stats=False, throw=False, retry_substeps=4, sharding=None):
+             truncate_k=4, newton_stats=False, throw=False, retry_substeps=4, sharding=None,
+             levy_area="auto"):
     r"""Simulate an ensemble of paths of $dy = f(y)(dt + c \circ dW)$ on $[0, t_1]$.
 
     Sample `i` draws its increments from `fold_in(key, i)` inside the time loop, truncated as
@@ -391,6 +402,11 @@ def simulate(model, y0, *, t1, dt, n_samples, key, method=LiePoisson(), save_eve
       samples are split over the devices by JAX's SPMD partitioner and the arrays of the
       `Solution` come back sharded along their first axis; the paths are the same as
       without. `n_samples` must be a multiple of the number of shards.
+    - `levy_area`: `"auto"` (default: drawn for a method that `uses_levy_area` when the
+      system has several noises), `True` or `False`. Each step's areas are sampled given its
+      increments (`brownian_increments(..., levy_area=True)` gives the same), which makes
+      such a method strong order 1 for non-commuting noise; the increments are the same
+      with or without them. One noise has no areas.
 
     **Returns:** a `Solution`.
     """
@@ -398,13 +414,13 @@ def simulate(model, y0, *, t1, dt, n_samples, key, method=LiePoisson(), save_eve
     sol = simulate_unreported(model, y0, t1=t1, dt=dt, n_samples=n_samples, key=key,
                               method=method, save_every=save_every, truncate_k=truncate_k,
                               newton_stats=newton_stats, retry_substeps=retry_substeps,
-                              sharding=sharding)
+                              sharding=sharding, levy_area=levy_area)
     _report("simulate", throw, retry_substeps is not None, sol.fail_step, sol.result)
     return sol
 
 
 def simulate_unreported(model, y0, *, t1, dt, n_samples, key, method, save_every, truncate_k,
-                        newton_stats, retry_substeps, sharding):
+                        newton_stats, retry_substeps, sharding, levy_area="auto"):
     """`simulate` without the failure report (for callers that report failures their own
     way, such as `calibrate`)."""
     check_model(model)
@@ -417,6 +433,8 @@ def simulate_unreported(model, y0, *, t1, dt, n_samples, key, method, save_every
     k = check_save_every(save_every, n_steps)
     retry = check_retry(retry_substeps)
     sharding = check_sharding(sharding, n_samples)
+    terms = _noise.levy_area_terms(dt, model.n_noises) if check_levy_option(
+        levy_area, method, model) else None
     dtype = y0.dtype
 
     keys = _noise.sample_keys(key, n_samples)
@@ -425,7 +443,7 @@ def simulate_unreported(model, y0, *, t1, dt, n_samples, key, method, save_every
     bound = jnp.asarray(_noise.truncation_bound(dt, truncate_k), dtype)
     ys, fail_step, result, n_retried, acc = _ensemble_jit(
         method, model, y0, keys, jnp.asarray(dt, dtype), bound, n_steps // k, k,
-        bool(newton_stats), retry=retry)
+        bool(newton_stats), retry=retry, terms=terms)
     if save_every is None:
         ts = jnp.asarray([n_steps * dt], dtype)
     else:

@@ -2,7 +2,8 @@
 
 The driver calls `robust_step` for every step when `retry_substeps = k` (the default, 4) and
 the method can fail (`can_fail`; not exact flows and compositions of exact rotations).
-A step that fails is redone from its start as `k` equal substeps of `(dt/k, dW/k)`, then
+A step that fails is redone from its start as `k` equal substeps of `(dt/k, dW/k)` (and
+areas `A/k`: `_noise.scale`, which joined by Chen's relation give the step's), then
 `k^2`, then `k^3`, before the sample is given up. The substeps are the scheme run on a finer
 grid through the same point `W(t_{n+1})`: for a system whose noise is proportional to the
 drift, the flow of the time `tau = dt + c dW` is a group, `phi_tau = phi_{tau/m}^m`, so `m`
@@ -29,7 +30,9 @@ import functools
 
 import jax
 import jax.numpy as jnp
+from jax.flatten_util import ravel_pytree
 
+from . import _noise
 from ._solution import RESULTS
 from ._solver.base import finite_result
 
@@ -57,8 +60,9 @@ def _attempts(method, model, y, dt, dW, act, k, m0, jacobians=False):
     def body(s):
         i, m, yc, code, its, res, going, jac = s
         mf = m.astype(dtype)
+        # (dt/m, dW/m, A/m): the step's noise split evenly (`_noise.scale`)
         y2, info, d = substep(yc, jnp.where(going, dt / mf, 0.0).astype(dtype),
-                              jnp.where(going, dW / mf, 0.0).astype(dtype))
+                              _noise.where(going, _noise.scale(dW, 1.0 / mf)))
         c2 = finite_result(y2, info.result)
         ok = going & (c2 == RESULTS.successful)
         fail = going & ~ok
@@ -98,17 +102,19 @@ def _jacobian_tools(method, model, y, dW):
     leaves, treedef, idx = _inexact_leaves(model)
     p0 = [leaves[i] for i in idx]
     dtype, d = y.dtype, y.size
+    # the step's noise (increments, and areas when present) as one flat vector
+    w0, unravel = ravel_pytree(dW)
 
     def step(ys, h, w, p):
         full = list(leaves)
         for i, leaf in zip(idx, p):
             full[i] = leaf
-        y2, info = method.step(treedef.unflatten(full), ys, h, w)
+        y2, info = method.step(treedef.unflatten(full), ys, h, unravel(w))
         return y2, (y2, info)
 
     def substep(ys, h, w):
         (a, b, c, e), (y2, info) = jax.jacfwd(step, argnums=(0, 1, 2, 3), has_aux=True)(
-            ys, h, w, p0)
+            ys, h, ravel_pytree(w)[0], p0)
         return y2, info, (a, b, c, e)
 
     def chain(jac, derivatives, mf):
@@ -119,7 +125,7 @@ def _jacobian_tools(method, model, y, dW):
         return (a @ jy, a @ jdt + b.reshape(d) / mf, a @ jdw + c.reshape(d, -1) / mf,
                 [a @ j + ei.reshape(d, -1) for j, ei in zip(jp, e)])
 
-    j0 = (jnp.eye(d, dtype=dtype), jnp.zeros(d, dtype), jnp.zeros((d, dW.size), dtype),
+    j0 = (jnp.eye(d, dtype=dtype), jnp.zeros(d, dtype), jnp.zeros((d, w0.size), dtype),
           [jnp.zeros((d, p.size), dtype) for p in p0])
     return substep, j0, chain
 
@@ -136,10 +142,10 @@ def _robust_step_jvp(method, k, primals, tangents):
     model, y, dt, dW, act = primals
     t_model, t_y, t_dt, t_dW, _ = tangents
     dtype = y.dtype
-    h, w = jnp.where(act, dt, 0.0).astype(dtype), jnp.where(act, dW, 0.0).astype(dtype)
+    h, w = jnp.where(act, dt, 0.0).astype(dtype), _noise.where(act, dW)
     (y1, info), (t_y1, _) = jax.jvp(
         lambda mdl, ys, h, w: method.step(mdl, ys, h, w), (model, y, h, w),
-        (t_model, t_y, jnp.where(act, t_dt, 0.0), jnp.where(act, t_dW, 0.0)))
+        (t_model, t_y, jnp.where(act, t_dt, 0.0), _noise.where(act, t_dW)))
     code1 = finite_result(y1, info.result)
     need = act & (code1 != RESULTS.successful)
     # Retried samples: the attempts again (a loop that runs only while some sample of the
@@ -147,7 +153,7 @@ def _robust_step_jvp(method, k, primals, tangents):
     y2, code2, its2, res2, _, (jy, jdt, jdw, jp) = _attempts(method, model, y, dt, dW, need,
                                                             k, k, jacobians=True)
     leaves, idx = jax.tree_util.tree_leaves(t_model), _inexact_leaves(model)[2]
-    t_re = jy @ t_y.reshape(-1) + jdt * t_dt + jdw @ jnp.reshape(t_dW, -1)
+    t_re = jy @ t_y.reshape(-1) + jdt * t_dt + jdw @ ravel_pytree(t_dW)[0]
     for i, j in zip(idx, jp):
         t_re = t_re + j @ jnp.reshape(leaves[i], -1).astype(dtype)
     y_next = jnp.where(need, y2, y1)

@@ -19,8 +19,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _noise
-from ._checks import (check_count, check_grid, check_method, check_model, check_retry,
-                      check_save_every, check_y0)
+from ._checks import (check_count, check_grid, check_levy_option, check_method, check_model,
+                      check_retry, check_save_every, check_y0)
 from ._integrate import _ensemble
 from ._sharding import check_sharding
 from ._solver.lie_poisson import LiePoisson
@@ -93,15 +93,16 @@ def _merge(a, b):
 
 
 @functools.partial(jax.jit, static_argnames=("method", "n_blocks", "block_len", "chunk_size",
-                                             "observable", "want_cov", "retry", "sharding"))
+                                             "observable", "want_cov", "retry", "sharding",
+                                             "terms"))
 def _chunk(state, offset, n_samples, method, model, y0, key, dt, bound, n_blocks, block_len,
-           chunk_size, observable, want_cov, retry, sharding):
+           chunk_size, observable, want_cov, retry, sharding, terms):
     idx = offset + jnp.arange(chunk_size, dtype=jnp.uint32)
     keys = _noise.sample_keys(key, chunk_size, offset)
     if sharding is not None:
         keys = jax.lax.with_sharding_constraint(keys, sharding)
     ys, fail_step, _, _, _ = _ensemble(method, model, y0, keys, dt, bound, n_blocks,
-                                       block_len, False, retry=retry)
+                                       block_len, False, retry=retry, terms=terms)
     ys = jnp.concatenate([jnp.broadcast_to(y0, (chunk_size, 1, *y0.shape)), ys], axis=1)
     obs = _observe(observable, ys)
     valid = idx < n_samples
@@ -112,7 +113,8 @@ def _chunk(state, offset, n_samples, method, model, y0, key, dt, bound, n_blocks
 
 def ensemble_statistics(model, y0, *, t1, dt, n_samples, key, chunk_size, method=LiePoisson(),
                         save_every=None, statistics=("mean", "var"), observable=None,
-                        truncate_k=4, retry_substeps=4, sharding=None, progress=True):
+                        truncate_k=4, retry_substeps=4, sharding=None, progress=True,
+                        levy_area="auto"):
     r"""Moments of an ensemble of $dy = f(y)(dt + c \circ dW)$, run in chunks of samples.
 
     The same samples as `simulate(..., n_samples=n_samples, key=key)` (sample `i` draws from
@@ -124,8 +126,8 @@ def ensemble_statistics(model, y0, *, t1, dt, n_samples, key, chunk_size, method
 
     **Arguments:**
 
-    - `model`, `y0`, `t1`, `dt`, `key`, `method`, `truncate_k`, `retry_substeps`: as for
-      `simulate`.
+    - `model`, `y0`, `t1`, `dt`, `key`, `method`, `truncate_k`, `retry_substeps`,
+      `levy_area`: as for `simulate`.
     - `n_samples`: the total number of samples; `chunk_size`: samples per chunk (at most
       `n_samples` are run).
     - `save_every`: `None` (statistics of the final state, and of `y0` at `t = 0`) or `k`
@@ -160,6 +162,8 @@ def ensemble_statistics(model, y0, *, t1, dt, n_samples, key, chunk_size, method
     k = check_save_every(save_every, n_steps)
     retry = check_retry(retry_substeps)
     sharding = check_sharding(sharding, chunk_size, name="chunk_size")
+    terms = _noise.levy_area_terms(dt, model.n_noises) if check_levy_option(
+        levy_area, method, model) else None
     if isinstance(statistics, str):
         statistics = (statistics,)
     unknown = [s for s in statistics if s not in STATISTICS]
@@ -176,7 +180,7 @@ def ensemble_statistics(model, y0, *, t1, dt, n_samples, key, chunk_size, method
         ts = np.array([0.0, n_steps * dt])
     args = (method, model, y0, key, jnp.asarray(dt, dtype),
             jnp.asarray(_noise.truncation_bound(dt, truncate_k), dtype), n_blocks, k,
-            chunk_size, observable, want_cov, retry, sharding)
+            chunk_size, observable, want_cov, retry, sharding, terms)
     # The zero state: its shapes from an abstract evaluation of one chunk's moments.
     shapes = jax.eval_shape(
         lambda: _chunk_moments(
