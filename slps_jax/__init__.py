@@ -7,9 +7,10 @@ The library in four layers:
   `salt_noise`, `random_inertia_noise`, a function), parameters as pytree leaves:
   `LiePoissonSystem` (derivatives by JAX) and its analytic special cases `RigidBody` and
   `GeneralisedRigidBody` (so(n)). A system declares its `structure`.
-- **Method**: a small immutable object with `step(model, y, dt, dW)` and the structures it
-  `requires`; implicit methods share one Newton solver whose `RESULTS` code says why a step
-  failed.
+- **Method**: a small immutable object with `step(model, y, dt, dW)` (`dW` the step's noise,
+  a `BrownianStep`: increments and, when drawn, Lévy areas), the structures it `requires`,
+  its `strong_orders` by kind of noise and whether it is `poisson`; implicit methods share
+  one Newton solver whose `RESULTS` code says why a step failed.
 - **Driver**: `integrate` (given increments), `simulate` (an ensemble, increments drawn inside),
   `ensemble_statistics` (streamed moments); it owns the time loop, saving, statistics and
   failures, and refuses a method that the system cannot serve.
@@ -25,7 +26,8 @@ from ._system import LiePoissonSystem as LiePoissonSystem
 from ._noise_hamiltonians import random_inertia_noise as random_inertia_noise, salt_noise as salt_noise
 
 # Methods
-from ._solver.base import AbstractMethod as AbstractMethod, StepInfo as StepInfo
+from ._solver.base import (AbstractMethod as AbstractMethod, StepInfo as StepInfo,
+                           StrongOrders as StrongOrders)
 from ._solver.euler_maruyama import EulerMaruyama as EulerMaruyama
 from ._solver.exact import Exact as Exact
 from ._solver.heun import Heun as Heun
@@ -33,11 +35,12 @@ from ._solver.isospectral import IsospectralMidpoint as IsospectralMidpoint
 from ._solver.lie_poisson import LiePoisson as LiePoisson
 from ._solver.lie_poisson_sym import LiePoissonSym2 as LiePoissonSym2, LiePoissonSym4 as LiePoissonSym4
 from ._solver.midpoint import Midpoint as Midpoint
+from ._solver.milstein import Milstein as Milstein
 from ._solver.strang import SaltSplitting as SaltSplitting, Strang as Strang, Strang4 as Strang4
 
 # Driver
 from ._integrate import integrate as integrate, simulate as simulate
-from ._noise import brownian_increments as brownian_increments
+from ._noise import BrownianStep as BrownianStep, brownian_increments as brownian_increments
 from ._solution import RESULTS as RESULTS, Solution as Solution
 from ._stream import EnsembleStatistics as EnsembleStatistics, ensemble_statistics as ensemble_statistics
 

@@ -57,6 +57,10 @@ class SO3Algebra:
         r"""$\langle y, y\rangle = |y|^2$ over the state axes."""
         return jnp.sum(jnp.asarray(y) ** 2, axis=-1)
 
+    def pairing(self, x, y):
+        r"""$\langle x, y\rangle = x \cdot y$ over the state axes."""
+        return jnp.sum(x * y, axis=-1)
+
     def __repr__(self):
         return "SO3"
 
@@ -117,6 +121,9 @@ class SOnAlgebra:
 
     def norm_sq(self, y):
         return 0.5 * jnp.sum(jnp.asarray(y) ** 2, axis=(-2, -1))
+
+    def pairing(self, x, y):
+        return 0.5 * jnp.sum(x * y, axis=(-2, -1))
 
     def cayley(self, x):
         r"""The Cayley map so(n) -> SO(n), $(I - X)^{-1}(I + X) = I + 2X + O(X^2)$, for one

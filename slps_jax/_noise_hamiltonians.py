@@ -49,6 +49,17 @@ class AbstractNoise:
     def check_algebra(self, algebra):
         pass
 
+    def area_hamiltonian(self, y, area, params, algebra):
+        r"""$G_A(y) = \tfrac12\sum_{q,r} A_{qr}\langle y, [\nabla H_q(y), \nabla H_r(y)]\rangle$
+        for the areas `area` (`(s, s)`, antisymmetric): the gradients by JAX."""
+        g = algebra.gradient(jax.jacrev(lambda u: self.values(u, params))(y))  # (s, *shape)
+        return 0.5 * algebra.pairing(
+            y, jnp.sum(algebra.bracket(g, jnp.tensordot(area, g, axes=1)), axis=0))
+
+    def area_gradient(self, y, area, params, algebra):
+        r"""$\nabla G_A(y)$ (`area_hamiltonian`), by JAX."""
+        return algebra.gradient(jax.grad(self.area_hamiltonian)(y, area, params, algebra))
+
 
 def _weighted(w, rows):
     """$\\sum_r w_r\\,\\mathrm{rows}_r$ for `rows` of shape `(s, 3)`, on components."""
@@ -135,6 +146,15 @@ class SaltNoise(_MatrixNoise):
     def gradient_jacobian_c(self, v, w, params):
         zero = jnp.zeros_like(v[0])
         return self.gradient_c(v, w, params), ((zero,) * 3,) * 3
+
+    def area_gradient(self, y, area, params, algebra):
+        r"""$\nabla G_A = \tfrac12\sum_{q,r} A_{qr}[\chi_q, \chi_r]$ (on so(3)
+        $\chi_q \times \chi_r$): constant, in closed form."""
+        chi = self.chi.astype(y.dtype)
+        return 0.5 * jnp.sum(algebra.bracket(chi, jnp.tensordot(area, chi, axes=1)), axis=0)
+
+    def area_hamiltonian(self, y, area, params, algebra):
+        return algebra.pairing(y, self.area_gradient(y, area, params, algebra))
 
 
 def salt_noise(chi):

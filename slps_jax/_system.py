@@ -9,6 +9,7 @@ import numpy as np
 from . import _so3
 from ._algebra import SO3, SOnAlgebra, SO3Algebra
 from ._checks import concrete, float_dtype, real_array
+from ._noise import as_step
 from ._noise_hamiltonians import as_noise
 
 
@@ -148,31 +149,57 @@ class LiePoissonSystem:
         y = jnp.asarray(y)
         return self.algebra.bracket(y, self.gradient(y))
 
-    # Array forms of one sample's step (any algebra): what the matrix methods need.
+    # One sample's step. `noise` is the step's noise, a `BrownianStep` (increments `dW`, and
+    # Lévy areas `area` or `None`; an array of increments is accepted for a step without
+    # areas). The step's Hamiltonian is
+    #   K = h H_0 + sum_r dW_r H_r + G_A,  G_A(y) = 1/2 sum_{q,r} A_qr <y, [grad H_q, grad H_r]>,
+    # G_A the Hamiltonian of the area term sum_{q<r} A_qr [f_q, f_r] of the strong-order-1
+    # expansion (`docs/levy-area.md`).
 
-    def noise_gradient(self, y, dW):
-        r"""$u(y) = \sum_r \Delta W_r \nabla H_r(y)$ for one state `y`."""
+    def noise_gradient(self, y, noise):
+        r"""$u(y) = \sum_r \Delta W_r \nabla H_r(y)$ for one state `y` (no area term)."""
+        dW = as_step(noise).dW
         if self.noise is None:
             return self.noise_time(dW) * self.gradient(y)
         return self.noise.gradient(y, dW, self.params, self.algebra)
 
-    def step_hamiltonian(self, y, dt, dW):
-        r"""$K(y) = hH_0(y) + \sum_r \Delta W_r H_r(y)$ for one state `y`."""
-        if self.noise is None:
-            return (dt + self.noise_time(dW)) * self.hamiltonian(y)
-        return dt * self.hamiltonian(y) + jnp.dot(dW, self.noise.values(y, self.params))
+    def area_hamiltonian(self, y, area):
+        r"""$G_A(y) = \tfrac12\sum_{q,r} A_{qr}\langle y, [\nabla H_q(y), \nabla H_r(y)]\rangle$
+        for one state `y` and a step's areas `area` (`(s, s)`): the Hamiltonian whose field is
+        $\sum_{q<r} A_{qr}[f_q, f_r]$, the Lévy-area term of the step. On so(3)
+        $[a, b] = a \times b$; for SALT noise $G_A$ is linear (closed form)."""
+        return self.noise.area_hamiltonian(y, area, self.params, self.algebra)
 
-    def step_gradient(self, y, dt, dW):
-        r"""$\nabla K(y)$ for one state `y`."""
+    def area_gradient(self, y, area):
+        r"""$\nabla G_A(y)$ (`area_hamiltonian`) for one state `y`."""
+        return self.noise.area_gradient(y, area, self.params, self.algebra)
+
+    def _has_area(self, noise):
+        return noise.area is not None and self.noise is not None
+
+    def step_hamiltonian(self, y, dt, noise):
+        r"""$K(y) = hH_0(y) + \sum_r \Delta W_r H_r(y)$ (plus $G_A(y)$ with areas) for one
+        state `y`."""
+        noise = as_step(noise)
         if self.noise is None:
-            return (dt + self.noise_time(dW)) * self.gradient(y)
-        return dt * self.gradient(y) + self.noise_gradient(y, dW)
+            return (dt + self.noise_time(noise.dW)) * self.hamiltonian(y)
+        k = dt * self.hamiltonian(y) + jnp.dot(noise.dW, self.noise.values(y, self.params))
+        return k + self.area_hamiltonian(y, noise.area) if self._has_area(noise) else k
+
+    def step_gradient(self, y, dt, noise):
+        r"""$\nabla K(y)$ for one state `y`."""
+        noise = as_step(noise)
+        if self.noise is None:
+            return (dt + self.noise_time(noise.dW)) * self.gradient(y)
+        g = dt * self.gradient(y) + self.noise_gradient(y, noise)
+        return g + self.area_gradient(y, noise.area) if self._has_area(noise) else g
 
     def noise_time(self, dW):
         r"""$c\,\Delta W$: how far one step's noise moves the random time
         $\tau = h + c\,\Delta W$ of a system whose one noise is proportional to the drift.
-        `dW` is the step's increments, shape `(n_noises,) = (1,)` (a scalar is accepted)."""
-        return self.c * jnp.reshape(dW, ())
+        `dW` is the step's increments, shape `(n_noises,) = (1,)` (a scalar, or the step's
+        `BrownianStep`, is accepted)."""
+        return self.c * jnp.reshape(as_step(dW).dW, ())
 
     # Component forms for the integrators (tuples of arrays: see `_so3`). Subclasses with a
     # closed form override the drift's; noise families give theirs.
@@ -187,35 +214,58 @@ class LiePoissonSystem:
         hess, g = jax.jacfwd(lambda u: (grad(u), grad(u)), has_aux=True)(_so3.unvec(v))
         return _so3.vec(g), _so3.mat(hess)
 
-    def step_gradient_c(self, v, dt, dW):
-        r"""$\nabla K(v)$ of a step's Hamiltonian $K = h H_0 + \sum_r \Delta W_r H_r$ (the
-        step's flow to first order is that of $K$), on components, `dW` of shape
-        `(n_noises,)`. With `c=`, $K = \tau H_0$, $\tau = h + c\Delta W$."""
-        if self.noise is None:
-            return _so3.scale(dt + self.noise_time(dW), self.gradient_c(v))
-        return _so3.add(_so3.scale(dt, self.gradient_c(v)),
-                        self.noise.gradient_c(v, dW, self.params))
+    def _area_c(self, v, area, hessian):
+        """$\nabla G_A(v)$ on components, and with `hessian` its Jacobian (zero for linear
+        noise: the gradient is constant)."""
+        grad = lambda u: self.area_gradient(u, area)  # noqa: E731
+        if not hessian:
+            return _so3.vec(grad(_so3.unvec(v)))
+        if self.noise.linear:
+            zero = jnp.zeros_like(v[0])
+            return _so3.vec(grad(_so3.unvec(v))), ((zero,) * 3,) * 3
+        jac, g = jax.jacfwd(lambda u: (grad(u), grad(u)), has_aux=True)(_so3.unvec(v))
+        return _so3.vec(g), _so3.mat(jac)
 
-    def step_gradient_hessian_c(self, v, dt, dW):
+    def step_gradient_c(self, v, dt, noise):
+        r"""$\nabla K(v)$ of a step's Hamiltonian $K = h H_0 + \sum_r \Delta W_r H_r$
+        (plus $G_A$ with areas; the step's flow to first order is that of $K$), on
+        components. With `c=`, $K = \tau H_0$, $\tau = h + c\Delta W$."""
+        noise = as_step(noise)
+        if self.noise is None:
+            return _so3.scale(dt + self.noise_time(noise.dW), self.gradient_c(v))
+        g = _so3.add(_so3.scale(dt, self.gradient_c(v)),
+                     self.noise.gradient_c(v, noise.dW, self.params))
+        return _so3.add(g, self._area_c(v, noise.area, False)) if self._has_area(noise) else g
+
+    def step_gradient_hessian_c(self, v, dt, noise):
         r"""$(\nabla K(v), \nabla^2 K(v))$ on components."""
+        noise = as_step(noise)
         g, hess = self.gradient_hessian_c(v)
         if self.noise is None:
-            tau = dt + self.noise_time(dW)
+            tau = dt + self.noise_time(noise.dW)
             return _so3.scale(tau, g), _so3.mscale(tau, hess)
-        u, ju = self.noise.gradient_jacobian_c(v, dW, self.params)
-        return (_so3.add(_so3.scale(dt, g), u),
-                _so3.madd(_so3.mscale(dt, hess), ju))
+        u, ju = self.noise.gradient_jacobian_c(v, noise.dW, self.params)
+        g, hess = _so3.add(_so3.scale(dt, g), u), _so3.madd(_so3.mscale(dt, hess), ju)
+        if self._has_area(noise):
+            ga, ha = self._area_c(v, noise.area, True)
+            g, hess = _so3.add(g, ga), _so3.madd(hess, ha)
+        return g, hess
 
-    def step_fields_c(self, v, dt, dW):
+    def step_fields_c(self, v, dt, noise):
         r"""$(\nabla K(v), u(v), \partial u/\partial v)$ on components, with
-        $u = \sum_r \Delta W_r \nabla H_r$ the noise part of $\nabla K$: what scheme (42)
-        with several noises needs (`sine_chart_in_map_noise`)."""
+        $u = \sum_r \Delta W_r \nabla H_r$ the increments' part of the noise (the areas'
+        $\nabla G_A$ is in $\nabla K$ only): what scheme (42) with several noises needs
+        (`sine_chart_in_map_noise`)."""
+        noise = as_step(noise)
         if self.noise is None:
-            cdw = self.noise_time(dW)
+            cdw = self.noise_time(noise.dW)
             g, hess = self.gradient_hessian_c(v)
             return _so3.scale(dt + cdw, g), _so3.scale(cdw, g), _so3.mscale(cdw, hess)
-        u, ju = self.noise.gradient_jacobian_c(v, dW, self.params)
-        return _so3.add(_so3.scale(dt, self.gradient_c(v)), u), u, ju
+        u, ju = self.noise.gradient_jacobian_c(v, noise.dW, self.params)
+        k = _so3.add(_so3.scale(dt, self.gradient_c(v)), u)
+        if self._has_area(noise):
+            k = _so3.add(k, self._area_c(v, noise.area, False))
+        return k, u, ju
 
 
 def _noise_or_c(c, noise, params, leaves, algebra=SO3):

@@ -8,7 +8,8 @@ from .isospectral import IsospectralMidpoint
 from .lie_poisson import LiePoisson
 from .lie_poisson_sym import LiePoissonSym2, LiePoissonSym4
 from .midpoint import Midpoint
+from .milstein import Milstein
 from .strang import SaltSplitting, Strang, Strang4
 
 METHODS = (LiePoisson, LiePoissonSym2, LiePoissonSym4, Midpoint, IsospectralMidpoint, Strang,
-           Strang4, SaltSplitting, Exact, Heun, EulerMaruyama)
+           Strang4, SaltSplitting, Exact, Heun, Milstein, EulerMaruyama)

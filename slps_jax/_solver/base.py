@@ -28,6 +28,25 @@ class StepInfo(NamedTuple):
         return self.result == RESULTS.successful
 
 
+class StrongOrders(NamedTuple):
+    """A method's strong orders by kind of noise, as measured (each is checked for every
+    method of the registry by a test against an independent reference).
+
+    - `one`: one noise proportional to the drift (`c=`; commuting noises alike).
+    - `increments`: several non-commuting noises, the step seeing only the increments
+      (Clark & Cameron: at most 1/2).
+    - `areas`: several non-commuting noises with the Lévy areas; `None`: the method does not
+      use them (the driver then draws none and refuses them).
+
+    `None` for `one` or `increments`: the method does not converge to the Stratonovich
+    solution there, or cannot run on such a system.
+    """
+
+    one: float | None
+    increments: float | None
+    areas: float | None = None
+
+
 class AbstractMethod:
     """A one-step method for
     $dy = y \\times \\nabla H_0(y)\\,dt + \\sum_r y \\times \\nabla H_r(y) \\circ dW_r$ (on so(n):
@@ -54,12 +73,31 @@ class AbstractMethod:
     # the times and evaluates the flow only where a state is saved (`Exact`).
     flow_in_time = None
 
+    # The strong orders by kind of noise (`StrongOrders`). A method whose `areas` order is
+    # not `None` uses the Lévy areas of the noises (`BrownianStep.area`): the area term
+    # $\sum_{q<r} A_{qr}[f_q, f_r]$ in the step, which makes it strong order 1 with several
+    # non-commuting noises; the driver draws areas for it (`levy_area`) and refuses to give
+    # them to one that would ignore them.
+    strong_orders = StrongOrders(one=None, increments=None)
+
+    # Whether the step is a Poisson map: it keeps the Casimirs (for the quadratic one, a
+    # theorem for every Poisson method; the higher ones on so(n) only for coadjoint-orbit
+    # methods such as `IsospectralMidpoint` and `LiePoisson`).
+    poisson = False
+
+    @classmethod
+    def uses_levy_area(cls):
+        """Whether the step uses the Lévy areas (`strong_orders.areas` is not `None`)."""
+        return cls.strong_orders.areas is not None
+
     def step(self, model, y, dt, dW):
         """Advance one sample by one step.
 
         **Arguments:** `model` (a system offering `requires`), `y` a state (shape
-        `model.algebra.shape`), the step `dt` (a scalar) and the step's Brownian increments
-        `dW`, shape `(model.n_noises,)`.
+        `model.algebra.shape`), the step `dt` (a scalar) and the step's noise `dW`: a
+        `BrownianStep` (increments of shape `(model.n_noises,)`, and Lévy areas when the
+        method `uses_levy_area()` and the driver drew them), or an array of increments (a step
+        without areas). The system's step functions (`step_gradient`, ...) take it as it is.
 
         **Returns:** `(y_next, StepInfo)`.
         """

@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 
 from .. import _so3 as so3
-from .base import AbstractMethod, explicit_info
+from .base import AbstractMethod, StrongOrders, explicit_info
 
 
 @dataclasses.dataclass(frozen=True)
@@ -18,6 +18,8 @@ class EulerMaruyama(AbstractMethod):
     same coefficients, not to the Stratonovich solution, and it does not conserve $|y|$.
     Works for any system.
     """
+
+    strong_orders = StrongOrders(one=None, increments=None)  # converges to the Itô equation
 
     def step(self, model, y, dt, dW):
         if model.algebra.matrix:

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 
 from .._exact import exact_flow
 from .._system import NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
-from .base import AbstractMethod, explicit_info
+from .base import AbstractMethod, StrongOrders, explicit_info
 
 
 @dataclasses.dataclass(frozen=True)
@@ -21,6 +22,9 @@ class Exact(AbstractMethod):
     evaluates the flow only where a state is saved, at the sum of the step times since the
     last one (`flow_in_time`): one evaluation per sample for the final state only.
     """
+
+    strong_orders = StrongOrders(one=math.inf, increments=None)  # exact for one noise
+    poisson = True
 
     requires = frozenset({RIGID_BODY, NOISE_PROPORTIONAL_TO_DRIFT})
     can_fail = False  # a closed form: no solve

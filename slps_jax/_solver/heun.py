@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 
 from .. import _so3 as so3
-from .base import AbstractMethod, explicit_info
+from .base import AbstractMethod, StrongOrders, explicit_info
 
 
 @dataclasses.dataclass(frozen=True)
@@ -23,6 +23,8 @@ class Heun(AbstractMethod):
     **Reference:** P. E. Kloeden & E. Platen, *Numerical Solution of Stochastic Differential
     Equations* (1992); W. Rümelin, SIAM J. Numer. Anal. 19 (1982).
     """
+
+    strong_orders = StrongOrders(one=1.0, increments=0.5)
 
     def step(self, model, y, dt, dW):
         if model.algebra.matrix:

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 
 from .._algebra import so
 from .._checks import check_options
-from .base import AbstractMethod, StepInfo, default_tol, finite_result
+from .base import AbstractMethod, StepInfo, StrongOrders, default_tol, finite_result
 from .newton import jacobian_mode, solve_array
 
 
@@ -49,6 +49,9 @@ class IsospectralMidpoint(AbstractMethod):
     S. Ephrati, E. Jansson, A. Lang & E. Luesink, *An exponential map free implicit midpoint
     method for stochastic Lie–Poisson systems*, arXiv:2408.16701.
     """
+
+    strong_orders = StrongOrders(one=1.0, increments=0.5, areas=1.0)
+    poisson = True
 
     tol: float | None = None
     max_iter: int | None = None

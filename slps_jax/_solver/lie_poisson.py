@@ -10,9 +10,10 @@ import numpy as np
 
 from .. import _so3 as so3
 from .._checks import check_options
+from .._noise import scale
 from .._solution import RESULTS
 from .._system import NOISE_PROPORTIONAL_TO_DRIFT, QUADRATIC, RIGID_BODY
-from .base import AbstractMethod, StepInfo, default_tol, finite_result
+from .base import AbstractMethod, StepInfo, StrongOrders, default_tol, finite_result
 from .newton import implicit_root, newton, solve_array
 
 
@@ -285,6 +286,9 @@ class LiePoisson(AbstractMethod):
     Lie–Poisson systems*, scheme (42).
     """
 
+    strong_orders = StrongOrders(one=1.0, increments=0.5, areas=1.0)
+    poisson = True
+
     tol: float | None = None
     max_iter: int | None = None
     scale: float | None = None
@@ -368,7 +372,7 @@ class LiePoisson(AbstractMethod):
         alg = model.algebra
         lam = 1.0 if self.scale is None else self.scale
         z = y / lam
-        dt_s, dW_s = lam * dt, lam * dW
+        dt_s, dW_s = lam * dt, scale(dW, lam)
         # (the chart's base point: constant for derivatives, which the implicit function
         # theorem gives through the residual; eigh's derivative is singular here anyway)
         a0, gap = jax.tree_util.tree_map(jax.lax.stop_gradient, branch_point(z))
@@ -379,7 +383,7 @@ class LiePoisson(AbstractMethod):
 
         def residual(x, lam_):
             a = rotation(x)
-            return alg.coordinates(matrix_in_map(model, a, lam_ * dt_s, lam_ * dW_s, second) - z)
+            return alg.coordinates(matrix_in_map(model, a, lam_ * dt_s, scale(dW_s, lam_), second) - z)
 
         zero = jnp.zeros((alg.dim,), y.dtype)
 

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 from .. import _so3 as so3
 from .._checks import check_options
 from .._solution import RESULTS
-from .base import AbstractMethod, StepInfo, default_tol, finite_result
+from .base import AbstractMethod, StepInfo, StrongOrders, default_tol, finite_result
 from .newton import implicit_root, jacobian_mode, newton, solve_array
 
 
@@ -33,6 +33,9 @@ class Midpoint(AbstractMethod):
     **Arguments:** `tol` (default `64 eps`), `max_iter` (default `None`: 12; on so(n) above
     so(5), where the fixed-point iteration $Y_{n+1} = Y_n + F_n(M)$ replaces Newton, 48).
     """
+
+    strong_orders = StrongOrders(one=1.0, increments=0.5, areas=1.0)
+    poisson = True
 
     tol: float | None = None
     max_iter: int | None = None

@@ -8,8 +8,9 @@ import jax
 import jax.numpy as jnp
 
 from .. import _so3 as so3
+from .._noise import as_step
 from .._system import LINEAR_NOISE, NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
-from .base import AbstractMethod, explicit_info
+from .base import AbstractMethod, StrongOrders, explicit_info
 from .composition import TRIPLE_JUMP
 
 # The two components that axis i rotates, in cyclic order (i, j, k).
@@ -70,6 +71,8 @@ class Strang(AbstractMethod):
 
     requires = frozenset({RIGID_BODY, NOISE_PROPORTIONAL_TO_DRIFT})
     can_fail = False  # exact rotations: no solve
+    strong_orders = StrongOrders(one=1.0, increments=None)
+    poisson = True
 
     def step(self, model, y, dt, dW):
         return _composed_step(model, y, dt + model.noise_time(dW), (1.0,))
@@ -120,6 +123,8 @@ class Strang4(AbstractMethod):
 
     requires = frozenset({RIGID_BODY, NOISE_PROPORTIONAL_TO_DRIFT})
     can_fail = False  # exact rotations: no solve
+    strong_orders = StrongOrders(one=2.0, increments=None)
+    poisson = True
 
     def step(self, model, y, dt, dW):
         return _composed_step(model, y, dt + model.noise_time(dW), TRIPLE_JUMP)
@@ -150,10 +155,17 @@ class SaltSplitting(AbstractMethod):
 
     requires = frozenset({RIGID_BODY, LINEAR_NOISE})
     can_fail = False  # exact rotations: no solve
+    # (the areas in the noise rotation's axis)
+    strong_orders = StrongOrders(one=None, increments=0.5, areas=1.0)
+    poisson = True
 
     def step(self, model, y, dt, dW):
         inv_i = model.inverse_inertia()
-        u = so3.vec(dW @ model.noise.chi.astype(y.dtype))
+        noise = as_step(dW)
+        u = noise.dW @ model.noise.chi.astype(y.dtype)
+        if noise.area is not None:  # the area term's rotation axis (`area_gradient`)
+            u = u + model.area_gradient(y, noise.area)
+        u = so3.vec(u)
         noise = so3.exp_c(so3.scale(-0.5, u))
 
         # N, D, N as two rounds of (N, then D in the first round only): a loop, not a chain
