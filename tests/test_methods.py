@@ -19,8 +19,6 @@ import pytest
 import slps_jax as sj
 from slps_jax._solver import METHODS
 
-# The methods that are not Poisson integrators (they drift off the coadjoint orbit).
-NOT_POISSON = {"EulerMaruyama", "Heun"}
 
 
 def _skew(n, norm):
@@ -82,7 +80,7 @@ def test_method_on_system(cls, system):
     assert bool(jnp.all(sol.ok)) and bool(jnp.all(jnp.isfinite(sol.ys)))
     c0 = quadratic_casimir(model, jnp.asarray(y0))
     drift = float(jnp.max(jnp.abs(quadratic_casimir(model, sol.ys) / c0 - 1)))
-    if cls.__name__ in NOT_POISSON:
+    if not cls.poisson:
         assert drift > 1e-8  # the check below can fail: these methods leave the orbit
     else:
         assert drift < 1e-12
@@ -91,12 +89,16 @@ def test_method_on_system(cls, system):
     # float32, on the first system the method supports: sample 0 on simulate's own increments
     # (simulate equals integrate on them, tests/test_driver.py), within float32's accuracy:
     # Newton stops at 64 float32 ulps (8e-6) per step, 16 steps (measured up to 2e-5).
-    dW = sj.brownian_increments(key, N_STEPS, DT, n_samples=N_SAMPLES, n_noises=model.n_noises)
+    # (with the Lévy areas simulate draws for a method that uses them)
+    areas = cls.uses_levy_area() and model.n_noises > 1
+    dW = sj.brownian_increments(key, N_STEPS, DT, n_samples=N_SAMPLES, n_noises=model.n_noises,
+                                levy_area=areas)
+    dW, A = dW if areas else (dW, None)
     model32 = jax.tree_util.tree_map(
         lambda x: jnp.asarray(x, jnp.float32) if jnp.issubdtype(jnp.result_type(x), jnp.floating)
         else x, model)
     y32 = sj.integrate(model32, jnp.asarray(y0, jnp.float32), dW[0].astype(jnp.float32), DT,
-                       method=method)
+                       method=method, levy_area=None if A is None else A[0].astype(jnp.float32))
     assert y32.dtype == jnp.float32
     np.testing.assert_allclose(np.asarray(y32, np.float64), sol.ys[0, -1], rtol=0, atol=1e-4)
 

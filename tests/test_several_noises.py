@@ -15,6 +15,7 @@ import pytest
 import scipy.linalg
 
 import slps_jax as sj
+from slps_jax._solver import METHODS
 from slps_jax import _so3
 from slps_jax._solver.lie_poisson_sym import _solve_rotation
 from slps_jax.so3 import hat, skew, vee
@@ -23,9 +24,10 @@ Y0 = jnp.asarray([0.6, 0.5, 0.3])
 INERTIA = jnp.asarray([1.0, 2.0, 3.0])
 # Three SALT noises about non-parallel axes.
 CHI = 0.4 * np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.5, 1.0]])
-POISSON = {"LiePoisson": sj.LiePoisson(), "LiePoissonSym2": sj.LiePoissonSym2(),
-           "LiePoissonSym4": sj.LiePoissonSym4(), "Midpoint": sj.Midpoint(),
-           "SaltSplitting": sj.SaltSplitting()}
+# Every Poisson method of the registry that runs on the SALT rigid body.
+_SALT_STRUCTURE = sj.RigidBody(INERTIA, noise=sj.salt_noise(CHI)).structure
+POISSON = {cls.__name__: cls() for cls in METHODS
+           if cls.poisson and cls.requires <= _SALT_STRUCTURE}
 
 
 def rigid_body_h(y, inertia):
@@ -72,11 +74,13 @@ def test_paper_case_through_noise_equals_rigid_body():
 
 
 def test_casimir_kept_with_three_noises():
-    """|y| to 1e-13 over 10^4 steps with three SALT noises, for every Poisson method."""
+    """|y| to 1e-13 over 10^4 steps with three SALT noises, for every Poisson method (with
+    the Lévy areas for those that use them)."""
     dt = 2.0 ** -8
-    dW = sj.brownian_increments(jax.random.key(2), 10_000, dt, n_noises=3)
+    dW, A = sj.brownian_increments(jax.random.key(2), 10_000, dt, n_noises=3, levy_area=True)
     for name, method in POISSON.items():
-        ys = sj.integrate(salt(), Y0, dW, dt, method=method, save_every=100)
+        ys = sj.integrate(salt(), Y0, dW, dt, method=method, save_every=100,
+                          levy_area=A if method.uses_levy_area() else None)
         drift = np.abs(np.linalg.norm(ys, axis=1) - np.linalg.norm(Y0)).max()
         assert drift < 1e-13, (name, drift)
     # The baseline is not a Poisson map: Heun's |y| drifts far above round-off.
@@ -114,22 +118,7 @@ def so3_vee_skew(a):
 
 
 # --------------------------------------------------------------------------------------
-# Strong order against a fine reference on the same paths.
-
-
-def test_strong_orders_against_fine_reference():
-    """Non-commuting noises: strong order 1/2 (Clark & Cameron). 200 samples: the orders'
-    bootstrap standard errors are about 0.02 (measured 0.46-0.52, h = 2^-3 ... 2^-7; the
-    reference, 64x finer than 2^-7, is most of the cost)."""
-    result = sj.strong_convergence(
-        salt(), Y0, t1=1.0, dts=[2.0 ** -k for k in range(3, 8)], n_samples=200,
-        key=jax.random.key(0), reference=sj.Midpoint(),
-        methods={"LiePoisson": sj.LiePoisson(), "Midpoint": sj.Midpoint(), "Heun": sj.Heun(),
-                 "SaltSplitting": sj.SaltSplitting()})
-    for name, order in result.order.items():
-        assert 0.4 < order < 0.9, (name, order)
-    # The reference (64x finer than 2^-7) is well below the errors fitted.
-    assert 0 < result.reference_error < 0.25 * min(e[-1] for e in result.errors.values())
+# The second-order terms, against a fine reference on the same paths.
 
 
 @pytest.fixture(scope="module")
@@ -297,20 +286,21 @@ def test_simulate_draws_one_increment_per_noise():
     """simulate's sample i equals integrate on row i of brownian_increments(n_noises=3), and
     the noise families equal the same Hamiltonians given as functions."""
     key = jax.random.key(5)
-    sol = sj.simulate(salt(), Y0, t1=0.25, dt=2.0 ** -5, n_samples=3, key=key)
+    sol = sj.simulate(salt(), Y0, t1=0.25, dt=2.0 ** -5, n_samples=3, key=key, levy_area=False)
     dWs = sj.brownian_increments(key, 8, 2.0 ** -5, n_samples=3, n_noises=3)
     assert dWs.shape == (3, 8, 3)
     for i in range(3):
         np.testing.assert_allclose(sol.ys[i, -1], sj.integrate(salt(), Y0, dWs[i], 2.0 ** -5),
                                    atol=1e-15)
-    dW = sj.brownian_increments(key, 8, 2.0 ** -5, n_noises=3)
+    dW, A = sj.brownian_increments(key, 8, 2.0 ** -5, n_noises=3, levy_area=True)
     sigma = 0.3 * np.eye(3) + 0.1
     for family, fn in ((sj.salt_noise(CHI), lambda y, p: jnp.asarray(CHI) @ y),
                        (sj.random_inertia_noise(sigma),
                         lambda y, p: 0.5 * jnp.asarray(sigma) @ (y * y))):
+        # (with the Lévy areas: SALT's closed-form area term against autodiff's)
         for method in (sj.LiePoisson(), sj.Midpoint()):
             got = sj.integrate(sj.RigidBody(INERTIA, noise=family), Y0, dW, 2.0 ** -5,
-                               method=method)
+                               method=method, levy_area=A)
             want = sj.integrate(sj.LiePoissonSystem(rigid_body_h, INERTIA, noise=fn), Y0, dW,
-                                2.0 ** -5, method=method)
+                                2.0 ** -5, method=method, levy_area=A)
             np.testing.assert_allclose(got, want, atol=1e-13)

@@ -1,0 +1,157 @@
+"""Strong order 1 with several non-commuting noises: the Lévy-area term, tested against the
+exact signature of a path.
+
+The reference (`levy_reference.py`, no library code) is a fine piecewise-linear Brownian
+path and the ODE it drives (Wong–Zakai), solved piece by piece with RK4 to about 1e-10: it
+has no scheme error. The coarse steps get that path's exact increments and Lévy areas.
+Each method must then have strong order 1 with the areas, order 1/2 without them (Clark &
+Cameron), and not order 1 with the areas' sign flipped: the test that pins the convention
+`A[q, r] = (J_qr - J_rq)/2` and the sign of the bracket term. Poisson methods keep the
+Casimirs to round-off throughout.
+
+The sizes: 128 paths, 2^10 pieces, h = 2^-2 ... 2^-5 (at least 32 pieces a step: fewer bias
+the fitted order). The fitted orders' sampling spread at this size is about 0.03 (measured
+over 20 keys for the increments-only order: 0.46-0.57 at 100 paths).
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import slps_jax as sj
+from slps_jax._solver import METHODS
+from levy_reference import (coarsen, fine_path, fitted_order, salt_rigid_body_fields,
+                            salt_so_n_fields, wong_zakai_solution)
+
+N_PATHS, N_FINE, T = 128, 2 ** 10, 1.0
+HS = [2.0 ** -k for k in range(2, 6)]
+
+INERTIA = jnp.asarray([1.1, 1.7, 2.6])
+CHI = 0.5 * np.array([[1.0, 0.2, 0.0], [0.0, 1.0, 0.3], [0.4, 0.0, 1.0]])
+Y0 = jnp.asarray([0.45, -0.5, 0.4])
+
+J4 = jnp.asarray([0.6, 0.9, 1.3, 1.7])
+_E = np.eye(4)
+# three skew noise directions of so(4) that do not commute
+X4 = 0.5 * np.stack([np.outer(_E[0], _E[1]) - np.outer(_E[1], _E[0]),
+                     np.outer(_E[1], _E[2]) - np.outer(_E[2], _E[1]) + 0.3 * (
+                         np.outer(_E[0], _E[3]) - np.outer(_E[3], _E[0])),
+                     np.outer(_E[2], _E[3]) - np.outer(_E[3], _E[2])])
+Y4 = 0.3 * jnp.asarray(np.array([[0, 1, -0.5, 0.2], [-1, 0, 0.8, -0.4],
+                                 [0.5, -0.8, 0, 0.6], [-0.2, 0.4, -0.6, 0]]))
+
+
+def _case(name):
+    key = jax.random.key(2024)
+    if name == "so(3)":
+        model = sj.RigidBody(INERTIA, noise=sj.salt_noise(CHI))
+        fields, y0 = salt_rigid_body_fields(INERTIA, CHI), Y0
+    else:
+        model = sj.GeneralisedRigidBody(J4, noise=sj.salt_noise(X4))
+        fields = salt_so_n_fields(lambda y: y / (J4[:, None] + J4[None, :]), X4)
+        y0 = Y4
+    dW_fine = fine_path(key, N_PATHS, N_FINE, T, 3)
+    return model, y0, dW_fine, wong_zakai_solution(fields, y0, dW_fine, T, substeps=2)
+
+
+CASES = {}
+
+
+def case(name):
+    if name not in CASES:
+        CASES[name] = _case(name)
+    return CASES[name]
+
+
+def _norm2(model, y):
+    return np.asarray(model.algebra.norm_sq(y))
+
+
+SALT = sj.RigidBody(INERTIA, noise=sj.salt_noise(CHI))
+# Every method of the registry that runs on the SALT rigid body (a new method is checked
+# here without a test of its own), and on so(4) the two coadjoint-orbit methods.
+PARAMS = [("so(3)", cls) for cls in METHODS if cls.requires <= SALT.structure] + [
+    ("so(4)", sj.IsospectralMidpoint), ("so(4)", sj.LiePoisson)]
+
+
+@pytest.mark.parametrize("name,cls", PARAMS, ids=[f"{n}-{c.__name__}" for n, c in PARAMS])
+def test_declared_strong_orders_against_the_exact_signature(name, cls):
+    """Each method's declared orders (`strong_orders`): `increments` without areas, `areas`
+    with the exact areas (and not order 1 with their sign flipped); a Poisson method keeps
+    the Casimirs to round-off, any other leaves them."""
+    method = cls()
+    model, y0, dW_fine, y_ref = case(name)
+    declared = cls.strong_orders
+    errors = {"areas": [], "flipped": [], "none": []}
+    casimir = 0.0
+    c0 = np.asarray(model.algebra.casimirs(y0))
+    for h in HS:
+        dW, A = coarsen(dW_fine, int(round(h * N_FINE)))
+        plain = jax.jit(jax.vmap(lambda w: sj.integrate(model, y0, w, h, method=method,
+                                                        throw=False)))
+        runs = [("none", plain(dW))]
+        if declared.areas is not None:
+            run = jax.jit(jax.vmap(lambda w, a: sj.integrate(model, y0, w, h, levy_area=a,
+                                                             method=method, throw=False)))
+            runs += [("areas", run(dW, A)), ("flipped", run(dW, -A))]
+        for kind, ys in runs:
+            assert np.all(np.isfinite(ys))
+            errors[kind].append(np.sqrt(np.mean(_norm2(model, ys - y_ref))))
+            casimir = max(casimir, float(np.max(np.abs(model.algebra.casimirs(ys) - c0))))
+    order = {k: fitted_order(HS, e) for k, e in errors.items() if e}
+    if declared.increments is None:  # (EulerMaruyama: the Ito solution, no convergence)
+        assert order["none"] < 0.2, (order, errors)
+    else:
+        assert abs(order["none"] - declared.increments) < 0.15, (order, errors)
+    if declared.areas is None:
+        with pytest.raises(TypeError, match="does not use Lévy areas"):
+            sj.integrate(model, y0, dW[0], HS[-1], levy_area=A[0], method=method)
+    else:
+        assert 0.85 * declared.areas <= order["areas"] <= 1.25 * declared.areas, (order, errors)
+        assert order["flipped"] <= 0.75, (order, errors)
+        # at the smallest step the areas already gain a factor of 2.5 or more (measured 2.9-4)
+        assert errors["areas"][-1] < errors["none"][-1] / 2.5, errors
+    if cls.poisson:
+        assert casimir < 1e-13
+    else:
+        assert casimir > 1e-6
+
+
+def test_gradients_through_the_area_term_match_finite_differences():
+    """d/d(inertia, chi) of the final state on fixed increments and areas, three methods,
+    against central differences."""
+    dW, A = sj.brownian_increments(jax.random.key(7), 8, 1 / 16, n_noises=3, levy_area=True)
+    weights = jnp.asarray([0.3, -0.7, 0.5])
+
+    def loss(theta, method):
+        model = sj.RigidBody(theta[:3], noise=sj.salt_noise(theta[3:].reshape(3, 3)))
+        return jnp.dot(weights, sj.integrate(model, Y0, dW, 1 / 16, levy_area=A,
+                                             method=method, throw=False))
+
+    theta = jnp.concatenate([INERTIA, jnp.asarray(CHI).ravel()])
+    eps = 1e-5
+    for method in (sj.Midpoint(), sj.LiePoisson(), sj.SaltSplitting()):
+        f = jax.jit(lambda t: loss(t, method))
+        grad = jax.jit(jax.grad(lambda t: loss(t, method)))(theta)
+        fd = np.array([(f(theta.at[i].add(eps)) - f(theta.at[i].add(-eps))) / (2 * eps)
+                       for i in range(theta.size)])
+        np.testing.assert_allclose(grad, fd, rtol=0, atol=1e-6, err_msg=type(method).__name__)
+
+
+def test_sampled_areas_in_a_study_give_order_one():
+    """Areas drawn by the library at the reference's step (32x finer), joined by Chen's
+    relation over the coarse steps: SaltSplitting against itself at the fine step."""
+    model = sj.RigidBody(INERTIA, noise=sj.salt_noise(CHI))
+    res = sj.strong_convergence(model, Y0, t1=1.0, dts=HS, n_samples=64,
+                                key=jax.random.key(1), reference=sj.SaltSplitting(),
+                                methods={"s": sj.SaltSplitting(), "no areas": sj.SaltSplitting()},
+                                levy_area={"no areas": False}, reference_factor=32)
+    assert 0.85 <= res.order["s"] <= 1.25, res.table()
+    assert res.reference_error < 0.1 * res.errors["s"][-1], res.table()
+    # the same method without areas, against the same reference: order 1/2
+    assert 0.35 <= res.order["no areas"] <= 0.65, res.table()
+    with pytest.raises(ValueError, match="levy_area names methods"):
+        sj.strong_convergence(model, Y0, t1=1.0, dts=HS, n_samples=4, key=jax.random.key(1),
+                              methods={"s": sj.SaltSplitting()}, levy_area={"t": False},
+                              reference=sj.SaltSplitting())
