@@ -123,6 +123,9 @@ def parse(argv):
                    help="a smoke run: 32 samples, h = 2^-4 and 2^-5, reference at 2^-8, weak "
                         "errors of two methods, a short long-time run, small so(4) and "
                         "area-cost runs")
+    p.add_argument("--area-costs-only", action="store_true",
+                   help="only the cost of drawing the areas (written to "
+                        "several_noises_area_costs.md and .json)")
     p.add_argument("--out", default=_common.DEFAULT_OUT, help="output folder (default: %(default)s)")
     return p.parse_args(argv)
 
@@ -188,7 +191,7 @@ def area_costs(fast):
     key = jax.random.key(5)
     keys = _noise.sample_keys(key, n_samples)
     steps = jnp.arange(n_steps, dtype=jnp.uint32)
-    for s in (2, 3, 5):
+    for s in ((3,) if fast else (2, 3, 5)):
         for k in ((8,) if fast else (6, 8, 10)):
             h = jnp.asarray(2.0 ** -k)
             terms = _noise.levy_area_terms(2.0 ** -k, s)
@@ -239,6 +242,8 @@ def so4_study(fast):
                "Milstein + areas": (sj.Milstein(), True),
                "IsospectralMidpoint": (sj.IsospectralMidpoint(), False),
                "LiePoisson": (sj.LiePoisson(), False)}
+    if fast:  # a smoke run: the two Poisson methods with areas
+        methods = {n: methods[n] for n in ("IsospectralMidpoint + areas", "LiePoisson + areas")}
     c0 = np.asarray(model.algebra.casimirs(Y4))
     rows = []
     for name, (method, areas) in methods.items():
@@ -269,6 +274,20 @@ def main(argv=None):
     os.makedirs(args.out, exist_ok=True)
     info = _common.machine_info()
     fast = args.fast
+    if args.area_costs_only:
+        costs = area_costs(fast)
+        md = (f"Drawing the Lévy areas (`_noise.draw`, jitted, per sample-step) against the "
+              f"increments alone. {info['cpu_model']}, jax {info['jax']}, "
+              f"{info['date'][:10]}.\n\n" + _common.markdown_table(
+                  costs, ["s", "h", "terms", "normals_per_step", "ns_increments",
+                          "ns_with_areas", "ratio"],
+                  {"h": ".5f", "ns_increments": ".0f", "ns_with_areas": ".0f", "ratio": ".2f"}))
+        print("\n" + md)
+        with open(os.path.join(args.out, "several_noises_area_costs.md"), "w") as fh:
+            fh.write(md)
+        _common.write_json(os.path.join(args.out, "several_noises_area_costs.json"),
+                           dict(machine=info, area_costs=costs))
+        return
     n_samples = 32 if fast else 500
     ks = range(4, 6) if fast else range(4, 9)
     factor = 8 if fast else 64

@@ -33,7 +33,7 @@ def test_several_noises(tmp_path):
             assert 0.7 < row["strong_order"] < 1.5, row
         elif name != "EulerMaruyama":
             assert 0.3 < row["strong_order"] < 1.0, row
-    assert {r["s"] for r in summary["area_costs"]} == {2, 3, 5}
+    assert [r["s"] for r in summary["area_costs"]] == [3]
     assert {r["method"] for r in summary["so4_summary"]} >= {"IsospectralMidpoint + areas",
                                                              "LiePoisson + areas"}
     for row in summary["so4_summary"]:
