@@ -179,17 +179,13 @@ def _study(caller, model, y0, t1, dts, n_samples, key, methods, reference, refer
             raise ValueError(f"t1={t1} must be a multiple of every step size, not of dt={dt}.")
     # Lévy areas (for the methods that use them): drawn at the finest step, joined over the
     # coarse ones by Chen's relation; a dict chooses per method, the reference on "auto"
-    if isinstance(levy_area, dict):
-        unknown = sorted(set(levy_area) - set(methods))
-        if unknown:
-            raise ValueError(f"levy_area names methods {unknown} that are not in methods "
-                             f"({sorted(methods)}).")
-        areas = {n: check_levy_option(levy_area.get(n, "auto"), m, model)
-                 for n, m in methods.items()}
-        ref_areas = is_method and check_levy_option("auto", reference, model)
-    else:
-        areas = {n: check_levy_option(levy_area, m, model) for n, m in methods.items()}
-        ref_areas = is_method and check_levy_option(levy_area, reference, model)
+    chosen, default = (levy_area, "auto") if isinstance(levy_area, dict) else ({}, levy_area)
+    unknown = sorted(set(chosen) - set(methods))
+    if unknown:
+        raise ValueError(f"levy_area names methods {unknown} that are not in methods "
+                         f"({sorted(methods)}).")
+    areas = {n: check_levy_option(chosen.get(n, default), m, model) for n, m in methods.items()}
+    ref_areas = is_method and check_levy_option(default, reference, model)
     fine_terms = _noise.levy_area_terms(fine_dt, model.n_noises)
 
     def final_states(method, dt, name="dt", areas=False):

@@ -153,7 +153,12 @@ def increment(sample_key, n, dt, bound, dtype, n_noises=1):
     """The truncated increments of step `n`, shape `(n_noises,)`:
     $\\Delta\\hat W_{n,r} = \\sqrt h\\, \\mathrm{clip}(\\xi_{n,r}, \\pm A_h)$, componentwise, from
     `fold_in(sample_key, n)` (the first component does not depend on `n_noises`)."""
-    xi = jax.random.normal(jax.random.fold_in(sample_key, n), (n_noises,), dtype)
+    return _increment(jax.random.fold_in(sample_key, n), dt, bound, dtype, n_noises)
+
+
+def _increment(step_key, dt, bound, dtype, n_noises):
+    """`increment` from the step's key `fold_in(sample_key, n)`."""
+    xi = jax.random.normal(step_key, (n_noises,), dtype)
     return jnp.sqrt(dt).astype(dtype) * jnp.clip(xi, -bound, bound)
 
 
@@ -225,10 +230,11 @@ def draw(sample_key, n, dt, bound, dtype, n_noises, terms=None):
     (`increment`) and, with `terms` (the series length, `levy_area_terms`), its Lévy areas
     drawn from the step key's own area stream. The increments do not depend on whether the
     areas are drawn."""
-    dW = increment(sample_key, n, dt, bound, dtype, n_noises)
+    step_key = jax.random.fold_in(sample_key, n)  # (derived once, for both)
+    dW = _increment(step_key, dt, bound, dtype, n_noises)
     if terms is None:
         return BrownianStep(dW)
-    area_key = jax.random.fold_in(jax.random.fold_in(sample_key, n), AREA_STREAM)
+    area_key = jax.random.fold_in(step_key, AREA_STREAM)
     return BrownianStep(dW, levy_area(area_key, dW, jnp.asarray(dt, dtype), bound, terms))
 
 
