@@ -2,7 +2,8 @@
 
 The library in four layers:
 
-- **System**: a Lie algebra (`SO3`, 3-vector states; `so(n)`, skew-matrix states) with a
+- **System**: a Lie algebra (`SO3`, 3-vector states; `so(n)`, skew matrices; `su(N)`,
+  skew-Hermitian complex matrices; one interface, `AbstractAlgebra`) with a
   drift Hamiltonian and its noise (`c=`, or several noises with their own Hamiltonians:
   `salt_noise`, `random_inertia_noise`, a function), parameters as pytree leaves:
   `LiePoissonSystem` (derivatives by JAX) and its analytic special cases `RigidBody` and
@@ -19,7 +20,7 @@ The library in four layers:
 """
 
 # System
-from ._algebra import SO3 as SO3, so as so
+from ._algebra import AbstractAlgebra as AbstractAlgebra, SO3 as SO3, so as so, su as su
 from ._model import (PAPER_Y0 as PAPER_Y0, GeneralisedRigidBody as GeneralisedRigidBody,
                      RigidBody as RigidBody)
 from ._system import LiePoissonSystem as LiePoissonSystem

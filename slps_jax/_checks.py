@@ -24,10 +24,33 @@ def concrete(x):
     return np.asarray(x)
 
 
+def real_dtype(dtype):
+    """The real floating dtype of a (real or complex) floating dtype: that of times, noise,
+    residuals and tolerances of a computation whose states have dtype `dtype`."""
+    return jnp.finfo(dtype).dtype
+
+
 def float_dtype(*xs):
     """The floating dtype the computation runs in: the inputs' promoted dtype, at least the
     default float (float32, or float64 with `jax_enable_x64`)."""
     return jnp.result_type(float, *xs)
+
+
+def numeric_array(name, x, allow_complex):
+    """`x` as an array of real numbers (with `allow_complex`, of real or complex numbers),
+    or a `TypeError` naming the argument."""
+    if not allow_complex:
+        return real_array(name, x)
+    if isinstance(x, str):
+        raise TypeError(f"{name} must be numbers, got the string {x!r}.")
+    try:
+        arr = jnp.asarray(x)
+    except (TypeError, ValueError) as err:
+        raise TypeError(f"{name} must be numbers, got {x!r} ({err}).") from None
+    if jax.dtypes.issubdtype(arr.dtype, jax.dtypes.extended) or \
+            np.dtype(arr.dtype).kind not in "fiuc":
+        raise TypeError(f"{name} must be numbers, got dtype {arr.dtype}.")
+    return arr
 
 
 def real_array(name, x):
@@ -133,8 +156,9 @@ def check_levy_option(levy_area, method, model):
 
 def check_y0(y0, method, model):
     check_pair(method, model)
-    y0 = real_array("y0", y0)
-    shape = model.algebra.shape
+    alg = model.algebra
+    y0 = numeric_array("y0", y0, alg.is_complex)
+    shape = alg.shape
     if y0.shape != shape:
         several = y0.ndim == len(shape) + 1 and y0.shape[1:] == shape
         raise ValueError(
@@ -142,16 +166,10 @@ def check_y0(y0, method, model):
             f"{y0.shape}"
             + ("; for several initial values use jax.vmap over integrate." if several
                else "."))
-    y0 = y0.astype(model.dtype)
+    y0 = y0.astype(alg.state_dtype(model.dtype))
     y_np = concrete(y0)
     if y_np is not None:
-        if not np.all(np.isfinite(y_np)):
-            raise ValueError(f"y0 must be finite, got {y_np}.")
-        if model.algebra.matrix:
-            asym = float(np.max(np.abs(y_np + y_np.T)))
-            if asym > 1e-12 * max(1.0, float(np.max(np.abs(y_np)))):
-                raise ValueError(f"y0 must be skew-symmetric (a state of "
-                                 f"{model.algebra.name}); max |y0 + y0^T| = {asym:.3g}.")
+        alg.validate("y0", y_np)
         method.check_initial(model, y_np)
     return y0
 

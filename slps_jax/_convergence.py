@@ -17,7 +17,7 @@ from . import _noise
 from ._exact import exact_flow, exact_solution
 from ._flow import deterministic_flow
 from ._checks import (check_count, check_levy_option, check_method, check_model, check_positive,
-                      check_retry, check_y0)
+                      check_retry, check_y0, real_dtype)
 from ._integrate import _ensemble_dynamic_jit, failure_summary
 from ._system import NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
 from ._solver.base import AbstractMethod
@@ -170,7 +170,7 @@ def _study(caller, model, y0, t1, dts, n_samples, key, methods, reference, refer
                    else fine_dt / (64 if reference_factor is None else reference_factor))
     _noise.check_truncation(fine_dt, truncate_k)
     n_fine = _substeps(float(t1), fine_dt, "t1")
-    dtype = y0.dtype
+    dtype = real_dtype(y0.dtype)
     keys = _noise.sample_keys(key, int(n_samples))
     bound = jnp.asarray(_noise.truncation_bound(fine_dt, truncate_k), dtype)
 

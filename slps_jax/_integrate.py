@@ -14,7 +14,7 @@ from . import _noise
 from ._sharding import check_sharding
 from ._checks import (check_grid, check_count, check_levy_area, check_levy_option, check_method,
                       check_model, check_positive, check_retry, check_save_every, check_throw,
-                      check_y0, concrete, real_array)
+                      check_y0, concrete, real_array, real_dtype)
 from ._solution import RESULTS, Solution
 from ._solver.base import finite_result
 from ._solver.lie_poisson import LiePoisson
@@ -34,7 +34,7 @@ def _step(method, model, dt, carry, dW, live, *, want_stats, retry):
     (thousands of scalar operations); XLA inlines the call, so the compiled loop is unchanged.
     """
     y, result, fail_step, n, n_retried, acc = carry
-    dtype = y.dtype
+    dtype = real_dtype(y.dtype)
     live = jnp.asarray(live)  # (a Python bool under jax.disable_jit)
     act = (result == RESULTS.successful) & live
     if retry is None or not method.can_fail:
@@ -71,8 +71,7 @@ def _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats, retry=No
     of retried steps, and the Newton statistics `(iterations sum, iterations max, residual
     max)` or `()`.
     """
-    dtype = y0.dtype
-    zero = jnp.zeros((), dtype)
+    zero = jnp.zeros((), real_dtype(y0.dtype))
     acc0 = (zero, jnp.zeros((), jnp.int32), zero) if want_stats else ()
     if method.flow_in_time is not None:
         return _time_change_path(method, model, y0, dt, draw, n_blocks, block_len, acc0)
@@ -198,7 +197,7 @@ def _ensemble(method, model, y0, keys, dt, bound, n_blocks, block_len, want_stat
     `substeps = m > 1`, step `n`'s noise joins the fine steps `n m, ..., n m + m - 1` of size
     `dt / m` (`_noise.draw_joined`): coarse paths that are the very same Brownian paths as a
     run with step `dt / m`."""
-    dtype = y0.dtype
+    dtype = real_dtype(y0.dtype)
     fine_dt = dt / substeps
 
     def one(key):
@@ -354,7 +353,7 @@ def integrate(model, y0, dW, dt, *, levy_area=None, method=LiePoisson(), save_ev
     area = check_levy_area(levy_area, n_steps, s, method)
     k = check_save_every(save_every, n_steps)
     retry = check_retry(retry_substeps)
-    dtype = y0.dtype
+    dtype = real_dtype(y0.dtype)
     dt = jnp.asarray(dt if dt_np is None else float(dt_np), dtype)
     noise = _noise.BrownianStep(dW.astype(dtype), None if area is None else area.astype(dtype))
     ys, fail_step, result, _, _ = _integrate_jit(method, model, y0, noise, dt, k, False, retry)
@@ -435,7 +434,7 @@ def simulate_unreported(model, y0, *, t1, dt, n_samples, key, method, save_every
     sharding = check_sharding(sharding, n_samples)
     terms = _noise.levy_area_terms(dt, model.n_noises) if check_levy_option(
         levy_area, method, model) else None
-    dtype = y0.dtype
+    dtype = real_dtype(y0.dtype)
 
     keys = _noise.sample_keys(key, n_samples)
     if sharding is not None:

@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _so3
-from ._checks import concrete, float_dtype, real_array
+from ._checks import concrete, float_dtype, numeric_array
 
 
 class AbstractNoise:
@@ -68,23 +68,19 @@ def _weighted(w, rows):
 
 
 def _parameter_matrix(name, x, what, matrices=False):
-    """A family's parameter: shape `(s, 3)`, or with `matrices` also `(s, n, n)` skew (one
-    element of so(n) per noise)."""
-    x = real_array(name, x)
+    """A family's parameter: shape `(s, 3)`, or with `matrices` also `(s, n, n)` (one
+    element of the algebra per noise, real or complex: checked against the system's algebra
+    by `check_algebra`)."""
+    x = numeric_array(name, x, allow_complex=matrices)
     x = x.astype(float_dtype(x))
-    square = matrices and x.ndim == 3 and x.shape[1] == x.shape[2] >= 3
+    square = matrices and x.ndim == 3 and x.shape[1] == x.shape[2] >= 2
     if not (x.ndim == 2 and x.shape[1] == 3 or square) or x.shape[0] < 1:
         raise ValueError(f"{name} must have shape (s, 3), one row per noise ({what})"
-                         + (", or (s, n, n), one skew matrix per noise on so(n)" if matrices
-                            else "") + f", got shape {x.shape}.")
+                         + (", or (s, n, n), one element of so(n) or su(n) per noise"
+                            if matrices else "") + f", got shape {x.shape}.")
     x_np = concrete(x)
     if x_np is not None and not np.all(np.isfinite(x_np)):
         raise ValueError(f"{name} must be finite, got {x_np}.")
-    if square and x_np is not None:
-        asym = np.max(np.abs(x_np + np.swapaxes(x_np, 1, 2)))
-        if asym > 1e-12 * max(1.0, float(np.max(np.abs(x_np)))):
-            raise ValueError(f"{name}[r] must be skew-symmetric matrices (elements of so(n)); "
-                             f"max |{name} + {name}^T| = {asym:.3g}.")
     return x
 
 
@@ -122,6 +118,12 @@ class _MatrixNoise(AbstractNoise):
                 f"{self.builder}: {self.parameter_name} of shape {self.matrix.shape} does not fit "
                 f"the states of {algebra.name}, shape {algebra.shape}: pass shape "
                 f"(s, {', '.join(map(str, algebra.shape))}).")
+        x_np = concrete(self.matrix)
+        if self.linear and x_np is not None:  # (its rows are elements of the algebra)
+            for r, x in enumerate(x_np):
+                algebra.validate(f"{self.parameter_name}[{r}]", x)
+        elif x_np is not None and np.iscomplexobj(x_np):
+            raise TypeError(f"{self.builder}: {self.parameter_name} must be real.")
 
 
 @jax.tree_util.register_pytree_node_class
@@ -135,7 +137,8 @@ class SaltNoise(_MatrixNoise):
     def values(self, y, params):
         if self.chi.ndim == 2:
             return self.chi @ y
-        return 0.5 * jnp.sum(self.chi * y, axis=(-2, -1))  # <chi_r, Y> on so(n)
+        # <X_r, Y> = (1/2) Re tr(X_r^H Y) on so(n) and su(N)
+        return 0.5 * jnp.sum(jnp.real(jnp.conj(self.chi) * y), axis=(-2, -1))
 
     def gradient_c(self, v, w, params):
         return _weighted(w, self.chi)
@@ -255,7 +258,8 @@ def as_noise(noise, params, dtype, algebra):
         raise TypeError(f"noise must be a function noise(y, params) -> shape (s,) or a noise "
                         f"family such as salt_noise(chi), got {type(noise).__name__}.")
     try:
-        out = jax.eval_shape(noise, jax.ShapeDtypeStruct(algebra.shape, dtype), params)
+        out = jax.eval_shape(noise, jax.ShapeDtypeStruct(algebra.shape,
+                                                         algebra.state_dtype(dtype)), params)
     except Exception as err:  # noqa: BLE001 - reported with the function's name
         raise ValueError(f"noise(y, params) failed on y of shape {algebra.shape}: {err}") from err
     shape = getattr(out, "shape", None)

@@ -33,6 +33,7 @@ import jax.numpy as jnp
 from jax.flatten_util import ravel_pytree
 
 from . import _noise
+from ._checks import real_dtype
 from ._solution import RESULTS
 from ._solver.base import finite_result
 
@@ -51,7 +52,7 @@ def _attempts(method, model, y, dt, dW, act, k, m0, jacobians=False):
     `(y, dt, dW, the model's inexact leaves)`, as matrices with the state flattened (see
     `_jacobian_tools`); else `()`.
     """
-    dtype = y.dtype
+    dtype = real_dtype(y.dtype)
     m_max = k ** RETRY_LEVELS
     zero_i = jnp.zeros((), jnp.int32)
     substep, j0, chain = _jacobian_tools(method, model, y, dW) if jacobians else (
@@ -141,7 +142,7 @@ def robust_step(method, model, y, dt, dW, act, k):
 def _robust_step_jvp(method, k, primals, tangents):
     model, y, dt, dW, act = primals
     t_model, t_y, t_dt, t_dW, _ = tangents
-    dtype = y.dtype
+    dtype = real_dtype(y.dtype)
     h, w = jnp.where(act, dt, 0.0).astype(dtype), _noise.where(act, dW)
     (y1, info), (t_y1, _) = jax.jvp(
         lambda mdl, ys, h, w: method.step(mdl, ys, h, w), (model, y, h, w),

@@ -20,7 +20,7 @@ import numpy as np
 
 from . import _noise
 from ._checks import (check_count, check_grid, check_levy_option, check_method, check_model,
-                      check_retry, check_save_every, check_y0)
+                      check_retry, check_save_every, check_y0, real_dtype)
 from ._integrate import _ensemble
 from ._sharding import check_sharding
 from ._solver.lie_poisson import LiePoisson
@@ -172,7 +172,7 @@ def ensemble_statistics(model, y0, *, t1, dt, n_samples, key, chunk_size, method
     if observable is not None and not callable(observable):
         raise TypeError(f"observable must be None or a function, got {observable!r}.")
     want_cov = "cov" in statistics
-    dtype = y0.dtype
+    dtype = real_dtype(y0.dtype)
 
     n_blocks = n_steps // k
     ts = np.arange(0, n_steps + 1, k, dtype=np.float64) * dt

@@ -7,8 +7,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _so3
-from ._algebra import SO3, SOnAlgebra, SO3Algebra
-from ._checks import concrete, float_dtype, real_array
+from ._algebra import REAL_STATES, SO3, SO3_VECTORS, AbstractAlgebra
+from ._checks import concrete, float_dtype, real_array, real_dtype
 from ._noise import as_step
 from ._noise_hamiltonians import as_noise
 
@@ -17,7 +17,8 @@ from ._noise_hamiltonians import as_noise
 NOISE_PROPORTIONAL_TO_DRIFT = "noise proportional to the drift"  # one noise, H_1 = c H_0
 RIGID_BODY = "rigid body"  # H_0 = y^T I^{-1} y / 2 on so(3)*, `inverse_inertia()` available
 LINEAR_NOISE = "linear noise"  # H_r = <chi_r, y> (SALT), `noise.chi` available
-SO3_VECTORS = "so(3)* as 3-vectors"  # the state is y in R^3 (component fast paths)
+# (and what the algebra offers: `AbstractAlgebra.structure`)
+SO3_VECTORS, REAL_STATES = SO3_VECTORS, REAL_STATES
 QUADRATIC = "quadratic Hamiltonians"  # H_0 and every H_r quadratic: y -> y/s is a time change
 
 
@@ -66,8 +67,9 @@ class LiePoissonSystem:
         if not callable(hamiltonian):
             raise TypeError(f"hamiltonian must be callable as hamiltonian(y, params), got "
                             f"{type(hamiltonian).__name__}.")
-        if not isinstance(algebra, (SO3Algebra, SOnAlgebra)):
-            raise TypeError(f"algebra must be slps_jax.SO3 or slps_jax.so(n), got {algebra!r}.")
+        if not isinstance(algebra, AbstractAlgebra):
+            raise TypeError(f"algebra must be a Lie algebra of slps_jax (SO3, so(n), su(N)), "
+                            f"got {algebra!r}.")
         params = jax.tree_util.tree_map(jnp.asarray, params)
         leaves = [x for x in jax.tree_util.tree_leaves(params)
                   if jnp.issubdtype(x.dtype, jnp.inexact)]
@@ -102,7 +104,7 @@ class LiePoissonSystem:
     @property
     def structure(self):
         """The structures the system offers (methods declare which they need)."""
-        vectors = frozenset({SO3_VECTORS}) if self.algebra is SO3 else frozenset()
+        vectors = self.algebra.structure
         if self.noise is None:
             return vectors | {NOISE_PROPORTIONAL_TO_DRIFT}
         return vectors | ({LINEAR_NOISE} if self.noise.linear else frozenset())
@@ -112,13 +114,13 @@ class LiePoissonSystem:
         """The floating dtype of every computation with this system."""
         leaves = [x for x in jax.tree_util.tree_leaves(self)
                   if hasattr(x, "dtype") and jnp.issubdtype(x.dtype, jnp.inexact)]
-        return float_dtype(*leaves)
+        return real_dtype(float_dtype(*leaves))
 
     def _h(self, y):
         return self.hamiltonian_fn(y, self.params)
 
     def _signature(self, out):
-        state = "(3)" if self.algebra is SO3 else "(n,n)"
+        state = "(" + ",".join(f"d{i}" for i in range(len(self.algebra.shape))) + ")"
         return f"{state}->{state if out == 'state' else out}"
 
     def hamiltonian(self, y):

@@ -7,6 +7,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from .._checks import real_dtype
 from .._solution import RESULTS
 
 
@@ -110,7 +111,8 @@ class AbstractMethod:
 
 def explicit_info(y):
     """`StepInfo` of an explicit step: successful iff the new state is finite."""
-    return StepInfo(finite_result(y), jnp.zeros((), jnp.int32), jnp.zeros((), y.dtype))
+    return StepInfo(finite_result(y), jnp.zeros((), jnp.int32),
+                    jnp.zeros((), real_dtype(y.dtype)))
 
 
 def finite_result(y, result=RESULTS.successful):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 
 from .. import _so3 as so3
+from .._algebra import SO3_VECTORS
 from .base import AbstractMethod, StrongOrders, explicit_info
 
 
@@ -27,13 +28,13 @@ class Heun(AbstractMethod):
     strong_orders = StrongOrders(one=1.0, increments=0.5)
 
     def step(self, model, y, dt, dW):
-        if model.algebra.matrix:
+        if SO3_VECTORS not in model.structure:
             def f(u):
                 return model.algebra.bracket(u, model.step_gradient(u, dt, dW))
             k1 = f(y)
             y_next = y + 0.5 * (k1 + f(y + k1))
             return y_next.astype(y.dtype), explicit_info(y_next)
-        yc = so3.vec(y)
+        yc = so3.vec(y)  # so(3)'s fast path, on components
 
         def f(u):
             return so3.cross(u, model.step_gradient_c(u, dt, dW))

@@ -6,8 +6,8 @@ import dataclasses
 
 import jax.numpy as jnp
 
-from .._algebra import so
-from .._checks import check_options
+from .._algebra import adjoint
+from .._checks import check_options, real_dtype
 from .base import AbstractMethod, StepInfo, StrongOrders, default_tol, finite_result
 from .newton import jacobian_mode, solve_array
 
@@ -68,26 +68,25 @@ class IsospectralMidpoint(AbstractMethod):
         dtype = y.dtype
         tol = default_tol(dtype) if self.tol is None else self.tol
         alg = model.algebra
-        mat = alg if alg.matrix else so(3)  # coordinates of the matrices
         yn = alg.to_matrix(y)
-        eye = jnp.eye(yn.shape[-1], dtype=dtype)
+        eye = jnp.eye(yn.shape[-1], dtype=yn.dtype)
 
-        def half_w(x):  # (1/2) W^ = -(1/2) grad K(X)
-            return -0.5 * alg.to_matrix(model.step_gradient(alg.from_matrix(x), dt, dW))
+        def half_w(x):  # (1/2) W^ = -(1/2) grad K(X), X a state
+            return -0.5 * alg.to_matrix(model.step_gradient(x, dt, dW))
 
-        def residual(xc, lam):
-            x = mat.from_coordinates(xc)
+        def residual(xc, lam):  # (I - W/2) X (I + W/2) - Y_n, on the real coordinates
+            x = alg.from_coordinates(xc)
             b = eye - half_w(x)
-            return mat.coordinates(b @ x @ b.T - yn)
+            return alg.coordinates(alg.project(b @ alg.to_matrix(x) @ adjoint(b))) - x0
 
-        x0 = mat.coordinates(yn)
+        x0 = alg.coordinates(y)
         xc, result, it, res = solve_array(residual, x0, x0, tol=tol, max_iter=self.max_iter,
-                                          jacobian=jacobian_mode(self.jacobian, mat.dim,
-                                                                        large="identity"))
-        # Y_{n+1} = Q Y_n Q^T with the Cayley rotation Q = (I + W/2)(I - W/2)^{-1}: equal to
+                                          jacobian=jacobian_mode(self.jacobian, alg.dim,
+                                                                 large="identity"))
+        # Y_{n+1} = Q Y_n Q^H with the Cayley rotation Q = (I + W/2)(I - W/2)^{-1}: equal to
         # (I + W/2) X (I - W/2) at the root, and isospectral to round-off whatever the
         # solver's tolerance
-        q = mat.cayley(half_w(mat.from_coordinates(xc)))  # (I - W/2)^{-1}(I + W/2)
-        m = q @ yn @ q.T
-        y_next = alg.from_matrix(0.5 * (m - m.T)).astype(dtype)
-        return y_next, StepInfo(finite_result(y_next, result), it, res.astype(dtype))
+        q = alg.cayley(half_w(alg.from_coordinates(xc)))  # (I - W/2)^{-1}(I + W/2)
+        y_next = alg.act(q, y).astype(dtype)
+        return y_next, StepInfo(finite_result(y_next, result), it,
+                                res.astype(real_dtype(dtype)))

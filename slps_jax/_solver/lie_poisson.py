@@ -12,7 +12,7 @@ from .. import _so3 as so3
 from .._checks import check_options
 from .._noise import scale
 from .._solution import RESULTS
-from .._system import NOISE_PROPORTIONAL_TO_DRIFT, QUADRATIC, RIGID_BODY
+from .._system import NOISE_PROPORTIONAL_TO_DRIFT, QUADRATIC, REAL_STATES, RIGID_BODY, SO3_VECTORS
 from .base import AbstractMethod, StepInfo, StrongOrders, default_tol, finite_result
 from .newton import implicit_root, newton, solve_array
 
@@ -288,6 +288,7 @@ class LiePoisson(AbstractMethod):
 
     strong_orders = StrongOrders(one=1.0, increments=0.5, areas=1.0)
     poisson = True
+    requires = frozenset({REAL_STATES})  # (the orthogonal group SO(n); U(N) not derived)
 
     tol: float | None = None
     max_iter: int | None = None
@@ -302,16 +303,16 @@ class LiePoisson(AbstractMethod):
                              f"{self.jacobian!r}.")
 
     def check_initial(self, model, y0):
-        needs = {QUADRATIC} if model.algebra.matrix else _ANALYTIC
+        vectors = SO3_VECTORS in model.structure
+        needs = _ANALYTIC if vectors else {QUADRATIC}
         if self.scale is not None and not needs <= model.structure:
             raise ValueError(
                 "LiePoisson(scale=...) needs a rigid body with one noise proportional to the "
                 "drift (c=): scaling y is a time change only for a quadratic Hamiltonian "
                 "and noise; this system has not that structure.")
         lam = 1.0 if self.scale is None else self.scale
-        matrix = model.algebra.matrix
-        norm = float(np.linalg.norm(y0, 2) if matrix else (y0 ** 2).sum() ** 0.5)
-        name = "the spectral norm ||Y0||_2" if matrix else "|y0|"
+        norm = float((y0 ** 2).sum() ** 0.5 if vectors else np.linalg.norm(y0, 2))
+        name = "|y0|" if vectors else "the spectral norm ||Y0||_2"
         if norm / lam >= 1.0:
             raise ValueError(
                 f"LiePoisson needs {name} < 1 (the in-map has no solution on the paper's "
@@ -332,7 +333,7 @@ class LiePoisson(AbstractMethod):
     def step(self, model, y, dt, dW):
         dtype = y.dtype
         tol = default_tol(dtype) if self.tol is None else self.tol
-        if model.algebra.matrix:
+        if SO3_VECTORS not in model.structure:
             return self._step_matrix(model, y, dt, dW, tol)
         z = so3.vec(y)
         if _ANALYTIC <= model.structure:

@@ -6,7 +6,8 @@ import dataclasses
 import jax.numpy as jnp
 
 from .. import _so3 as so3
-from .._checks import check_options
+from .._algebra import SO3_VECTORS
+from .._checks import check_options, real_dtype
 from .._solution import RESULTS
 from .base import AbstractMethod, StepInfo, StrongOrders, default_tol, finite_result
 from .newton import implicit_root, jacobian_mode, newton, solve_array
@@ -46,8 +47,9 @@ class Midpoint(AbstractMethod):
     def step(self, model, y, dt, dW):
         dtype = y.dtype
         tol = default_tol(dtype) if self.tol is None else self.tol
-        if model.algebra.matrix:
-            return self._step_matrix(model, y, dt, dW, tol)
+        if SO3_VECTORS not in model.structure:
+            return self._step_coordinates(model, y, dt, dW, tol)
+        # so(3)'s fast path: Newton on components with the analytic Jacobian
         y0 = so3.vec(y)
 
         def f(u):  # the step's increment field y x grad K(y), K = h H_0 + sum_r dW_r H_r
@@ -76,7 +78,8 @@ class Midpoint(AbstractMethod):
         return y_next, StepInfo(finite_result(y_next, result.astype(jnp.int32)),
                                 it.astype(jnp.int32), res.astype(dtype))
 
-    def _step_matrix(self, model, y, dt, dW, tol):
+    def _step_coordinates(self, model, y, dt, dW, tol):
+        """Any algebra: the solve on the state's real coordinates."""
         alg = model.algebra
         x0 = alg.coordinates(y)
 
@@ -91,4 +94,5 @@ class Midpoint(AbstractMethod):
             residual, x0 + alg.coordinates(f(y)), x0, tol=tol, max_iter=self.max_iter,
             jacobian=jacobian_mode("auto", alg.dim, large="identity"))
         y_next = alg.from_coordinates(x).astype(y.dtype)
-        return y_next, StepInfo(finite_result(y_next, result), it, res.astype(y.dtype))
+        return y_next, StepInfo(finite_result(y_next, result), it,
+                                res.astype(real_dtype(y.dtype)))

@@ -1,0 +1,152 @@
+"""The Lie algebra interface: what systems and methods may use of an algebra.
+
+An algebra is static data of a system (hashable, one instance per algebra, compared by
+identity). A state `y` is an array of shape `shape` and dtype `state_dtype(dtype)` (real, or
+complex for su(N)). Every algebra here is a matrix algebra; its states may be stored in
+another form (so(3) as 3-vectors), converted by `to_matrix` / `from_matrix`.
+
+What a method may use, and nothing else:
+
+- the vector space: `shape`, `dim` (real dimension), `state_dtype`, `coordinates` /
+  `from_coordinates` (real coordinates, orthonormal for the pairing), `pairing`, `norm_sq`;
+- the Lie–Poisson structure: `gradient` (the gradient for the pairing from JAX's gradient of
+  a real function of the state), `bracket(y, x)` (the field $[y, x]$ of a gradient `x`:
+  $dy = [y, \\nabla H]$), `casimirs`;
+- the group: `to_matrix`, `from_matrix`, `project` (the state nearest to a matrix),
+  `adjoint` ($M^H$), `cayley` ($(I - X)^{-1}(I + X)$), `act(a, y)` ($a\\,y\\,a^{-1}$ for a
+  unitary `a`);
+- `validate` (a concrete state, with a clear message) and `random_state` (for tests).
+
+The defaults below are written once for every matrix algebra; an algebra overrides what it
+has in closed form.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+# What an algebra may offer to methods beyond the interface (`structure`), declared by the
+# methods that need it in `requires`.
+REAL_STATES = "real states"  # states are real matrices (orthogonal group maps)
+SO3_VECTORS = "so(3)* as 3-vectors"  # states are y in R^3 (the component fast paths)
+
+
+def adjoint(m):
+    """$M^H$ over the last two axes (the transpose for real matrices)."""
+    return jnp.conj(jnp.swapaxes(m, -1, -2))
+
+
+class AbstractAlgebra:
+    name: str
+    shape: tuple
+    dim: int
+    matrix_size: int  # the size n of the matrices (`to_matrix`)
+    is_complex = False  # states are complex arrays
+    structure = frozenset({REAL_STATES})
+
+    # -- the vector space
+
+    def state_dtype(self, dtype):
+        """The dtype of a state for a computation in the real floating `dtype`."""
+        dtype = jnp.dtype(dtype)
+        return jnp.result_type(dtype, jnp.complex64) if self.is_complex else dtype
+
+    def pairing(self, x, y):
+        r"""$\langle x, y\rangle$ over the state axes (real)."""
+        raise NotImplementedError
+
+    def norm_sq(self, y):
+        r"""$\langle y, y\rangle$ over the state axes."""
+        return self.pairing(y, y)
+
+    def coordinates(self, y):
+        """Real coordinates of a state, orthonormal for the pairing, shape `(..., dim)`."""
+        raise NotImplementedError
+
+    def from_coordinates(self, x):
+        raise NotImplementedError
+
+    # -- the Lie–Poisson structure
+
+    def gradient(self, g):
+        """The gradient for the pairing of a real function, from JAX's gradient `g` of it."""
+        raise NotImplementedError
+
+    def bracket(self, y, x):
+        """$[y, x]$: the Lie–Poisson field of a gradient `x` at `y`."""
+        return self.from_matrix(_commutator(self.to_matrix(y), self.to_matrix(x)))
+
+    def casimirs(self, y):
+        """The Casimir functions (real), shape `(..., k)`."""
+        raise NotImplementedError
+
+    # -- the group
+
+    def to_matrix(self, y):
+        return y
+
+    def from_matrix(self, m):
+        return m
+
+    def project(self, m):
+        """The state whose matrix is nearest to the matrix `m` (its part in the algebra)."""
+        raise NotImplementedError
+
+    adjoint = staticmethod(adjoint)
+
+    def cayley(self, x):
+        r"""The Cayley map $(I - X)^{-1}(I + X) = I + 2X + O(X^2)$ of one matrix `x` of the
+        algebra (a unitary matrix). Gauss–Jordan elimination without pivoting, written out:
+        stable because $I - X$ has Hermitian part $I$, and on a CPU some times faster under
+        `vmap` than a batched LAPACK solve of small matrices."""
+        n = x.shape[-1]
+        eye = jnp.eye(n, dtype=x.dtype)
+        m = jnp.concatenate([eye - x, eye + x], axis=1)
+        for k in range(n):
+            row = m[k] / m[k, k]
+            m = (m - jnp.outer(m[:, k], row)).at[k].set(row)
+        return m[:, n:]
+
+    def act(self, a, y):
+        r"""$a\,y\,a^{-1} = a\,y\,a^H$ for a unitary (orthogonal) matrix `a`: the coadjoint
+        action, which keeps every Casimir (projected back onto the algebra, so that rounding
+        does not add up over steps)."""
+        return self.project(a @ self.to_matrix(y) @ adjoint(a))
+
+    # -- validation and test states
+
+    def validate(self, name, y):
+        """Raise `ValueError` unless the concrete array `y` (NumPy) is a state of the algebra
+        (shape, finite, and the algebra's own conditions)."""
+        if y.shape != self.shape:
+            raise ValueError(f"{name} must have shape {self.shape} (a state of {self.name}), "
+                             f"got shape {y.shape}.")
+        if not np.all(np.isfinite(y)):
+            raise ValueError(f"{name} must be finite, got {y}.")
+        if np.iscomplexobj(y) and not self.is_complex:
+            raise TypeError(f"{name} must be real (a state of {self.name}), got a complex "
+                            f"array.")
+        m = np.asarray(self.to_matrix(y))
+        scale = max(1.0, float(np.max(np.abs(m))))
+        off = float(np.max(np.abs(m - np.asarray(self.to_matrix(self.project(m))))))
+        if off > 1e-12 * scale:
+            raise ValueError(f"{name} must be {self.condition} (a state of {self.name}); it "
+                             f"is {off:.3g} away.")
+
+    condition = "a state"  # the algebra's condition on a matrix, in words
+
+    def random_state(self, key, dtype=None):
+        """A random state with standard normal coordinates (for tests)."""
+        dtype = jnp.result_type(float) if dtype is None else dtype
+        return self.from_coordinates(jax.random.normal(key, (self.dim,), dtype)).astype(
+            self.state_dtype(dtype))
+
+    def __repr__(self):
+        return self.name
+
+
+def _commutator(a, b):
+    return a @ b - b @ a

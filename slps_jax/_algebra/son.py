@@ -1,0 +1,76 @@
+"""so(n)* for n >= 3: real skew-symmetric matrices."""
+
+from __future__ import annotations
+
+import functools
+
+import jax.numpy as jnp
+import numpy as np
+
+from .base import AbstractAlgebra, adjoint
+
+
+class SOnAlgebra(AbstractAlgebra):
+    r"""so(n)* for $n \ge 3$: states are skew-symmetric `(n, n)` matrices $Y$.
+
+    - Pairing $\langle X, Y\rangle = \tfrac12\operatorname{tr}(X^TY) = \sum_{i<j}X_{ij}Y_{ij}$
+      (for $n = 3$ and $Y = \hat y$ it is $x\cdot y$, so the so(3) conventions carry over).
+    - Gradients $\nabla H(Y)$ are skew matrices for this pairing ($G - G^T$ from JAX's
+      entrywise gradient $G$); the field of a gradient $X$ is $[Y, X] = YX - XY$.
+    - `casimirs(Y)`: $\operatorname{tr}(Y^{2k})$, $k = 1, \dots, \lfloor n/2\rfloor$.
+    - `coordinates(Y)`: the `n(n-1)/2` entries $Y_{ij}$, $i < j$.
+
+    `so(n)` returns the one instance for each `n` (static data of a system).
+    """
+
+    condition = "skew-symmetric"
+
+    def __init__(self, n):
+        self.n = self.matrix_size = n
+        self.dim = n * (n - 1) // 2
+        self.shape = (n, n)
+        self.name = f"so({n})"
+        self._rows, self._cols = np.triu_indices(n, 1)
+
+    def pairing(self, x, y):
+        return 0.5 * jnp.sum(x * y, axis=(-2, -1))
+
+    def gradient(self, g):
+        return g - jnp.swapaxes(g, -1, -2)
+
+    def bracket(self, y, x):
+        return y @ x - x @ y
+
+    def casimirs(self, y):
+        y = jnp.asarray(y)
+        y2 = y @ y
+        out, p = [], y2
+        for k in range(self.n // 2):
+            if k:
+                p = p @ y2
+            out.append(jnp.trace(p, axis1=-2, axis2=-1))
+        return jnp.stack(out, axis=-1)
+
+    def project(self, m):
+        return 0.5 * (m - adjoint(m))
+
+    def coordinates(self, y):
+        return y[..., self._rows, self._cols]
+
+    def from_coordinates(self, x):
+        m = jnp.zeros(x.shape[:-1] + self.shape, x.dtype)
+        m = m.at[..., self._rows, self._cols].set(x)
+        return m - jnp.swapaxes(m, -1, -2)
+
+
+@functools.cache
+def _so(n):
+    return SOnAlgebra(n)
+
+
+def so(n):
+    """The Lie algebra so(n)* of skew `(n, n)` matrices, `n >= 3` (see `SOnAlgebra`): pass it
+    as `LiePoissonSystem(..., algebra=so(n))`."""
+    if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 3:
+        raise ValueError(f"so(n) needs an integer n >= 3, got {n!r}.")
+    return _so(int(n))

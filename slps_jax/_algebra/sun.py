@@ -1,0 +1,99 @@
+"""su(N)* for N >= 2: traceless skew-Hermitian complex matrices."""
+
+from __future__ import annotations
+
+import functools
+
+import jax.numpy as jnp
+import numpy as np
+
+from .base import AbstractAlgebra, adjoint
+
+
+class SUnAlgebra(AbstractAlgebra):
+    r"""su(N)* for $N \ge 2$: states are traceless skew-Hermitian `(N, N)` complex matrices
+    $W$ (complex64 or complex128, following the system's real dtype).
+
+    - Pairing $\langle X, Y\rangle = \tfrac12\operatorname{Re}\operatorname{tr}(X^HY)$: on real
+      skew matrices it is so(n)'s $\tfrac12\operatorname{tr}(X^TY)$, so so(n) ⊂ su(n) keeps
+      its pairing.
+    - Gradients are the traceless skew-Hermitian part of $2\bar G$, $G$ JAX's gradient of a
+      real function of $W$ (JAX returns $\partial_{\operatorname{Re}} -
+      i\,\partial_{\operatorname{Im}}$); the field of a gradient $X$ is $[W, X]$.
+    - `casimirs(W)`: $\operatorname{tr}W^k$, $k = 2, \dots, N$, in real form (the real part
+      for even $k$, the imaginary part for odd $k$: the other part is zero).
+    - `coordinates(W)`: the real and imaginary parts of $W_{ij}$, $i < j$, and $N - 1$
+      coordinates of the diagonal in an orthonormal basis of the traceless diagonal matrices
+      ($\sqrt{2/(k(k+1))}\operatorname{diag}(i, \dots, i, -ki, 0, \dots)$), `N² - 1` in all.
+
+    `su(N)` returns the one instance for each `N`.
+    """
+
+    is_complex = True
+    structure = frozenset()
+    condition = "traceless and skew-Hermitian"
+
+    def __init__(self, n):
+        self.n = self.matrix_size = n
+        self.dim = n * n - 1
+        self.shape = (n, n)
+        self.name = f"su({n})"
+        self._rows, self._cols = np.triu_indices(n, 1)
+        basis = np.zeros((n - 1, n))
+        for k in range(1, n):
+            basis[k - 1, :k] = 1.0
+            basis[k - 1, k] = -k
+            basis[k - 1] *= np.sqrt(2.0 / (k * (k + 1)))
+        self._diag = basis  # rows orthonormal for (1/2) sum d_j^2
+
+    def pairing(self, x, y):
+        return 0.5 * jnp.sum(jnp.real(jnp.conj(x) * y), axis=(-2, -1))
+
+    def gradient(self, g):
+        return self.project(2.0 * jnp.conj(g))
+
+    def bracket(self, y, x):
+        return y @ x - x @ y
+
+    def casimirs(self, y):
+        y = jnp.asarray(y)
+        out, p = [], y
+        for k in range(2, self.n + 1):
+            p = p @ y
+            t = jnp.trace(p, axis1=-2, axis2=-1)
+            out.append(jnp.real(t) if k % 2 == 0 else jnp.imag(t))
+        return jnp.stack(out, axis=-1)
+
+    def project(self, m):
+        s = 0.5 * (m - adjoint(m))
+        tr = jnp.trace(s, axis1=-2, axis2=-1)[..., None, None] / self.n
+        return s - tr * jnp.eye(self.n, dtype=s.dtype)
+
+    def coordinates(self, y):
+        upper = y[..., self._rows, self._cols]
+        d = jnp.imag(jnp.diagonal(y, axis1=-2, axis2=-1))
+        diag = 0.5 * d @ jnp.asarray(self._diag.T, d.dtype)
+        return jnp.concatenate([jnp.real(upper), jnp.imag(upper), diag], axis=-1)
+
+    def from_coordinates(self, x):
+        k = len(self._rows)
+        dtype = jnp.result_type(x.dtype, jnp.complex64)
+        upper = (x[..., :k] + 1j * x[..., k:2 * k]).astype(dtype)
+        m = jnp.zeros(x.shape[:-1] + self.shape, dtype)
+        m = m.at[..., self._rows, self._cols].set(upper)
+        m = m - adjoint(m)
+        d = x[..., 2 * k:] @ jnp.asarray(self._diag, x.dtype)
+        return m + 1j * d[..., None, :] * jnp.eye(self.n, dtype=x.dtype)
+
+
+@functools.cache
+def _su(n):
+    return SUnAlgebra(n)
+
+
+def su(n):
+    """The Lie algebra su(N)* of traceless skew-Hermitian `(N, N)` matrices, `N >= 2` (see
+    `SUnAlgebra`): pass it as `LiePoissonSystem(..., algebra=su(N))`."""
+    if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 2:
+        raise ValueError(f"su(N) needs an integer N >= 2, got {n!r}.")
+    return _su(int(n))
