@@ -24,6 +24,7 @@ from ._algebra import AbstractAlgebra as AbstractAlgebra, SO3 as SO3, so as so, 
 from ._model import (PAPER_Y0 as PAPER_Y0, GeneralisedRigidBody as GeneralisedRigidBody,
                      RigidBody as RigidBody)
 from ._system import LiePoissonSystem as LiePoissonSystem
+from ._euler_zeitlin import EulerZeitlin as EulerZeitlin
 from ._noise_hamiltonians import random_inertia_noise as random_inertia_noise, salt_noise as salt_noise
 
 # Methods
@@ -51,6 +52,6 @@ from ._convergence import (ConvergenceResult as ConvergenceResult, WeakConvergen
                            strong_convergence as strong_convergence, weak_convergence as weak_convergence)
 from ._exact import exact_flow as exact_flow, exact_solution as exact_solution
 from ._flow import deterministic_flow as deterministic_flow
-from . import so3 as so3
+from . import so3 as so3, zeitlin as zeitlin
 
 __version__ = "0.1.0"

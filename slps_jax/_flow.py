@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._checks import check_model, check_positive, real_array
+from ._checks import check_model, check_positive, concrete, numeric_array, real_array
 
 
 @functools.partial(jax.jit, static_argnames=("n_steps",))
@@ -50,9 +50,11 @@ def deterministic_flow(model, y0, times, *, max_step=2.0 ** -10):
     """
     check_model(model)
     check_positive("max_step", max_step)
-    y0 = real_array("y0", y0).astype(model.dtype)
-    if y0.shape != model.algebra.shape:
-        raise ValueError(f"y0 must have shape {model.algebra.shape}, got {y0.shape}.")
+    alg = model.algebra
+    y0 = numeric_array("y0", y0, alg.is_complex).astype(alg.state_dtype(model.dtype))
+    y_np = concrete(y0)
+    if y_np is not None:
+        alg.validate("y0", y_np)
     times = np.asarray(real_array("times", times), np.float64)
     if not np.all(np.isfinite(times)):
         raise ValueError("times must be finite.")

@@ -81,6 +81,11 @@ def _parameter_matrix(name, x, what, matrices=False):
     x_np = concrete(x)
     if x_np is not None and not np.all(np.isfinite(x_np)):
         raise ValueError(f"{name} must be finite, got {x_np}.")
+    if square and x_np is not None:  # (the algebra's own conditions: `check_algebra`)
+        asym = np.max(np.abs(x_np + np.conj(np.swapaxes(x_np, 1, 2))))
+        if asym > 1e-12 * max(1.0, float(np.max(np.abs(x_np)))):
+            raise ValueError(f"{name}[r] must be skew-symmetric (so(n)) or skew-Hermitian "
+                             f"(su(n)) matrices; max |{name} + {name}^H| = {asym:.3g}.")
     return x
 
 

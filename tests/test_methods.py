@@ -3,7 +3,8 @@
 A new method added to the registry is checked here without writing a test for it: on each
 system whose structures it declares (`requires`) it runs a small ensemble with every sample
 successful and finite, and keeps the quadratic Casimir (`|y|^2`, or `tr Y^2` on so(n)) to
-round-off if it is a Poisson integrator (a theorem); on the first such system it also runs in
+round-off if it is a Poisson integrator (a theorem; on su(3) for complex states); on the
+first such system it also runs in
 float32, within float32's accuracy of float64 on the same increments. On every other system
 it is refused before compiling, with a `TypeError` that names methods that would work.
 Orders and long-time behaviour are in the methods' own modules.
@@ -39,6 +40,9 @@ SYSTEMS = {  # one of each kind: the structures they offer differ
                                                  "eps": 0.5}, 0.2), np.array([0.6, 0.5, 0.3])),
     "so(4) rigid body": (sj.GeneralisedRigidBody(jnp.asarray([0.6, 1.1, 1.7, 2.3]), c=0.4),
                          _skew(4, 0.8)),
+    "Euler-Zeitlin su(3), 2 SALT noises": (
+        sj.EulerZeitlin(3, noise=sj.salt_noise(0.3 * sj.zeitlin.shr2mat(np.eye(9)[[1, 5]], 3))),
+        sj.zeitlin.shr2mat(np.array([0, 0.3, -0.2, 0.4, 0.5, -0.3, 0.2, 0.1, 0.4]), 3)),
 }
 PAIRS = list(itertools.product(METHODS, SYSTEMS))
 N_SAMPLES, N_STEPS, DT = 4, 16, 2.0 ** -5

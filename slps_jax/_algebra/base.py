@@ -99,11 +99,13 @@ class AbstractAlgebra:
 
     def cayley(self, x):
         r"""The Cayley map $(I - X)^{-1}(I + X) = I + 2X + O(X^2)$ of one matrix `x` of the
-        algebra (a unitary matrix). Gauss–Jordan elimination without pivoting, written out:
-        stable because $I - X$ has Hermitian part $I$, and on a CPU some times faster under
-        `vmap` than a batched LAPACK solve of small matrices."""
+        algebra (a unitary matrix). Up to 8 x 8, Gauss–Jordan elimination without pivoting,
+        written out: stable because $I - X$ has Hermitian part $I$, and on a CPU some times
+        faster under `vmap` than a batched LAPACK solve of small matrices; above, LU."""
         n = x.shape[-1]
         eye = jnp.eye(n, dtype=x.dtype)
+        if n > 8:  # (unrolled, the elimination's program would grow as n^2 operations)
+            return jnp.linalg.solve(eye - x, eye + x)
         m = jnp.concatenate([eye - x, eye + x], axis=1)
         for k in range(n):
             row = m[k] / m[k, k]
@@ -129,9 +131,10 @@ class AbstractAlgebra:
         if np.iscomplexobj(y) and not self.is_complex:
             raise TypeError(f"{name} must be real (a state of {self.name}), got a complex "
                             f"array.")
-        m = np.asarray(self.to_matrix(y))
+        with jax.ensure_compile_time_eval():  # (concrete even while a caller is traced)
+            m = np.asarray(self.to_matrix(y))
+            off = float(np.max(np.abs(m - np.asarray(self.to_matrix(self.project(m))))))
         scale = max(1.0, float(np.max(np.abs(m))))
-        off = float(np.max(np.abs(m - np.asarray(self.to_matrix(self.project(m))))))
         if off > 1e-12 * scale:
             raise ValueError(f"{name} must be {self.condition} (a state of {self.name}); it "
                              f"is {off:.3g} away.")

@@ -1,0 +1,85 @@
+"""The Euler–Zeitlin system: 2D incompressible flow on the sphere, quantised on su(N)*."""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+
+from . import zeitlin
+from ._algebra import su
+from ._system import LiePoissonSystem
+
+
+def _euler_hamiltonian(w, params):
+    # (the system's closed-form gradient and Hamiltonian replace this; kept for `_h`)
+    n = w.shape[-1]
+    return -0.5 * su(n).pairing(w, zeitlin.solve_poisson(w)) / zeitlin.hbar(n)
+
+
+@jax.tree_util.register_pytree_node_class
+class EulerZeitlin(LiePoissonSystem):
+    r"""Zeitlin's model of the incompressible Euler equations on the unit sphere, stochastic:
+
+    $dW = [P, W]\,dt + \sum_r [X_r, W]\circ dB_r$ (`noise=salt_noise(X)`, transport noise),
+    or $dW = [P, W](dt + c\circ dB)$ (`c=`), with $\Delta_N P = W$, in **physical time**
+    (seconds; quflow's "qtime" is $t/\hbar$, $\hbar = 2/\sqrt{N^2-1}$).
+
+    The state `W` is the quantised vorticity, an element of su(N) (traceless skew-Hermitian
+    `(N, N)`, complex; build one with `zeitlin.shr2mat`). In the library's form
+    $dW = [W, \nabla H_0]dt + \dots$ with the pairing
+    $\langle X, Y\rangle = \tfrac12\operatorname{Re}\operatorname{tr}X^HY$, the Hamiltonian is
+    $H_0(W) = -\langle W, \Delta_N^{-1}W\rangle / (2\hbar) = N E(W)/(2\hbar)$, $E$ quflow's
+    energy, so that $\nabla H_0 = -P/\hbar$ (`docs/zeitlin.md` derives the scales).
+    Transport noise $H_r(W) = \langle X_r, W\rangle$ adds $[W, X_r]\circ dB_r$; write
+    `salt_noise(X)` with $X_r = -\xi_r$ for the noise $[\xi_r, W]$ of the literature.
+
+    - `N`: the matrix size, an integer $\ge 2$ (the field is resolved up to degree $N - 1$).
+    - `c`, `noise`: as for `LiePoissonSystem` (default: deterministic).
+
+    `model.stream(W)` ($P = \Delta_N^{-1}W$), `model.energy(W)`, `model.enstrophy(W)`
+    (quflow's normalisation), `model.algebra.casimirs(W)` ($\operatorname{tr}W^k$). All
+    computations are $O(N^2)$ except the methods' matrix products.
+    """
+
+    def __init__(self, N, *, c=None, noise=None):
+        if isinstance(N, (bool, np.bool_)) or not isinstance(N, (int, np.integer)) or N < 2:
+            raise ValueError(f"EulerZeitlin needs an integer N >= 2, got {N!r}.")
+        super().__init__(_euler_hamiltonian, None, c=c, noise=noise, algebra=su(int(N)))
+
+    @property
+    def N(self):
+        return self.algebra.n
+
+    @property
+    def hbar(self):
+        r"""$\hbar = 2/\sqrt{N^2-1}$: seconds per unit of quflow's qtime."""
+        return zeitlin.hbar(self.N)
+
+    def __repr__(self):
+        noise = "" if self.noise is None and not self._c_nonzero() else (
+            f", c={self.c!r}" if self.noise is None else f", noise={self.noise!r}")
+        return f"EulerZeitlin({self.N}{noise})"
+
+    def _c_nonzero(self):
+        try:
+            return bool(self.c != 0)
+        except jax.errors.TracerBoolConversionError:
+            return True
+
+    def stream(self, w):
+        r"""The stream matrix $P = \Delta_N^{-1}W$ (traceless), over leading axes."""
+        return zeitlin.solve_poisson(w)
+
+    def energy(self, w):
+        r"""quflow's energy $-\tfrac12\langle W, P\rangle_{L^2}$, over leading axes."""
+        return zeitlin.energy(w)
+
+    def enstrophy(self, w):
+        r"""quflow's enstrophy $\tfrac12\langle W, W\rangle_{L^2}$, over leading axes."""
+        return zeitlin.enstrophy(w)
+
+    def hamiltonian(self, y):
+        return self.N * zeitlin.energy(y) / (2.0 * self.hbar)
+
+    def gradient(self, y):
+        return -zeitlin.solve_poisson(y) / self.hbar

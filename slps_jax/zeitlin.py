@@ -1,0 +1,291 @@
+r"""Zeitlin's quantisation of vorticity on the sphere: the basis, the Laplacian, fields.
+
+A vorticity field $\omega(\theta, \phi) = \sum_{\ell m}\omega_{\ell m}Y_{\ell m}$ in real
+spherical harmonics (coefficient vector indexed $\ell^2 + \ell + m$, $\ell < N$) becomes the
+traceless skew-Hermitian matrix $W = \sum_{\ell m}\omega_{\ell m}T_{\ell m}$ of su(N), $T_{\ell m}$
+the quantised harmonics of Hoppe & Yau. The conventions (basis, signs, normalisation) are
+those of quflow (Modin & Viviani), so that coefficients, matrices, energies and times can be
+moved between the two:
+
+- `shr2mat(omega, N)` / `mat2shr(W)`: coefficients to matrix and back;
+- `laplacian(P)` ($\Delta_N$, eigenvalues $-\ell(\ell+1)$ on $T_{\ell m}$) and
+  `solve_poisson(W)` ($\Delta_N^{-1}$ on traceless matrices), both $O(N^2)$: $\Delta_N$ maps
+  each diagonal of a matrix to itself and is tridiagonal there;
+- `inner(P, W)` $= \operatorname{Re}\sum_{ij}P_{ij}\bar W_{ij}/N$ (quflow's `inner_L2`),
+  `energy(W)` $= -\tfrac12\langle W, \Delta_N^{-1}W\rangle$, `enstrophy(W)`
+  $= \tfrac12\langle W, W\rangle$;
+- `hbar(N)` $= 2/\sqrt{N^2-1}$: one unit of quflow's "qtime" is $\hbar$ seconds;
+- `grid(n_lat, n_lon)` and `field(omega, theta, phi)`: the vorticity field on a
+  latitude–longitude grid, for plots.
+
+Everything is JAX (jit, vmap and grad apply) except the one-off basis tables, computed with
+NumPy/SciPy once per `N` and cached. See `docs/zeitlin.md` for the derivations.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.linalg
+
+
+def hbar(N):
+    r"""$\hbar = 2/\sqrt{N^2-1}$: physical time = quflow's qtime $\cdot\ \hbar$."""
+    return 2.0 / math.sqrt(N * N - 1)
+
+
+def elm2ind(el, m):
+    r"""The index $\ell^2 + \ell + m$ of the coefficient $\omega_{\ell m}$."""
+    return el * el + el + m
+
+
+# --- the Laplacian, diagonal by diagonal
+
+
+@functools.cache
+def _tridiagonal(N):
+    r"""The Laplacian on the lower diagonal $m$ (entries $W_{t+m, t}$, $t < N - m$), as
+    `(d, e)`: `d[m, t]` the diagonal, `e[m, t]` the coupling of $t$ and $t + 1$; padded to
+    length `N` (padding: `d = 1`, `e = 0`). With $a_k = \sqrt{k(N-k)}$ and
+    $\mu_i = (N-1)/2 - i$: $d = -2s(s+1) + 2\mu_{t+m}\mu_t$, $e = a_{t+1}a_{t+m+1}$ (the
+    spin-$s$ Casimir $-\sum_a[S_a, [S_a, \cdot]]$, $s = (N-1)/2$)."""
+    s = (N - 1) / 2
+    t = np.arange(N)[None, :]
+    m = np.arange(N)[:, None]
+    mu = lambda i: s - i  # noqa: E731
+    a = lambda k: np.sqrt(np.clip(k * (N - k), 0, None))  # noqa: E731
+    valid = t + m < N
+    d = np.where(valid, -2 * s * (s + 1) + 2 * mu(t + m) * mu(t), 1.0)
+    e = np.where(t + m + 1 < N, a(t + 1) * a(t + m + 1), 0.0)
+    return d, e, valid
+
+
+def laplacian(P):
+    r"""$\Delta_N P = -\sum_a [S_a, [S_a, P]]$ for `(..., N, N)` matrices:
+    $(\Delta_N P)_{ij} = (-2s(s+1) + 2\mu_i\mu_j)P_{ij} + a_{i+1}a_{j+1}P_{i+1,j+1}
+    + a_i a_j P_{i-1,j-1}$, in $O(N^2)$."""
+    P = jnp.asarray(P)
+    N = P.shape[-1]
+    s = (N - 1) / 2
+    mu = s - np.arange(N)
+    a = np.sqrt(np.arange(N + 1) * (N - np.arange(N + 1)))  # a_0 .. a_N (a_0 = a_N = 0)
+    diag = -2 * s * (s + 1) + 2 * np.outer(mu, mu)
+    up = np.outer(a[1:], a[1:])  # a_{i+1} a_{j+1}, couples P_{i+1, j+1}
+    down = np.outer(a[:-1], a[:-1])  # a_i a_j, couples P_{i-1, j-1}
+    pad = [(0, 0)] * (P.ndim - 2) + [(1, 1), (1, 1)]
+    Pp = jnp.pad(P, pad)
+    return (diag * P + up * Pp[..., 2:, 2:] + down * Pp[..., :-2, :-2]).astype(P.dtype)
+
+
+def _lower_diagonals(W):
+    """`D[..., m, t] = W[..., t + m, t]` (zero past the end), shape `(..., N, N)`."""
+    N = W.shape[-1]
+    t = np.arange(N)[None, :]
+    m = np.arange(N)[:, None]
+    rows = np.minimum(t + m, N - 1)
+    return jnp.where(jnp.asarray(t + m < N), W[..., rows, np.broadcast_to(t, rows.shape)], 0)
+
+
+def _from_lower_diagonals(D, N):
+    """The skew-Hermitian matrix whose lower diagonals are `D` (`_lower_diagonals`'s
+    inverse on skew-Hermitian matrices)."""
+    t = np.arange(N)[None, :]
+    m = np.arange(N)[:, None]
+    valid = (t + m < N).ravel()
+    rows = (t + m).ravel()[valid]
+    cols = np.broadcast_to(t, (N, N)).ravel()[valid]
+    vals = D.reshape(D.shape[:-2] + (-1,))[..., valid]
+    low = jnp.zeros(D.shape[:-2] + (N, N), D.dtype).at[..., rows, cols].set(vals)
+    strict = low * jnp.asarray(np.tril(np.ones((N, N)), -1), low.dtype)
+    diag = jnp.diagonal(low, axis1=-2, axis2=-1)
+    return strict - jnp.conj(jnp.swapaxes(strict, -1, -2)) + \
+        diag[..., None, :] * jnp.eye(N, dtype=low.dtype)
+
+
+def solve_poisson(W):
+    r"""$P = \Delta_N^{-1}W$ for traceless `(..., N, N)` matrices $W$ (skew-Hermitian: the
+    stream matrix of the vorticity $W$), the traceless solution. Batched tridiagonal solves
+    on the `N` lower diagonals (the upper ones follow from $P^H = -P$), $O(N^2)$. On the main
+    diagonal $\Delta_N$ is singular (the identity); there the first diagonal entry is lowered
+    by $\tfrac12$, which leaves the solution exact for a traceless right-hand side, and the
+    trace is removed afterwards."""
+    W = jnp.asarray(W)
+    N = W.shape[-1]
+    d, e, _ = _tridiagonal(N)
+    d = d.copy()
+    d[0, 0] -= 0.5
+    real = jnp.finfo(W.dtype).dtype
+    D = _lower_diagonals(W)  # (..., N, N): row m the m-th lower diagonal
+    rhs = jnp.stack([jnp.real(D), jnp.imag(D)], axis=-1)  # (..., N, N, 2)
+    batch = rhs.shape[:-3]
+    dl = jnp.broadcast_to(jnp.asarray(np.concatenate([np.zeros((N, 1)), e[:, :-1]], 1), real),
+                          batch + (N, N))
+    du = jnp.broadcast_to(jnp.asarray(e, real), batch + (N, N))
+    dd = jnp.broadcast_to(jnp.asarray(d, real), batch + (N, N))
+    x = jax.lax.linalg.tridiagonal_solve(dl, dd, du, rhs)
+    X = (x[..., 0] + 1j * x[..., 1]).astype(W.dtype)
+    P = _from_lower_diagonals(X, N)
+    tr = jnp.trace(P, axis1=-2, axis2=-1)[..., None, None] / N
+    return P - tr * jnp.eye(N, dtype=P.dtype)
+
+
+# --- inner product, energy, enstrophy (quflow's normalisation)
+
+
+def inner(P, W):
+    r"""$\langle P, W\rangle = \operatorname{Re}\sum_{ij}P_{ij}\bar W_{ij}/N$ (quflow's
+    `inner_L2`: the $L^2$ inner product of the fields divided by $4\pi$)."""
+    N = W.shape[-1]
+    return jnp.sum(jnp.real(P * jnp.conj(W)), axis=(-2, -1)) / N
+
+
+def energy(W):
+    r"""$E(W) = -\tfrac12\langle W, \Delta_N^{-1}W\rangle$ (quflow's `energy_euler`)."""
+    return -0.5 * inner(W, solve_poisson(W))
+
+
+def enstrophy(W):
+    r"""$\tfrac12\langle W, W\rangle$ (quflow's `enstrophy`)."""
+    return 0.5 * inner(W, W)
+
+
+# --- the quantised spherical harmonics
+
+
+@functools.cache
+def _basis(N):
+    r"""For each $m$, the `(N - m, N - m)` matrix whose column $\ell - m$ is the lower
+    diagonal $m$ of $T_{\ell m}$ (before quflow's phase), orthogonal with norm $\sqrt N$:
+    the eigenvectors of the Laplacian's tridiagonal block, ordered by $\ell$, signed so that
+    the last entry has the sign $(-1)^m$ (the orientation of the spherical harmonics)."""
+    d, e, _ = _tridiagonal(N)
+    out = []
+    for m in range(N):
+        n = N - m
+        if n == 1:
+            w = np.ones((1, 1))
+        else:
+            _, w = scipy.linalg.eigh_tridiagonal(d[m, :n], e[m, :n - 1])
+            w = w[:, ::-1]  # eigenvalues -l(l+1) descending: l = m, m+1, ...
+        w = w * np.sign(w[-1]) * (-1.0) ** m * math.sqrt(N)
+        out.append(w)
+    return out
+
+
+@functools.cache
+def _index_tables(N):
+    basis = _basis(N)
+    table = np.zeros((N, N, N))  # table[m, t, l]: lower diagonal m of T_lm (zero-padded)
+    for m in range(N):
+        table[m, :N - m, m:] = basis[m]
+    plus = np.array([[elm2ind(el, m) if el >= m else 0 for el in range(N)] for m in range(N)])
+    minus = np.array([[elm2ind(el, -m) if el >= m else 0 for el in range(N)] for m in range(N)])
+    valid = np.array([[el >= m for el in range(N)] for m in range(N)])
+    return table, plus, minus, valid
+
+
+def shr2mat(omega, N):
+    r"""The matrix $W = \sum_{\ell m}\omega_{\ell m}T_{\ell m}$ of real spherical-harmonic
+    coefficients `omega` (shape `(..., L^2)`, $L \le N$, index $\ell^2 + \ell + m$), complex
+    `(..., N, N)`, skew-Hermitian; traceless when $\omega_{00} = 0$. quflow's `shr2mat`."""
+    omega = jnp.asarray(omega)
+    if omega.shape[-1] < N * N:
+        omega = jnp.pad(omega, [(0, 0)] * (omega.ndim - 1) + [(0, N * N - omega.shape[-1])])
+    table, plus, minus, valid = _index_tables(N)
+    real = jnp.result_type(omega.dtype, float)
+    cdtype = jnp.result_type(real, jnp.complex64)
+    sgn = np.where(np.arange(N) % 2 == 0, 1.0, -1.0)[:, None]
+    wp = jnp.where(valid, omega[..., plus], 0.0)
+    wm = jnp.where(valid, omega[..., minus], 0.0)
+    # m = 0: the coefficients themselves; m > 0: (w_{l,m} - i w_{l,-m}) / sqrt 2
+    zero_m = np.arange(N)[:, None] == 0
+    c = jnp.where(zero_m, wp, (wp - 1j * wm) / math.sqrt(2.0)) * sgn  # (..., m, l)
+    diag = jnp.einsum("mtl,...ml->...mt", jnp.asarray(table, real), c.astype(cdtype))
+    # upper diagonal m: 1j * diag; lower: 1j * conj(diag)
+    D = 1j * jnp.conj(diag)
+    W = _from_lower_diagonals(D.astype(cdtype), N)
+    # the trace is 1j N omega_00 (T_00 = 1j I): exact, not left to rounding
+    eye = jnp.eye(N, dtype=cdtype)
+    tr = jnp.trace(W, axis1=-2, axis2=-1)[..., None, None] / N
+    return W - tr * eye + 1j * omega[..., :1, None].astype(cdtype) * eye
+
+
+def mat2shr(W):
+    r"""The real spherical-harmonic coefficients `(..., N^2)` of a skew-Hermitian matrix
+    (`shr2mat`'s inverse). quflow's `mat2shr`."""
+    W = jnp.asarray(W)
+    N = W.shape[-1]
+    table, plus, minus, valid = _index_tables(N)
+    real = jnp.finfo(W.dtype).dtype
+    D = _lower_diagonals(W)  # D[m, t] = W[t + m, t] = 1j conj(diag)
+    proj = jnp.einsum("...mt,mtl->...ml", D, jnp.asarray(table, real)) / N  # (..., m, l)
+    sgn = np.where(np.arange(N) % 2 == 0, 1.0, -1.0)[:, None]
+    # m = 0: omega = proj / 1j; m > 0: omega_{l,m} = sqrt2 sgn Im(proj),
+    # omega_{l,-m} = -sqrt2 sgn Re(proj)
+    zero_m = np.arange(N)[:, None] == 0
+    wp = jnp.where(zero_m, jnp.imag(proj), math.sqrt(2.0) * sgn * jnp.imag(proj))
+    wm = -math.sqrt(2.0) * sgn * jnp.real(proj)
+    out = jnp.zeros(W.shape[:-2] + (N * N,), real)
+    out = out.at[..., plus[valid]].set(wp[..., valid])
+    neg = valid & ~zero_m
+    return out.at[..., minus[neg]].set(wm[..., neg])
+
+
+# --- fields on the sphere, for plots
+
+
+def grid(n_lat, n_lon=None):
+    r"""Colatitudes $\theta_k = \pi(k + \tfrac12)/n_{lat}$ and longitudes
+    $\phi_j = 2\pi j/n_{lon}$ (default `2 n_lat`), as NumPy arrays."""
+    n_lon = 2 * n_lat if n_lon is None else n_lon
+    return (np.pi * (np.arange(n_lat) + 0.5) / n_lat, 2 * np.pi * np.arange(n_lon) / n_lon)
+
+
+@functools.lru_cache(maxsize=8)
+def _legendre(L, theta_key):
+    r"""$\sqrt{4\pi}\,\bar P_{\ell m}(\cos\theta)$ for $0 \le m \le \ell < L$: the
+    orthonormal associated Legendre functions (no Condon–Shortley phase), shape
+    `(L, L, n_theta)`, by the standard stable recurrences."""
+    theta = np.asarray(theta_key)
+    x, y = np.cos(theta), np.sin(theta)
+    p = np.zeros((L, L, theta.size))
+    p[0, 0] = 1.0 / np.sqrt(4 * np.pi)
+    for m in range(1, L):
+        p[m, m] = np.sqrt((2 * m + 1) / (2 * m)) * y * p[m - 1, m - 1]
+    for m in range(L - 1):
+        p[m + 1, m] = np.sqrt(2 * m + 3) * x * p[m, m]
+    for m in range(L):
+        for el in range(m + 2, L):
+            a = np.sqrt((4 * el * el - 1) / (el * el - m * m))
+            b = np.sqrt(((el - 1) ** 2 - m * m) / (4 * (el - 1) ** 2 - 1))
+            p[el, m] = a * (x * p[el - 1, m] - b * p[el - 2, m])
+    return np.sqrt(4 * np.pi) * p
+
+
+def field(omega, theta, phi):
+    r"""The field $\sum_{\ell m}\omega_{\ell m}Y_{\ell m}(\theta, \phi)$ of real
+    spherical-harmonic coefficients `omega` (`(..., L^2)`) on the grid `theta` × `phi`
+    (shape `(..., n_theta, n_phi)`), in quflow's real form and normalisation
+    ($Y_{\ell m}$ of mean square 1 over the sphere;
+    $Y_{\ell m} = \sqrt2\,\bar P_{\ell m}(\cos\theta)\cos m\phi$,
+    $Y_{\ell,-m} = -\sqrt2\,\bar P_{\ell m}(\cos\theta)\sin m\phi$ for $m > 0$). quflow's
+    plots multiply the coefficients by Berezin factors first; this is the plain series."""
+    omega = jnp.asarray(omega)
+    L = math.isqrt(omega.shape[-1])
+    theta, phi = np.asarray(theta, float), np.asarray(phi, float)
+    p = _legendre(L, tuple(theta.tolist()))  # (l, m, theta)
+    m = np.arange(L)
+    cos, sin = np.cos(np.outer(m, phi)), np.sin(np.outer(m, phi))  # (m, phi)
+    plus = np.array([[elm2ind(el, k) if el >= k else 0 for k in range(L)] for el in range(L)])
+    minus = np.array([[elm2ind(el, -k) if el >= k else 0 for k in range(L)] for el in range(L)])
+    valid = np.array([[el >= k for k in range(L)] for el in range(L)])
+    f = np.where(m == 0, 1.0, math.sqrt(2.0))[None, :]
+    wp = jnp.where(valid, omega[..., plus], 0.0) * f  # (..., l, m)
+    wm = jnp.where(valid & (m[None, :] > 0), omega[..., minus], 0.0) * f
+    a = jnp.einsum("...lm,lmt->...mt", wp, p)
+    b = jnp.einsum("...lm,lmt->...mt", wm, p)
+    return jnp.einsum("...mt,mp->...tp", a, cos) - jnp.einsum("...mt,mp->...tp", b, sin)

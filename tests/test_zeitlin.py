@@ -1,0 +1,166 @@
+"""Zeitlin's model on the sphere: the quantised basis, the Laplacian, fields, and the
+Euler–Zeitlin system, each against an exact fact (spectra, a steady state, the exact phase
+speed of a Rossby–Haurwitz wave, conservation laws, finite differences)."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import slps_jax as sj
+from slps_jax import zeitlin as z
+
+
+def _spin(N):
+    """Spin-(N-1)/2 matrices S_x, S_y, S_z (Hermitian, [S_x, S_y] = i S_z), built here."""
+    s = (N - 1) / 2
+    mu = s - np.arange(N)
+    sp = np.zeros((N, N))
+    for i in range(1, N):  # S_+ |mu_i> = sqrt(s(s+1) - mu_i(mu_i + 1)) |mu_i + 1>
+        sp[i - 1, i] = math.sqrt(s * (s + 1) - mu[i] * (mu[i] + 1))
+    return (sp + sp.T) / 2, (sp - sp.T) / 2j, np.diag(mu)
+
+
+def _coefficients(N, degrees, seed=0):
+    rng = np.random.default_rng(seed)
+    om = np.zeros(N * N)
+    for el in degrees:
+        for m in range(-el, el + 1):
+            om[z.elm2ind(el, m)] = rng.normal()
+    return om
+
+
+@pytest.mark.parametrize("N", [4, 5, 8, 12])
+def test_laplacian_spectrum_and_spin_casimir(N):
+    E = np.eye(N * N).reshape(N * N, N, N).astype(complex)
+    lap = np.stack([np.asarray(z.laplacian(e)).ravel() for e in E], 1)
+    expect = np.concatenate([[-el * (el + 1)] * (2 * el + 1) for el in range(N)])
+    np.testing.assert_allclose(np.sort(np.linalg.eigvals(lap).real), np.sort(expect),
+                               atol=1e-9)
+    # the same operator as -sum_a [S_a, [S_a, .]] by dense matrix products
+    P = np.random.default_rng(1).normal(size=(N, N)) + 1j * np.random.default_rng(2).normal(
+        size=(N, N))
+    ref = -sum(s @ (s @ P - P @ s) - (s @ P - P @ s) @ s for s in _spin(N))
+    np.testing.assert_allclose(z.laplacian(P), ref, atol=1e-11)
+
+
+@pytest.mark.parametrize("N", [5, 16, 33])
+def test_solve_poisson_inverts_the_laplacian_on_traceless_matrices(N):
+    alg = sj.su(N)
+    W = jnp.stack([alg.random_state(k) for k in jax.random.split(jax.random.PRNGKey(N), 3)])
+    P = z.solve_poisson(W)  # batched
+    np.testing.assert_allclose(z.laplacian(P), W, atol=1e-12 * N)
+    for p in P:
+        alg.validate("P", np.asarray(p))
+
+
+def test_quantised_harmonics_are_orthonormal_eigenvectors_and_invert():
+    N = 6
+    T = z.shr2mat(np.eye(N * N), N)  # (N^2, N, N): T_lm
+    gram = z.inner(T[:, None], T[None, :])
+    np.testing.assert_allclose(gram, np.eye(N * N), atol=1e-12)
+    for el in range(N):
+        for m in range(-el, el + 1):
+            t = T[z.elm2ind(el, m)]
+            np.testing.assert_allclose(z.laplacian(t), -el * (el + 1) * t, atol=1e-11)
+            np.testing.assert_allclose(t, -np.conj(t).T, atol=1e-15)
+    om = _coefficients(N, range(1, N), seed=3)
+    np.testing.assert_allclose(z.mat2shr(z.shr2mat(om, N)), om, atol=1e-13)
+    # l = 1 harmonics are spin matrices: T_10 = -i sqrt(3) hbar S_z (unit norm: the factor;
+    # the sign is quflow's orientation, compared with quflow itself in benchmarks/zeitlin.py)
+    np.testing.assert_allclose(T[z.elm2ind(1, 0)], -1j * math.sqrt(3) * z.hbar(N) * _spin(N)[2],
+                               atol=1e-13)
+
+
+def test_fields_are_the_real_spherical_harmonics():
+    theta, phi = z.grid(24, 48)
+    f = z.field(np.eye(4)[1:4], theta, phi)  # l = 1: m = -1, 0, 1
+    th, ph = np.meshgrid(theta, phi, indexing="ij")
+    r3 = math.sqrt(3)
+    np.testing.assert_allclose(f[1], r3 * np.cos(th), atol=1e-13)
+    np.testing.assert_allclose(f[2], r3 * np.sin(th) * np.cos(ph), atol=1e-13)
+    np.testing.assert_allclose(f[0], -r3 * np.sin(th) * np.sin(ph), atol=1e-13)
+    # mean square one and orthogonal, by Gauss-Legendre quadrature in cos(theta)
+    L = 7
+    x, wq = np.polynomial.legendre.leggauss(2 * L)
+    phi = 2 * np.pi * np.arange(2 * L + 1) / (2 * L + 1)
+    F = np.asarray(z.field(np.eye(L * L), np.arccos(x), phi)).reshape(L * L, -1)
+    w = np.repeat(wq, phi.size) / (2 * (2 * L + 1))
+    np.testing.assert_allclose((F * w) @ F.T, np.eye(L * L), atol=1e-12)
+
+
+@pytest.fixture(scope="module")
+def body():
+    return sj.EulerZeitlin(8)
+
+
+def test_hamiltonian_gradient_and_scales(body):
+    N = body.N
+    W = z.shr2mat(_coefficients(N, [1, 2, 3], seed=4), N)
+    V = sj.su(N).random_state(jax.random.PRNGKey(5))
+    g = body.gradient(W)
+    np.testing.assert_allclose(g, -z.solve_poisson(W) / z.hbar(N), atol=1e-13)
+    eps = 1e-6
+    fd = (body.hamiltonian(W + eps * V) - body.hamiltonian(W - eps * V)) / (2 * eps)
+    np.testing.assert_allclose(float(sj.su(N).pairing(g, V)), float(fd), rtol=1e-8)
+    # H_0 = N E / (2 hbar) with quflow's energy E = -<W, P>/2 (its L2 inner product)
+    np.testing.assert_allclose(body.hamiltonian(W), N * body.energy(W) / (2 * z.hbar(N)))
+    assert float(body.energy(W)) > 0 and float(body.enstrophy(W)) > 0
+    # the field equation in physical time: dW/dt = [P, W] / hbar
+    P = body.stream(W)
+    np.testing.assert_allclose(body.vector_field(W), (P @ W - W @ P) / z.hbar(N), atol=1e-12)
+
+
+def test_a_single_degree_state_is_steady(body):
+    N = body.N
+    for el in (1, 3):
+        W = z.shr2mat(_coefficients(N, [el], seed=el), N)
+        assert float(jnp.max(jnp.abs(body.vector_field(W)))) < 1e-12
+        np.testing.assert_allclose(sj.deterministic_flow(body, W, np.array([1.0]))[0], W,
+                                   atol=1e-12)
+        # (a step of the implicit midpoint rule is steady at a steady state too; the
+        # isospectral rule's is not, to O(h^3): its midpoint has other degrees)
+        sol = sj.simulate(body, W, t1=0.25, dt=2.0 ** -5, n_samples=1,
+                          key=jax.random.PRNGKey(0), method=sj.Midpoint())
+        np.testing.assert_allclose(sol.ys[0, -1], W, atol=1e-12)
+
+
+def test_rossby_haurwitz_wave_turns_at_its_exact_speed(body):
+    """omega = a Y_10 + e Y_22: the l = 1 part is a solid-body rotation at
+    alpha = a sqrt(3)/2 and the l = 2 wave travels east at 2 alpha / 3 = a / sqrt(3)
+    (exact for the sphere, and for every N in Zeitlin's model)."""
+    N, a, e, t = body.N, 0.8, 0.3, 1.5
+    om = np.zeros(N * N)
+    om[z.elm2ind(1, 0)], om[z.elm2ind(2, 2)] = a, e
+    W = sj.deterministic_flow(body, z.shr2mat(om, N), np.array([t]))[0]
+    out = np.asarray(z.mat2shr(W))
+    angle = 2 * (a / math.sqrt(3)) * t  # cos 2(phi - c t) in Y_22 ~ cos 2phi, Y_2-2 ~ -sin 2phi
+    np.testing.assert_allclose(out[[z.elm2ind(2, 2), z.elm2ind(2, -2)]],
+                               [e * math.cos(angle), -e * math.sin(angle)], atol=1e-10)
+    np.testing.assert_allclose(out[z.elm2ind(1, 0)], a, atol=1e-12)
+
+
+def test_energy_and_casimirs_conserved_by_the_exact_flow(body):
+    N = body.N
+    W0 = z.shr2mat(_coefficients(N, [1, 2, 3, 4], seed=6), N) * 0.5
+    Ws = sj.deterministic_flow(body, W0, np.array([0.5, 1.0]))
+    # the flow moves the state, and keeps E and every tr W^k
+    assert float(jnp.max(jnp.abs(Ws[-1] - W0))) > 1e-2
+    np.testing.assert_allclose(body.energy(Ws), body.energy(W0), rtol=1e-11)
+    np.testing.assert_allclose(body.algebra.casimirs(Ws), np.broadcast_to(
+        body.algebra.casimirs(W0), (2, N - 1)), atol=1e-10)
+
+
+def test_bad_input_refused_by_name():
+    for bad in (1, 4.0, True):
+        with pytest.raises(ValueError, match="N >= 2"):
+            sj.EulerZeitlin(bad)
+    body = sj.EulerZeitlin(4)
+    with pytest.raises(ValueError, match="skew-Hermitian"):
+        sj.simulate(body, np.eye(4) * 1j + np.ones((4, 4)), t1=1.0, dt=0.1, n_samples=1,
+                    key=jax.random.PRNGKey(0), method=sj.Heun())
+    with pytest.raises(TypeError, match="IsospectralMidpoint"):  # names what works
+        sj.simulate(body, np.zeros((4, 4)), t1=1.0, dt=0.1, n_samples=1,
+                    key=jax.random.PRNGKey(0), method=sj.LiePoisson())
