@@ -182,10 +182,19 @@ def ensemble_statistics(model, y0, *, t1, dt, n_samples, key, chunk_size, method
             jnp.asarray(_noise.truncation_bound(dt, truncate_k), dtype), n_blocks, k,
             chunk_size, observable, want_cov, retry, sharding, terms)
     # The zero state: its shapes from an abstract evaluation of one chunk's moments.
+    observed = jax.eval_shape(
+        lambda: _observe(observable, jnp.zeros((chunk_size, n_blocks + 1, *y0.shape), y0.dtype)))
+    if any(jnp.issubdtype(x.dtype, jnp.complexfloating)
+           for x in jax.tree_util.tree_leaves(observed)):
+        raise TypeError(
+            "ensemble_statistics takes moments of real numbers; "
+            + ("the states of " + model.algebra.name + " are complex: pass an observable "
+               "giving real numbers, such as the coefficients "
+               "observable=lambda ys: slps_jax.zeitlin.mat2shr(ys), an energy or the Casimirs."
+               if observable is None else "the observable returns complex numbers."))
     shapes = jax.eval_shape(
-        lambda: _chunk_moments(
-            _observe(observable, jnp.zeros((chunk_size, n_blocks + 1, *y0.shape), dtype)),
-            jnp.ones(chunk_size, bool), want_cov))
+        lambda: _chunk_moments(jnp.zeros(observed.shape, observed.dtype),
+                               jnp.ones(chunk_size, bool), want_cov))
     zero = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
     state = (jnp.zeros((), jnp.int32), zero)
     n_chunks = -(-n_samples // chunk_size)

@@ -62,7 +62,7 @@ def wong_zakai_solution(vector_fields, y0, dW_fine, T, substeps=4):
     **Returns** the final states, shape `(n_paths, *y0.shape)`.
     """
     dW_fine = jnp.asarray(dW_fine)
-    y0 = jnp.asarray(y0, dW_fine.dtype)
+    y0 = jnp.asarray(y0, jnp.result_type(jnp.asarray(y0).dtype, dW_fine.dtype))
     n_fine = dW_fine.shape[1]
     dt = T / n_fine
     h = dt / substeps
@@ -101,8 +101,9 @@ def salt_rigid_body_fields(inertia, chi):
 
 
 def salt_so_n_fields(grad_h0, X):
-    """SALT noise on so(n): `f0(Y) = [Y, grad_h0(Y)]`, `f_r(Y) = [Y, X_r] = Y X_r - X_r Y`
-    (`[A, B] = AB - BA`; `X` shape `(s, n, n)`, skew; `grad_h0(Y)` a skew matrix)."""
+    """SALT noise on so(n) (and su(n)): `f0(Y) = [Y, grad_h0(Y)]`,
+    `f_r(Y) = [Y, X_r] = Y X_r - X_r Y` (`[A, B] = AB - BA`; `X` shape `(s, n, n)`, skew
+    (skew-Hermitian); `grad_h0(Y)` an element of the algebra)."""
     X = jnp.asarray(X)
 
     def vector_fields(Y):

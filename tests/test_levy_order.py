@@ -42,16 +42,34 @@ Y4 = 0.3 * jnp.asarray(np.array([[0, 1, -0.5, 0.2], [-1, 0, 0.8, -0.4],
                                  [0.5, -0.8, 0, 0.6], [-0.2, 0.4, -0.6, 0]]))
 
 
+def _su3_inverse_laplacian():
+    """Zeitlin's Laplacian on 3 x 3 matrices, -sum_a [S_a, [S_a, .]] with the spin-1 matrices
+    built here, pseudo-inverted densely (no library code): P = Delta^+ W is traceless."""
+    sp = np.sqrt(2.0) * np.diag([1.0, 1.0], 1)  # S_+ of spin 1
+    spins = [(sp + sp.T) / 2, (sp - sp.T) / 2j, np.diag([1.0, 0.0, -1.0])]
+    basis = np.eye(9).reshape(9, 3, 3)
+    lap = np.stack([(-sum(s @ (s @ b - b @ s) - (s @ b - b @ s) @ s for s in spins)).ravel()
+                    for b in basis], 1)
+    return jnp.asarray(np.linalg.pinv(lap))
+
+
 def _case(name):
     key = jax.random.key(2024)
     if name == "so(3)":
         model = sj.RigidBody(INERTIA, noise=sj.salt_noise(CHI))
         fields, y0 = salt_rigid_body_fields(INERTIA, CHI), Y0
+    elif name == "su(3)":  # Euler-Zeitlin, three transport noises of degrees 1 and 2
+        X = 0.4 * sj.zeitlin.shr2mat(np.eye(9)[[1, 3, 5]], 3)
+        model = sj.EulerZeitlin(3, noise=sj.salt_noise(X))
+        inv, hbar = _su3_inverse_laplacian(), 2 / np.sqrt(8.0)
+        fields = salt_so_n_fields(lambda w: -(inv @ w.ravel()).reshape(3, 3) / hbar, X)
+        y0 = sj.zeitlin.shr2mat(0.5 * np.array([0, 0.3, -0.2, 0.4, 0.5, -0.3, 0.2, 0.1, 0.4]), 3)
     else:
         model = sj.GeneralisedRigidBody(J4, noise=sj.salt_noise(X4))
         fields = salt_so_n_fields(lambda y: y / (J4[:, None] + J4[None, :]), X4)
         y0 = Y4
     dW_fine = fine_path(key, N_PATHS, N_FINE, T, 3)
+    # (the fine path is the same for every case: three noises)
     return model, y0, dW_fine, wong_zakai_solution(fields, y0, dW_fine, T, substeps=2)
 
 
@@ -70,9 +88,11 @@ def _norm2(model, y):
 
 SALT = sj.RigidBody(INERTIA, noise=sj.salt_noise(CHI))
 # Every method of the registry that runs on the SALT rigid body (a new method is checked
-# here without a test of its own), and on so(4) the two coadjoint-orbit methods.
+# here without a test of its own), on so(4) the two coadjoint-orbit methods, and on
+# Euler-Zeitlin su(3) the isospectral midpoint rule.
 PARAMS = [("so(3)", cls) for cls in METHODS if cls.requires <= SALT.structure] + [
-    ("so(4)", sj.IsospectralMidpoint), ("so(4)", sj.LiePoisson)]
+    ("so(4)", sj.IsospectralMidpoint), ("so(4)", sj.LiePoisson),
+    ("su(3)", sj.IsospectralMidpoint)]
 
 
 @pytest.mark.parametrize("name,cls", PARAMS, ids=[f"{n}-{c.__name__}" for n, c in PARAMS])

@@ -164,3 +164,29 @@ def test_bad_input_refused_by_name():
     with pytest.raises(TypeError, match="IsospectralMidpoint"):  # names what works
         sj.simulate(body, np.zeros((4, 4)), t1=1.0, dt=0.1, n_samples=1,
                     key=jax.random.PRNGKey(0), method=sj.LiePoisson())
+
+
+def _observe(ys):
+    # energy, the l = 1 coefficients and the Casimirs of each saved state
+    return jnp.concatenate([sj.zeitlin.energy(ys)[:, None], z.mat2shr(ys)[:, 1:4],
+                            sj.su(4).casimirs(ys)], axis=-1)
+
+
+def test_ensemble_statistics_of_observables_match_the_paths():
+    """Streamed moments of observables equal those of simulate's paths (the same samples);
+    the isospectral rule keeps each path's Casimirs, so their variance is round-off."""
+    X = 0.3 * z.shr2mat(np.eye(16)[[1, 6]], 4)
+    body = sj.EulerZeitlin(4, noise=sj.salt_noise(X))
+    w0 = z.shr2mat(0.5 * _coefficients(4, [1, 2, 3], seed=7), 4)
+    run = dict(t1=0.5, dt=2.0 ** -5, n_samples=12, key=jax.random.key(3),
+               method=sj.IsospectralMidpoint())
+    st = sj.ensemble_statistics(body, w0, chunk_size=5, observable=_observe, progress=False,
+                                **run)
+    sol = sj.simulate(body, w0, **run)
+    ref = np.asarray(jax.vmap(_observe)(sol.ys))[:, -1]  # (samples, k) at t1
+    np.testing.assert_allclose(st.mean[-1], ref.mean(0), rtol=1e-12, atol=1e-13)
+    np.testing.assert_allclose(st.var[-1], ref.var(0, ddof=1), rtol=1e-9, atol=1e-22)
+    assert st.var[-1][0] > 1e-6  # the noise moves the energy
+    assert np.all(st.var[-1][4:] < 1e-24)  # and not the Casimirs
+    with pytest.raises(TypeError, match="complex"):
+        sj.ensemble_statistics(body, w0, chunk_size=5, **run)

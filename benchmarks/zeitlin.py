@@ -1,0 +1,239 @@
+#!/usr/bin/env python
+"""Euler–Zeitlin on su(N)*: cost against N, conservation, and quflow measured beside us.
+
+The deterministic Euler–Zeitlin system (`sj.EulerZeitlin(N)`, physical time), a smooth
+initial vorticity of degrees l = 1..4 (coefficients N(0, 1), seed 0), step h = 0.01 s.
+
+- Cost against N = 16, 32, 64, 128, 256: run time per sample-step (median of >= 3 blocking
+  calls after a warm-up) and compile time (ahead of time, on its own) of
+  `IsospectralMidpoint` (the fixed-point iteration: Newton's dense Jacobian would have
+  (N^2 - 1)^2 entries), `Midpoint` and `Heun`, for an ensemble of 16 states
+  (`jit(vmap(integrate))`) and for one state (`jit(integrate)`), over 64 / 32 / 16 / 8 / 4
+  steps. With quflow importable (installed by hand from its sources; never a dependency),
+  its `isomp` (Numba, fixed point, the same h, its default tolerance) on one state in the
+  same run, and the largest difference between its final state (solved to 1e-13) and ours
+  (the same scheme: the difference is the solvers' tolerance).
+- Conservation over 10^4 steps at N = 32: the largest relative drift of tr W^2, |tr W^3|,
+  tr W^4 and of the energy along one path, for each method.
+- `--check-quflow`: quflow's `shr2mat`, `mat2shr`, `solve_poisson`, `energy_euler`,
+  `enstrophy` against ours (N = 5, 8, 16), and the order of its `isomp` against our exact
+  flow `deterministic_flow` (the same time units).
+
+Writes `zeitlin.csv`, `zeitlin.json`, `zeitlin.md` into --out (default benchmarks/results)
+and the figure `zeitlin.png` there.
+
+    python benchmarks/zeitlin.py [--fast] [--check-quflow] [--out DIR]
+"""
+
+from __future__ import annotations
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import argparse  # noqa: E402
+import os  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import _common  # noqa: E402
+
+import slps_jax as sj  # noqa: E402
+from slps_jax import zeitlin as z  # noqa: E402
+
+try:  # quflow is measured beside us where it is installed; never a dependency
+    import quflow as qf
+except ImportError:
+    qf = None
+
+H = 0.01
+STEPS = {8: 64, 16: 64, 32: 32, 64: 16, 128: 8, 256: 4}
+ENSEMBLE = 16
+
+
+def initial(N, degrees=range(1, 5), seed=0):
+    rng = np.random.default_rng(seed)
+    om = np.zeros(N * N)
+    for el in degrees:
+        for m in range(-el, el + 1):
+            om[z.elm2ind(el, m)] = rng.normal()
+    return z.shr2mat(om, N)
+
+
+METHODS = {"IsospectralMidpoint": sj.IsospectralMidpoint(), "Midpoint": sj.Midpoint(),
+           "Heun": sj.Heun()}
+
+
+def _integrate(model, y0, method):
+    return lambda d: sj.integrate(model, y0, d, H, method=method, throw=False)
+
+
+def cost(ns):
+    rows = []
+    for N in ns:
+        model, w0 = sj.EulerZeitlin(N), initial(N)
+        n_steps = STEPS[N]
+        for name, method in METHODS.items():
+            for size in (ENSEMBLE, 1):
+                one = _integrate(model, w0, method)
+                fn = jax.vmap(one) if size > 1 else one
+                dW = jnp.zeros((size, n_steps, 1) if size > 1 else (n_steps, 1))
+                compiled, compile_s = _common.compile_timed(fn, dW)
+                med, best, reps, y = _common.time_call(compiled, dW, repeats=3, min_total=0.5)
+                y = y[0] if size > 1 else y
+                rows.append(dict(N=N, method=name, samples=size, steps=n_steps,
+                                 ms_per_sample_step=1e3 * med / (size * n_steps),
+                                 ms_per_step=1e3 * med / n_steps, compile_s=compile_s,
+                                 repeats=reps, vs_quflow=None, diff_vs_quflow=None,
+                                 final=np.asarray(y)))
+                print(f"N={N:3d} {name:20s} x{size:2d}: {rows[-1]['ms_per_sample_step']:9.3f} "
+                      f"ms/sample-step, compile {compile_s:5.2f} s", flush=True)
+        if qf is not None:
+            w = np.array(w0)
+            qf.isomp(w.copy(), H, steps=1)  # compile Numba's kernels
+            times = []
+            while len(times) < 3 or (sum(times) < 0.5 and len(times) < 30):
+                w = np.array(w0)
+                start = time.perf_counter()
+                qf.isomp(w, H, steps=n_steps)
+                times.append(time.perf_counter() - start)
+            med = float(np.median(times))
+            # (its default tolerance, eps h |W|_inf / hbar, is about 1e-8 here: for the
+            # comparison of final states, the same run solved to round-off)
+            w = np.array(w0)
+            qf.isomp(w, H, steps=n_steps, tol=1e-13, maxit=100)
+            rows.append(dict(N=N, method="quflow isomp", samples=1, steps=n_steps,
+                             ms_per_sample_step=1e3 * med / n_steps,
+                             ms_per_step=1e3 * med / n_steps, compile_s=None,
+                             repeats=len(times), vs_quflow=1.0, diff_vs_quflow=0.0, final=w))
+            print(f"N={N:3d} quflow isomp           x 1: "
+                  f"{rows[-1]['ms_per_sample_step']:9.3f} ms/step", flush=True)
+            for r in rows:
+                if r["N"] == N and r["method"] != "quflow isomp":
+                    r["vs_quflow"] = r["ms_per_sample_step"] / rows[-1]["ms_per_sample_step"]
+                    if r["method"] == "IsospectralMidpoint":
+                        r["diff_vs_quflow"] = float(np.max(np.abs(r["final"] - w)))
+    for r in rows:
+        del r["final"]
+    return rows
+
+
+def conservation(N, n_steps):
+    model, w0 = sj.EulerZeitlin(N), initial(N)
+    c0, e0 = np.asarray(model.algebra.casimirs(w0)), float(model.energy(w0))
+    rows = []
+    for name, method in METHODS.items():
+        sol = sj.simulate(model, w0, t1=n_steps * H, dt=H, n_samples=1, key=jax.random.key(0),
+                          method=method, save_every=n_steps // 10)
+        if int(sol.stats["n_failed"]):
+            raise RuntimeError(f"{name}: the path failed; its frozen state is not data.")
+        ws = sol.ys[0]
+        c = np.asarray(model.algebra.casimirs(ws))
+        rel = np.max(np.abs(c - c0), axis=0) / np.abs(c0)
+        rows.append(dict(method=name, N=N, steps=n_steps, tr_w2=rel[0], tr_w3=rel[1],
+                         tr_w4=rel[2],
+                         energy=float(np.max(np.abs(np.asarray(model.energy(ws)) - e0))) / e0))
+        print(f"conservation {name:20s}: tr W^2 {rel[0]:.1e}, tr W^3 {rel[1]:.1e}, "
+              f"tr W^4 {rel[2]:.1e}, energy {rows[-1]['energy']:.1e}", flush=True)
+    return rows
+
+
+def check_quflow():
+    """quflow's conventions against ours, and its isomp's order against our exact flow."""
+    out = {"quflow": getattr(qf, "__version__", "?")}
+    for N in (5, 8, 16):
+        om = np.random.default_rng(N).normal(size=N * N)
+        om[0] = 0.0
+        wq = qf.shr2mat(om, N)
+        out[f"N={N}"] = dict(
+            shr2mat=float(np.max(np.abs(wq - np.asarray(z.shr2mat(om, N))))),
+            mat2shr=float(np.max(np.abs(qf.mat2shr(wq) - np.asarray(z.mat2shr(wq))))),
+            solve_poisson=float(np.max(np.abs(qf.solve_poisson(wq)
+                                              - np.asarray(z.solve_poisson(wq))))),
+            energy=abs(qf.energy_euler(wq) - float(z.energy(wq))) / qf.energy_euler(wq),
+            enstrophy=abs(qf.enstrophy(wq) - float(z.enstrophy(wq))) / qf.enstrophy(wq))
+    N, t = 16, 2.0
+    w0 = np.asarray(initial(N))
+    ref = np.asarray(sj.deterministic_flow(sj.EulerZeitlin(N), w0, np.array([t]),
+                                           max_step=2.0 ** -10)[0])
+    errs = []
+    for h in (0.01, 0.005, 0.0025):
+        w = w0.copy()
+        qf.isomp(w, h, steps=round(t / h))
+        errs.append(float(np.max(np.abs(w - ref))))
+    out["isomp_vs_flow"] = dict(h=[0.01, 0.005, 0.0025], max_error=errs,
+                                order=float(np.polyfit(np.log([0.01, 0.005, 0.0025]),
+                                                       np.log(errs), 1)[0]))
+    print("quflow check:", out, flush=True)
+    return out
+
+
+def figure(path, rows):
+    plt = _common.pyplot()
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
+    colors = plt.get_cmap("tab10")
+    for i, name in enumerate(dict.fromkeys(r["method"] for r in rows)):
+        for size, style in ((ENSEMBLE, "o-"), (1, "s--")):
+            pts = [r for r in rows if r["method"] == name and r["samples"] == size]
+            if not pts:
+                continue
+            label = f"{name}" + (f", ensemble of {size}" if size > 1 else ", one state")
+            ax1.loglog([r["N"] for r in pts], [r["ms_per_sample_step"] for r in pts], style,
+                       color=colors(i), label=label, base=2)
+            if pts[0]["compile_s"] is not None:
+                ax2.semilogx([r["N"] for r in pts], [r["compile_s"] for r in pts], style,
+                             color=colors(i), label=label, base=2)
+    ax1.set_xlabel("N (su(N))")
+    ax1.set_ylabel("ms per sample-step")
+    ax1.set_title(f"Euler–Zeitlin, h = {H} s: cost per sample-step")
+    ax1.legend(fontsize=7)
+    ax2.set_xlabel("N (su(N))")
+    ax2.set_ylabel("compile time (s)")
+    ax2.set_title("Compile time")
+    ax2.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--fast", action="store_true", help="a smoke run: N = 8; 200 steps")
+    p.add_argument("--check-quflow", action="store_true",
+                   help="compare conventions and dynamics with quflow (needs quflow)")
+    p.add_argument("--out", default=_common.DEFAULT_OUT, help="output folder (default: %(default)s)")
+    args = p.parse_args(argv)
+    os.makedirs(args.out, exist_ok=True)
+    info = _common.machine_info()
+    info["quflow"] = None if qf is None else getattr(qf, "__version__", "?")
+    print(f"# Euler-Zeitlin: {info['cpu_model']}, {info['cpu_count']} cores, jax {info['jax']}, "
+          f"quflow {info['quflow']}, {info['date']}", flush=True)
+    if args.check_quflow and qf is None:
+        raise SystemExit("--check-quflow needs quflow (install it from its sources).")
+    checked = check_quflow() if args.check_quflow else None
+    rows = cost((8,) if args.fast else (16, 32, 64, 128, 256))
+    cons = conservation(8 if args.fast else 32, 200 if args.fast else 10_000)
+    _common.write_csv(os.path.join(args.out, "zeitlin.csv"), rows)
+    _common.write_json(os.path.join(args.out, "zeitlin.json"),
+                       dict(machine=info, h=H, cost=rows, conservation=cons, quflow_check=checked))
+    with open(os.path.join(args.out, "zeitlin.md"), "w") as fh:
+        fh.write(f"Measured on {info['cpu_model']} ({info['cpu_count']} cores), jax "
+                 f"{info['jax']}, quflow {info['quflow']}, {info['date'][:10]}; h = {H} s.\n\n")
+        fh.write(_common.markdown_table(
+            rows, ["N", "method", "samples", "ms_per_sample_step", "vs_quflow", "compile_s",
+                   "diff_vs_quflow"],
+            {"ms_per_sample_step": ".3f", "vs_quflow": ".2f", "compile_s": ".2f",
+             "diff_vs_quflow": ".1e"}))
+        fh.write("\nRelative drift over the path\n\n")
+        fh.write(_common.markdown_table(cons, ["method", "N", "steps", "tr_w2", "tr_w3", "tr_w4",
+                                               "energy"],
+                                        {k: ".1e" for k in ("tr_w2", "tr_w3", "tr_w4", "energy")}))
+    figure(os.path.join(args.out, "zeitlin.png"), rows)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,27 @@
+"""benchmarks/zeitlin.py runs (`--fast`, in a subprocess, into a tmp dir) and writes sane
+files: its own module, so that pytest-xdist's `--dist loadfile` runs it beside the other
+benchmark scripts. Correctness only: no timing is asserted."""
+
+import json
+
+from test_benchmarks import is_png, run_script
+
+
+def test_zeitlin(tmp_path):
+    """The Euler-Zeitlin benchmark runs; the isospectral rule keeps every Casimir, the
+    midpoint rule tr W^2 and (a quadratic Hamiltonian, no noise) the energy, Heun none; where
+    quflow is installed, its isomp and ours end at the same state."""
+    run_script("zeitlin.py", tmp_path)
+    assert is_png(tmp_path / "zeitlin.png")
+    out = json.loads((tmp_path / "zeitlin.json").read_text())
+    methods = {r["method"] for r in out["cost"]}
+    assert {"IsospectralMidpoint", "Midpoint", "Heun"} <= methods
+    assert all(r["ms_per_sample_step"] > 0 for r in out["cost"])
+    cons = {r["method"]: r for r in out["conservation"]}
+    assert max(cons["IsospectralMidpoint"][k] for k in ("tr_w2", "tr_w3", "tr_w4")) < 1e-12
+    assert cons["Midpoint"]["tr_w2"] < 1e-12 < 1e-8 < cons["Midpoint"]["tr_w3"]
+    assert cons["Midpoint"]["energy"] < 1e-12
+    assert min(cons["Heun"][k] for k in ("tr_w2", "tr_w3", "tr_w4", "energy")) > 1e-8
+    if "quflow isomp" in methods:
+        diffs = [r["diff_vs_quflow"] for r in out["cost"] if r["method"] == "IsospectralMidpoint"]
+        assert max(diffs) < 1e-10
