@@ -9,10 +9,12 @@ initial vorticity of degrees l = 1..4 (coefficients N(0, 1), seed 0), step h = 0
   `IsospectralMidpoint` (the fixed-point iteration: Newton's dense Jacobian would have
   (N^2 - 1)^2 entries), `Midpoint` and `Heun`, for an ensemble of 16 states
   (`jit(vmap(integrate))`) and for one state (`jit(integrate)`), over 64 / 32 / 16 / 8 / 4
-  steps. With quflow importable (installed by hand from its sources; never a dependency),
-  its `isomp` (Numba, fixed point, the same h, its default tolerance) on one state in the
-  same run, and the largest difference between its final state (solved to 1e-13) and ours
-  (the same scheme: the difference is the solvers' tolerance).
+  steps; solver updates per step and steps redone as substeps (`retry_substeps`; ours
+  solve to 64 eps, about 1.4e-14). With quflow importable (installed by hand from its
+  sources; never a dependency), its `isomp` (Numba, fixed point, the same h, its default
+  tolerance `eps (h/hbar) |W|_inf` and at most 10 updates, which it leaves silently
+  unconverged: the share of such steps is reported) on one state in the same run, and the
+  largest difference between its final state (solved to 1e-13) and ours (the same scheme).
 - Conservation over 10^4 steps at N = 32: the largest relative drift of tr W^2, |tr W^3|,
   tr W^4 and of the energy along one path, for each method.
 - `--check-quflow`: quflow's `shr2mat`, `mat2shr`, `solve_poisson`, `energy_euler`,
@@ -53,6 +55,7 @@ except ImportError:
 H = 0.01
 STEPS = {8: 64, 16: 64, 32: 32, 64: 16, 128: 8, 256: 4}
 ENSEMBLE = 16
+TOL = 64 * float(np.finfo(np.float64).eps)  # the implicit methods' default tolerance
 
 
 def initial(N, degrees=range(1, 5), seed=0):
@@ -72,6 +75,15 @@ def _integrate(model, y0, method):
     return lambda d: sj.integrate(model, y0, d, H, method=method, throw=False)
 
 
+def iterations(model, w0, method, n_steps):
+    """Solver updates per step (all attempts) and the steps redone as substeps, one path."""
+    if isinstance(method, sj.Heun):
+        return 0.0, 0
+    sol = sj.simulate(model, w0, t1=n_steps * H, dt=H, n_samples=1, key=jax.random.key(0),
+                      method=method, newton_stats=True)
+    return float(sol.stats["newton_iterations_mean"]), int(sol.stats["n_retried_steps"])
+
+
 def cost(ns):
     rows = []
     for N in ns:
@@ -85,10 +97,14 @@ def cost(ns):
                 compiled, compile_s = _common.compile_timed(fn, dW)
                 med, best, reps, y = _common.time_call(compiled, dW, repeats=3, min_total=0.5)
                 y = y[0] if size > 1 else y
+                if size == ENSEMBLE:  # (the same path for both sizes)
+                    its, retried = iterations(model, w0, method, n_steps)
                 rows.append(dict(N=N, method=name, samples=size, steps=n_steps,
                                  ms_per_sample_step=1e3 * med / (size * n_steps),
                                  ms_per_step=1e3 * med / n_steps, compile_s=compile_s,
-                                 repeats=reps, vs_quflow=None, diff_vs_quflow=None,
+                                 repeats=reps, iterations=its, retried_steps=retried,
+                                 tol=None if isinstance(method, sj.Heun) else TOL,
+                                 vs_quflow=None, diff_vs_quflow=None,
                                  final=np.asarray(y)))
                 print(f"N={N:3d} {name:20s} x{size:2d}: {rows[-1]['ms_per_sample_step']:9.3f} "
                       f"ms/sample-step, compile {compile_s:5.2f} s", flush=True)
@@ -102,6 +118,8 @@ def cost(ns):
                 qf.isomp(w, H, steps=n_steps)
                 times.append(time.perf_counter() - start)
             med = float(np.median(times))
+            stats = {"iterations": 0}  # (quflow fills a non-empty dict)
+            qf.isomp(np.array(w0), H, steps=n_steps, stats=stats)
             # (its default tolerance, eps h |W|_inf / hbar, is about 1e-8 here: for the
             # comparison of final states, the same run solved to round-off)
             w = np.array(w0)
@@ -109,7 +127,11 @@ def cost(ns):
             rows.append(dict(N=N, method="quflow isomp", samples=1, steps=n_steps,
                              ms_per_sample_step=1e3 * med / n_steps,
                              ms_per_step=1e3 * med / n_steps, compile_s=None,
-                             repeats=len(times), vs_quflow=1.0, diff_vs_quflow=0.0, final=w))
+                             repeats=len(times), iterations=stats["iterations"],
+                             retried_steps=None,
+                             maxit_reached=stats.get("number_of_maxit"),
+                             tol=stats.get("tol_auto"), vs_quflow=1.0, diff_vs_quflow=0.0,
+                             final=w))
             print(f"N={N:3d} quflow isomp           x 1: "
                   f"{rows[-1]['ms_per_sample_step']:9.3f} ms/step", flush=True)
             for r in rows:
@@ -119,6 +141,7 @@ def cost(ns):
                         r["diff_vs_quflow"] = float(np.max(np.abs(r["final"] - w)))
     for r in rows:
         del r["final"]
+        r.setdefault("maxit_reached", None)
     return rows
 
 
@@ -225,8 +248,9 @@ def main(argv=None):
                  f"{info['jax']}, quflow {info['quflow']}, {info['date'][:10]}; h = {H} s.\n\n")
         fh.write(_common.markdown_table(
             rows, ["N", "method", "samples", "ms_per_sample_step", "vs_quflow", "compile_s",
-                   "diff_vs_quflow"],
+                   "iterations", "retried_steps", "tol", "maxit_reached", "diff_vs_quflow"],
             {"ms_per_sample_step": ".3f", "vs_quflow": ".2f", "compile_s": ".2f",
+             "iterations": ".1f", "tol": ".1e", "maxit_reached": ".2f",
              "diff_vs_quflow": ".1e"}))
         fh.write("\nRelative drift over the path\n\n")
         fh.write(_common.markdown_table(cons, ["method", "N", "steps", "tr_w2", "tr_w3", "tr_w4",

@@ -28,17 +28,17 @@ from ._euler_zeitlin import EulerZeitlin as EulerZeitlin
 from ._noise_hamiltonians import random_inertia_noise as random_inertia_noise, salt_noise as salt_noise
 
 # Methods
-from ._solver.base import (AbstractMethod as AbstractMethod, StepInfo as StepInfo,
+from ._methods.base import (AbstractMethod as AbstractMethod, StepInfo as StepInfo,
                            StrongOrders as StrongOrders)
-from ._solver.euler_maruyama import EulerMaruyama as EulerMaruyama
-from ._solver.exact import Exact as Exact
-from ._solver.heun import Heun as Heun
-from ._solver.isospectral import IsospectralMidpoint as IsospectralMidpoint
-from ._solver.lie_poisson import LiePoisson as LiePoisson
-from ._solver.lie_poisson_sym import LiePoissonSym2 as LiePoissonSym2, LiePoissonSym4 as LiePoissonSym4
-from ._solver.midpoint import Midpoint as Midpoint
-from ._solver.milstein import Milstein as Milstein
-from ._solver.strang import SaltSplitting as SaltSplitting, Strang as Strang, Strang4 as Strang4
+from ._methods.euler_maruyama import EulerMaruyama as EulerMaruyama
+from ._methods.exact import Exact as Exact
+from ._methods.heun import Heun as Heun
+from ._methods.isospectral import IsospectralMidpoint as IsospectralMidpoint
+from ._methods.lie_poisson import LiePoisson as LiePoisson
+from ._methods.lie_poisson_sym import LiePoissonSym2 as LiePoissonSym2, LiePoissonSym4 as LiePoissonSym4
+from ._methods.midpoint import Midpoint as Midpoint
+from ._methods.milstein import Milstein as Milstein
+from ._methods.strang import SaltSplitting as SaltSplitting, Strang as Strang, Strang4 as Strang4
 
 # Driver
 from ._integrate import integrate as integrate, simulate as simulate

@@ -15,8 +15,8 @@ import optax
 from . import _noise
 from ._integrate import simulate_unreported
 from ._model import RigidBody
-from ._noise_hamiltonians import _MatrixNoise
-from ._solver.lie_poisson import LiePoisson
+from ._noise_hamiltonians import _ParameterNoise
+from ._methods.lie_poisson import LiePoisson
 
 
 def moments(ys):
@@ -69,10 +69,10 @@ class _Parameters:
             return cls((*inertia, "c"), jnp.concatenate([jnp.log(init.inertia),
                                                           jnp.log(init.c)[None]]),
                        np.ones(4, bool), init)
-        matrix, name = init.noise.matrix, init.noise.parameter_name
-        entries = [f"{name}[{', '.join(map(str, i))}]" for i in np.ndindex(matrix.shape)]
+        param, name = init.noise.parameter, init.noise.parameter_name
+        entries = [f"{name}[{', '.join(map(str, i))}]" for i in np.ndindex(param.shape)]
         return cls((*inertia, *entries),
-                   jnp.concatenate([jnp.log(init.inertia), jnp.ravel(matrix)]),
+                   jnp.concatenate([jnp.log(init.inertia), jnp.ravel(param)]),
                    np.arange(3 + len(entries)) < 3, init)
 
     def model(self, theta):
@@ -80,7 +80,7 @@ class _Parameters:
         if self.init.noise is None:
             return RigidBody(inertia, jnp.exp(theta[3]))
         family = self.init.noise
-        return RigidBody(inertia, noise=type(family)(theta[3:].reshape(family.matrix.shape)))
+        return RigidBody(inertia, noise=type(family)(theta[3:].reshape(family.parameter.shape)))
 
     def values(self, theta):
         """The parameters themselves (not their logarithms), as a NumPy array."""
@@ -154,7 +154,7 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
         raise TypeError(f"init must be a RigidBody, got {type(init).__name__}.")
     if init.noise is None and not float(init.c) > 0:
         raise ValueError(f"init.c must be positive (c is fitted on a log scale), got {init.c}.")
-    if init.noise is not None and not isinstance(init.noise, _MatrixNoise):
+    if init.noise is not None and not isinstance(init.noise, _ParameterNoise):
         raise TypeError("calibrate fits the parameters of a noise family (salt_noise, "
                         "random_inertia_noise); a noise given as a function has none.")
     params = _Parameters.of(init)

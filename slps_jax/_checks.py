@@ -84,7 +84,7 @@ def check_model(model):
 def check_pair(method, model):
     """The one check of a method against a system: what the method `requires` (a set of
     structures, such as the rigid body's) the system must offer (`structure`)."""
-    from ._solver import METHODS
+    from ._methods import METHODS
     from ._system import RIGID_BODY
 
     missing = method.requires - model.structure
@@ -98,7 +98,7 @@ def check_pair(method, model):
 
 
 def check_method(method):
-    from ._solver.base import AbstractMethod
+    from ._methods.base import AbstractMethod
 
     if not isinstance(method, AbstractMethod):
         raise TypeError(
@@ -109,7 +109,7 @@ def check_method(method):
 
 
 def _area_methods():
-    from ._solver import METHODS
+    from ._methods import METHODS
 
     return ", ".join(cls.__name__ for cls in METHODS if cls.uses_levy_area())
 

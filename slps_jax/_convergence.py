@@ -20,8 +20,8 @@ from ._checks import (check_count, check_levy_option, check_method, check_model,
                       check_retry, check_y0, real_dtype)
 from ._integrate import _ensemble_dynamic_jit, failure_summary
 from ._system import NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
-from ._solver.base import AbstractMethod
-from ._solver.midpoint import Midpoint
+from ._methods.base import AbstractMethod
+from ._methods.midpoint import Midpoint
 
 
 @dataclasses.dataclass(frozen=True)

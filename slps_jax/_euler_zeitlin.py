@@ -7,7 +7,7 @@ import numpy as np
 
 from . import zeitlin
 from ._algebra import su
-from ._system import LiePoissonSystem
+from ._system import QUADRATIC, LiePoissonSystem
 
 
 def _euler_hamiltonian(w, params):
@@ -65,6 +65,11 @@ class EulerZeitlin(LiePoissonSystem):
             return bool(self.c != 0)
         except jax.errors.TracerBoolConversionError:
             return True
+
+    @property
+    def structure(self):
+        """With `c=` (or no noise) every Hamiltonian is quadratic (`LiePoisson(scale=...)`)."""
+        return super().structure | ({QUADRATIC} if self.noise is None else set())
 
     def stream(self, w):
         r"""The stream matrix $P = \Delta_N^{-1}W$ (traceless), over leading axes."""

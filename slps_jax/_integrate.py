@@ -16,8 +16,8 @@ from ._checks import (check_grid, check_count, check_levy_area, check_levy_optio
                       check_model, check_positive, check_retry, check_save_every, check_throw,
                       check_y0, concrete, real_array, real_dtype)
 from ._solution import RESULTS, Solution
-from ._solver.base import finite_result
-from ._solver.lie_poisson import LiePoisson
+from ._methods.base import finite_result
+from ._methods.lie_poisson import LiePoisson
 from ._retry import robust_step
 
 

@@ -8,7 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _so3
+from . import _components, so3
 from ._checks import concrete, float_dtype, real_array
 from ._algebra import so
 from ._system import QUADRATIC, RIGID_BODY, LiePoissonSystem, _noise_or_c
@@ -102,15 +102,15 @@ class RigidBody(LiePoissonSystem):
 
     def inverse_inertia(self):
         """$I^{-1}$ as component tuple (private helper for the integrators)."""
-        return _so3.vec(1.0 / self.inertia)
+        return _components.vec(1.0 / self.inertia)
 
-    def gradient_c(self, v):
-        return _so3.mul(self.inverse_inertia(), v)
+    def gradient_components(self, v):
+        return _components.mul(self.inverse_inertia(), v)
 
-    def gradient_hessian_c(self, v):
+    def gradient_hessian_components(self, v):
         d = self.inverse_inertia()
         z = jnp.zeros_like(d[0])
-        return _so3.mul(d, v), ((d[0], z, z), (z, d[1], z), (z, z, d[2]))
+        return _components.mul(d, v), ((d[0], z, z), (z, d[1], z), (z, z, d[2]))
 
 
 PAPER_Y0 = (0.7, 0.7, 0.0)

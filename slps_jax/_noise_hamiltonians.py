@@ -2,7 +2,7 @@
 $dy = y \\times \\nabla H_0(y)\\,dt + \\sum_r y \\times \\nabla H_r(y) \\circ dW_r$.
 
 A noise family is a pytree whose leaves are its parameters (so `jax.grad` reaches them) and
-which gives the integrators, on components (tuples of arrays, see `_so3`), the one combination
+which gives the integrators, on components (tuples of arrays, see `_components`), the one combination
 they need: $u(v) = \\sum_r w_r \\nabla H_r(v)$ for weights $w$ (a step's increments) and its
 Jacobian $\\partial u/\\partial v$. Closed forms where they exist (`salt_noise`,
 `random_inertia_noise`), derivatives by JAX otherwise (`FunctionNoise`).
@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _so3
+from . import _components, so3
 from ._checks import concrete, float_dtype, numeric_array
 
 
@@ -23,8 +23,8 @@ class AbstractNoise:
 
     - `n_noises`: the number $s$ of noises (static).
     - `values(y, params)`: $(H_1(y), \\dots, H_s(y))$ for `y` of shape `(3,)`.
-    - `gradient_c(v, w, params)`: $u = \\sum_r w_r \\nabla H_r(v)$ on components.
-    - `gradient_jacobian_c(v, w, params)`: $(u, \\partial u/\\partial v)$ on components.
+    - `gradient_components(v, w, params)`: $u = \\sum_r w_r \\nabla H_r(v)$ on components.
+    - `gradient_jacobian_components(v, w, params)`: $(u, \\partial u/\\partial v)$ on components.
     - `gradient(y, w, params, algebra)`: $u$ for a state array of any algebra (matrix methods).
     - `check_algebra(algebra)`: raise `ValueError` if the family does not fit its states.
 
@@ -37,10 +37,10 @@ class AbstractNoise:
     def values(self, y, params):
         raise NotImplementedError
 
-    def gradient_c(self, v, w, params):
+    def gradient_components(self, v, w, params):
         raise NotImplementedError
 
-    def gradient_jacobian_c(self, v, w, params):
+    def gradient_jacobian_components(self, v, w, params):
         raise NotImplementedError
 
     def gradient(self, y, w, params, algebra):
@@ -64,7 +64,7 @@ class AbstractNoise:
 def _weighted(w, rows):
     """$\\sum_r w_r\\,\\mathrm{rows}_r$ for `rows` of shape `(s, 3)`, on components."""
     total = jnp.tensordot(w, rows, axes=1)
-    return _so3.vec(total)
+    return _components.vec(total)
 
 
 def _parameter_matrix(name, x, what, matrices=False):
@@ -89,7 +89,7 @@ def _parameter_matrix(name, x, what, matrices=False):
     return x
 
 
-class _MatrixNoise(AbstractNoise):
+class _ParameterNoise(AbstractNoise):
     """A family whose one parameter is an `(s, 3)` array, one row per noise, stored under
     `parameter_name` (a pytree leaf; `calibrate` fits it by that name)."""
 
@@ -100,30 +100,30 @@ class _MatrixNoise(AbstractNoise):
         setattr(self, self.parameter_name, value)
 
     @property
-    def matrix(self):
+    def parameter(self):
         return getattr(self, self.parameter_name)
 
     @property
     def n_noises(self):
-        return self.matrix.shape[0]
+        return self.parameter.shape[0]
 
     def tree_flatten(self):
-        return (self.matrix,), None
+        return (self.parameter,), None
 
     @classmethod
     def tree_unflatten(cls, aux, children):
         return cls(*children)
 
     def __repr__(self):
-        return f"{self.builder}({self.matrix!r})"
+        return f"{self.builder}({self.parameter!r})"
 
     def check_algebra(self, algebra):
-        if self.matrix.shape[1:] != algebra.shape:
+        if self.parameter.shape[1:] != algebra.shape:
             raise ValueError(
-                f"{self.builder}: {self.parameter_name} of shape {self.matrix.shape} does not fit "
+                f"{self.builder}: {self.parameter_name} of shape {self.parameter.shape} does not fit "
                 f"the states of {algebra.name}, shape {algebra.shape}: pass shape "
                 f"(s, {', '.join(map(str, algebra.shape))}).")
-        x_np = concrete(self.matrix)
+        x_np = concrete(self.parameter)
         if self.linear and x_np is not None:  # (its rows are elements of the algebra)
             for r, x in enumerate(x_np):
                 algebra.validate(f"{self.parameter_name}[{r}]", x)
@@ -132,7 +132,7 @@ class _MatrixNoise(AbstractNoise):
 
 
 @jax.tree_util.register_pytree_node_class
-class SaltNoise(_MatrixNoise):
+class SaltNoise(_ParameterNoise):
     r"""Stochastic advection by Lie transport: $H_r(y) = \chi_r \cdot y$, so the noise field
     $y \times \chi_r$ rotates $y$ about the fixed axis $\chi_r$. Build with `salt_noise`."""
 
@@ -145,15 +145,15 @@ class SaltNoise(_MatrixNoise):
         # <X_r, Y> = (1/2) Re tr(X_r^H Y) on so(n) and su(N)
         return 0.5 * jnp.sum(jnp.real(jnp.conj(self.chi) * y), axis=(-2, -1))
 
-    def gradient_c(self, v, w, params):
+    def gradient_components(self, v, w, params):
         return _weighted(w, self.chi)
 
     def gradient(self, y, w, params, algebra):
         return jnp.tensordot(w, self.chi, axes=1).astype(y.dtype)
 
-    def gradient_jacobian_c(self, v, w, params):
+    def gradient_jacobian_components(self, v, w, params):
         zero = jnp.zeros_like(v[0])
-        return self.gradient_c(v, w, params), ((zero,) * 3,) * 3
+        return self.gradient_components(v, w, params), ((zero,) * 3,) * 3
 
     def area_gradient(self, y, area, params, algebra):
         r"""$\nabla G_A = \tfrac12\sum_{q,r} A_{qr}[\chi_q, \chi_r]$ (on so(3)
@@ -177,7 +177,7 @@ def salt_noise(chi):
 
 
 @jax.tree_util.register_pytree_node_class
-class RandomInertiaNoise(_MatrixNoise):
+class RandomInertiaNoise(_ParameterNoise):
     r"""Random inertia: $H_r(y) = \tfrac12 \sum_j \sigma_{rj} y_j^2$. Build with
     `random_inertia_noise`."""
 
@@ -186,13 +186,13 @@ class RandomInertiaNoise(_MatrixNoise):
     def values(self, y, params):
         return 0.5 * self.sigma @ (y * y)
 
-    def gradient_c(self, v, w, params):
-        return _so3.mul(_weighted(w, self.sigma), v)
+    def gradient_components(self, v, w, params):
+        return _components.mul(_weighted(w, self.sigma), v)
 
-    def gradient_jacobian_c(self, v, w, params):
+    def gradient_jacobian_components(self, v, w, params):
         d = _weighted(w, self.sigma)
         zero = 0.0 * (v[0] + d[0])
-        return _so3.mul(d, v), ((d[0] + zero, zero, zero), (zero, d[1] + zero, zero),
+        return _components.mul(d, v), ((d[0] + zero, zero, zero), (zero, d[1] + zero, zero),
                                 (zero, zero, d[2] + zero))
 
     def gradient(self, y, w, params, algebra):
@@ -239,13 +239,13 @@ class FunctionNoise(AbstractNoise):
     def _weighted_h(self, w, params):
         return lambda y: jnp.dot(w, self.fn(y, params))
 
-    def gradient_c(self, v, w, params):
-        return _so3.vec(jax.grad(self._weighted_h(w, params))(_so3.unvec(v)))
+    def gradient_components(self, v, w, params):
+        return _components.vec(jax.grad(self._weighted_h(w, params))(_components.unvec(v)))
 
-    def gradient_jacobian_c(self, v, w, params):
+    def gradient_jacobian_components(self, v, w, params):
         grad = jax.grad(self._weighted_h(w, params))
-        jac, u = jax.jacfwd(lambda x: (grad(x), grad(x)), has_aux=True)(_so3.unvec(v))
-        return _so3.vec(u), _so3.mat(jac)
+        jac, u = jax.jacfwd(lambda x: (grad(x), grad(x)), has_aux=True)(_components.unvec(v))
+        return _components.vec(u), _components.mat(jac)
 
     def gradient(self, y, w, params, algebra):
         return algebra.gradient(jax.grad(self._weighted_h(w, params))(y))

@@ -35,7 +35,7 @@ from jax.flatten_util import ravel_pytree
 from . import _noise
 from ._checks import real_dtype
 from ._solution import RESULTS
-from ._solver.base import finite_result
+from ._methods.base import finite_result
 
 # A failed step is split into k, k^2, ..., k^RETRY_LEVELS equal parts before giving up.
 RETRY_LEVELS = 3

@@ -23,7 +23,7 @@ from ._checks import (check_count, check_grid, check_levy_option, check_method, 
                       check_retry, check_save_every, check_y0, real_dtype)
 from ._integrate import _ensemble
 from ._sharding import check_sharding
-from ._solver.lie_poisson import LiePoisson
+from ._methods.lie_poisson import LiePoisson
 
 STATISTICS = ("mean", "var", "cov", "skewness", "kurtosis")
 

@@ -6,8 +6,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _so3
-from ._algebra import REAL_STATES, SO3, SO3_VECTORS, AbstractAlgebra
+from . import _components, so3
+from ._algebra import SO3, SO3_VECTORS, AbstractAlgebra
 from ._checks import concrete, float_dtype, real_array, real_dtype
 from ._noise import as_step
 from ._noise_hamiltonians import as_noise
@@ -17,8 +17,7 @@ from ._noise_hamiltonians import as_noise
 NOISE_PROPORTIONAL_TO_DRIFT = "noise proportional to the drift"  # one noise, H_1 = c H_0
 RIGID_BODY = "rigid body"  # H_0 = y^T I^{-1} y / 2 on so(3)*, `inverse_inertia()` available
 LINEAR_NOISE = "linear noise"  # H_r = <chi_r, y> (SALT), `noise.chi` available
-# (and what the algebra offers: `AbstractAlgebra.structure`)
-SO3_VECTORS, REAL_STATES = SO3_VECTORS, REAL_STATES
+# (and what the algebra offers, `AbstractAlgebra.structure`: SO3_VECTORS)
 QUADRATIC = "quadratic Hamiltonians"  # H_0 and every H_r quadratic: y -> y/s is a time change
 
 
@@ -203,57 +202,57 @@ class LiePoissonSystem:
         `BrownianStep`, is accepted)."""
         return self.c * jnp.reshape(as_step(dW).dW, ())
 
-    # Component forms for the integrators (tuples of arrays: see `_so3`). Subclasses with a
+    # Component forms for the integrators (tuples of arrays: see `_components`). Subclasses with a
     # closed form override the drift's; noise families give theirs.
 
-    def gradient_c(self, v):
+    def gradient_components(self, v):
         r"""$\nabla H_0(v)$ on components."""
-        return _so3.vec(jax.grad(self._h)(_so3.unvec(v)))
+        return _components.vec(jax.grad(self._h)(_components.unvec(v)))
 
-    def gradient_hessian_c(self, v):
+    def gradient_hessian_components(self, v):
         r"""$(\nabla H_0(v), \nabla^2 H_0(v))$ on components, in one forward-mode pass."""
         grad = jax.grad(self._h)
-        hess, g = jax.jacfwd(lambda u: (grad(u), grad(u)), has_aux=True)(_so3.unvec(v))
-        return _so3.vec(g), _so3.mat(hess)
+        hess, g = jax.jacfwd(lambda u: (grad(u), grad(u)), has_aux=True)(_components.unvec(v))
+        return _components.vec(g), _components.mat(hess)
 
-    def _area_c(self, v, area, hessian):
+    def _area_components(self, v, area, hessian):
         """$\nabla G_A(v)$ on components, and with `hessian` its Jacobian (zero for linear
         noise: the gradient is constant)."""
         grad = lambda u: self.area_gradient(u, area)  # noqa: E731
         if not hessian:
-            return _so3.vec(grad(_so3.unvec(v)))
+            return _components.vec(grad(_components.unvec(v)))
         if self.noise.linear:
             zero = jnp.zeros_like(v[0])
-            return _so3.vec(grad(_so3.unvec(v))), ((zero,) * 3,) * 3
-        jac, g = jax.jacfwd(lambda u: (grad(u), grad(u)), has_aux=True)(_so3.unvec(v))
-        return _so3.vec(g), _so3.mat(jac)
+            return _components.vec(grad(_components.unvec(v))), ((zero,) * 3,) * 3
+        jac, g = jax.jacfwd(lambda u: (grad(u), grad(u)), has_aux=True)(_components.unvec(v))
+        return _components.vec(g), _components.mat(jac)
 
-    def step_gradient_c(self, v, dt, noise):
+    def step_gradient_components(self, v, dt, noise):
         r"""$\nabla K(v)$ of a step's Hamiltonian $K = h H_0 + \sum_r \Delta W_r H_r$
         (plus $G_A$ with areas; the step's flow to first order is that of $K$), on
         components. With `c=`, $K = \tau H_0$, $\tau = h + c\Delta W$."""
         noise = as_step(noise)
         if self.noise is None:
-            return _so3.scale(dt + self.noise_time(noise.dW), self.gradient_c(v))
-        g = _so3.add(_so3.scale(dt, self.gradient_c(v)),
-                     self.noise.gradient_c(v, noise.dW, self.params))
-        return _so3.add(g, self._area_c(v, noise.area, False)) if self._has_area(noise) else g
+            return _components.scale(dt + self.noise_time(noise.dW), self.gradient_components(v))
+        g = _components.add(_components.scale(dt, self.gradient_components(v)),
+                     self.noise.gradient_components(v, noise.dW, self.params))
+        return _components.add(g, self._area_components(v, noise.area, False)) if self._has_area(noise) else g
 
-    def step_gradient_hessian_c(self, v, dt, noise):
+    def step_gradient_hessian_components(self, v, dt, noise):
         r"""$(\nabla K(v), \nabla^2 K(v))$ on components."""
         noise = as_step(noise)
-        g, hess = self.gradient_hessian_c(v)
+        g, hess = self.gradient_hessian_components(v)
         if self.noise is None:
             tau = dt + self.noise_time(noise.dW)
-            return _so3.scale(tau, g), _so3.mscale(tau, hess)
-        u, ju = self.noise.gradient_jacobian_c(v, noise.dW, self.params)
-        g, hess = _so3.add(_so3.scale(dt, g), u), _so3.madd(_so3.mscale(dt, hess), ju)
+            return _components.scale(tau, g), _components.mscale(tau, hess)
+        u, ju = self.noise.gradient_jacobian_components(v, noise.dW, self.params)
+        g, hess = _components.add(_components.scale(dt, g), u), _components.madd(_components.mscale(dt, hess), ju)
         if self._has_area(noise):
-            ga, ha = self._area_c(v, noise.area, True)
-            g, hess = _so3.add(g, ga), _so3.madd(hess, ha)
+            ga, ha = self._area_components(v, noise.area, True)
+            g, hess = _components.add(g, ga), _components.madd(hess, ha)
         return g, hess
 
-    def step_fields_c(self, v, dt, noise):
+    def step_fields_components(self, v, dt, noise):
         r"""$(\nabla K(v), u(v), \partial u/\partial v)$ on components, with
         $u = \sum_r \Delta W_r \nabla H_r$ the increments' part of the noise (the areas'
         $\nabla G_A$ is in $\nabla K$ only): what scheme (42) with several noises needs
@@ -261,12 +260,12 @@ class LiePoissonSystem:
         noise = as_step(noise)
         if self.noise is None:
             cdw = self.noise_time(noise.dW)
-            g, hess = self.gradient_hessian_c(v)
-            return _so3.scale(dt + cdw, g), _so3.scale(cdw, g), _so3.mscale(cdw, hess)
-        u, ju = self.noise.gradient_jacobian_c(v, noise.dW, self.params)
-        k = _so3.add(_so3.scale(dt, self.gradient_c(v)), u)
+            g, hess = self.gradient_hessian_components(v)
+            return _components.scale(dt + cdw, g), _components.scale(cdw, g), _components.mscale(cdw, hess)
+        u, ju = self.noise.gradient_jacobian_components(v, noise.dW, self.params)
+        k = _components.add(_components.scale(dt, self.gradient_components(v)), u)
         if self._has_area(noise):
-            k = _so3.add(k, self._area_c(v, noise.area, False))
+            k = _components.add(k, self._area_components(v, noise.area, False))
         return k, u, ju
 
 

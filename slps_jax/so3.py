@@ -1,12 +1,89 @@
-"""Public so(3) / SO(3) toolkit: `hat`, `vee`, `skew`, `sym`, `exp`, `log`, `cayley`, `cayley_inv`."""
+"""The so(3) / SO(3) toolkit: `hat`, `vee`, `skew`, `sym`, `exp`, `log`, `cayley`,
+`cayley_inv`. The functions take arrays whose last axis has length 3 (vectors) or whose last
+two axes are 3x3 (matrices), and broadcast over leading axes; underneath, every formula is
+written once on components (`_components`)."""
 
-from ._so3 import (  # noqa: F401
-    cayley as cayley,
-    cayley_inv as cayley_inv,
-    exp as exp,
-    hat as hat,
-    log as log,
-    skew as skew,
-    sym as sym,
-    vee as vee,
-)
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+from . import _components as c
+
+def hat(v):
+    """The skew matrix of a vector: `hat(v) @ u = v x u`.
+
+    **Arguments:** `v`, shape `(..., 3)`. **Returns:** shape `(..., 3, 3)`.
+    """
+    return c.unmat(c.hat(c.vec(jnp.asarray(v))))
+
+
+def vee(m):
+    """Inverse of `hat` on skew matrices: the axial vector. For a general matrix it returns
+    the axial vector of its skew part.
+
+    **Arguments:** `m`, shape `(..., 3, 3)`. **Returns:** shape `(..., 3)`.
+    """
+    return c.unvec(c.vee_skew(c.mat(jnp.asarray(m))))
+
+
+def skew(m):
+    """$\\mathrm{skew}(M) = (M - M^T)/2$."""
+    m = jnp.asarray(m)
+    return 0.5 * (m - jnp.swapaxes(m, -1, -2))
+
+
+def sym(m):
+    """$\\mathrm{sym}(M) = (M + M^T)/2$."""
+    m = jnp.asarray(m)
+    return 0.5 * (m + jnp.swapaxes(m, -1, -2))
+
+
+def exp(xi):
+    """The exponential map so(3) -> SO(3) (Rodrigues' formula).
+
+    $\\exp(\\hat\\xi) = I + \\frac{\\sin\\theta}{\\theta}\\hat\\xi
+    + \\frac{1-\\cos\\theta}{\\theta^2}\\hat\\xi^2$, $\\theta = |\\xi|$, with a Taylor series
+    below a dtype-dependent threshold so that values and gradients are exact at $\\theta = 0$.
+
+    **Arguments:** `xi`, shape `(..., 3)`. **Returns:** rotation matrices `(..., 3, 3)`.
+    """
+    return c.unmat(c.exp(c.vec(jnp.asarray(xi))))
+
+
+def log(r):
+    """Inverse of `exp` for rotations by an angle $\\theta < \\pi$.
+
+    Uses $\\theta = \\operatorname{atan2}(|w|, (\\operatorname{tr} R - 1)/2)$ with
+    $w = \\mathrm{vee}(\\mathrm{skew}\\,R) = \\sin\\theta\\, u$; accurate away from
+    $\\theta = \\pi$, where the axis is not determined by the skew part.
+
+    **Arguments:** `r`, rotation matrices `(..., 3, 3)`. **Returns:** `(..., 3)`.
+    """
+    m = c.mat(jnp.asarray(r))
+    w = c.vee_skew(m)
+    s2 = c.dot(w, w)
+    small = s2 < c.small_angle_threshold(s2.dtype) ** 2
+    s = jnp.sqrt(jnp.where(small, 1.0, s2))
+    theta = jnp.arctan2(s, 0.5 * (c.trace(m) - 1.0))
+    # theta / sin(theta) -> 1 + theta^2/6 as theta -> 0.
+    factor = jnp.where(small, 1.0 + s2 / 6.0, theta / s)
+    return c.unvec(c.scale(factor, w))
+
+
+def cayley(xi):
+    """The Cayley map so(3) -> SO(3): $(I - \\hat\\xi/2)^{-1}(I + \\hat\\xi/2)$.
+
+    It is the rotation by $\\theta = 2\\arctan(|\\xi|/2)$ about $\\xi/|\\xi|$, smooth everywhere.
+
+    **Arguments:** `xi`, shape `(..., 3)`. **Returns:** `(..., 3, 3)`.
+    """
+    return c.unmat(c.cayley(c.vec(jnp.asarray(xi))))
+
+
+def cayley_inv(r):
+    """Inverse of `cayley` for rotations by $\\theta < \\pi$: $\\xi = 4 w / (1 + \\operatorname{tr} R)$.
+
+    **Arguments:** `r`, rotation matrices `(..., 3, 3)`. **Returns:** `(..., 3)`.
+    """
+    m = c.mat(jnp.asarray(r))
+    return c.unvec(c.scale(4.0 / (1.0 + c.trace(m)), c.vee_skew(m)))

@@ -12,9 +12,9 @@ import pytest
 from scipy.integrate import solve_ivp
 
 import slps_jax as sj
-from slps_jax import _so3, so3
-from slps_jax._solver.lie_poisson import branch_rotation
-from slps_jax._solver.lie_poisson_sym import sine_chart_in_map_general
+from slps_jax import _components, so3
+from slps_jax._methods.lie_poisson import branch_rotation
+from slps_jax._methods.lie_poisson_sym import sine_chart_in_map_general
 from reference import fitted_order
 
 EPS = 0.5
@@ -76,18 +76,18 @@ def test_sine_chart_in_map_matches_autodiff_of_the_generating_function(trial):
     tau = rng.uniform(-0.3, 0.3)
 
     def residual(v):
-        a = _so3.unmat(branch_rotation(_so3.vec(v))[0])
+        a = _components.unmat(branch_rotation(_components.vec(v))[0])
         s = lambda b: 0.5 * jnp.trace(b) - tau * quartic(so3.vee(b), m.params)  # noqa: E731
         return so3.vee(-2.0 * so3.skew(a.T @ jax.grad(s)(a))) - y
 
     def fields(u, jacobian):  # the step Hamiltonian K = tau H (dW = 0)
         if jacobian:
-            return m.step_gradient_hessian_c(u, tau, jnp.zeros(1))
-        return m.step_gradient_c(u, tau, jnp.zeros(1))
+            return m.step_gradient_hessian_components(u, tau, jnp.zeros(1))
+        return m.step_gradient_components(u, tau, jnp.zeros(1))
 
-    r, jac = sine_chart_in_map_general(_so3.vec(v), _so3.vec(y), fields)
-    np.testing.assert_allclose(_so3.unvec(r), residual(v), atol=1e-15)
-    np.testing.assert_allclose(_so3.unmat(jac), jax.jacfwd(residual)(v), atol=1e-13)
+    r, jac = sine_chart_in_map_general(_components.vec(v), _components.vec(y), fields)
+    np.testing.assert_allclose(_components.unvec(r), residual(v), atol=1e-15)
+    np.testing.assert_allclose(_components.unmat(jac), jax.jacfwd(residual)(v), atol=1e-13)
 
 
 @pytest.mark.parametrize("method", [sj.LiePoissonSym4(), sj.Midpoint(), sj.EulerMaruyama(),

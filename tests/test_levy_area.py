@@ -18,7 +18,7 @@ import pytest
 import slps_jax as sj
 from slps_jax import _noise
 from slps_jax._solution import RESULTS
-from slps_jax._solver.base import AbstractMethod, StepInfo, StrongOrders
+from slps_jax._methods.base import AbstractMethod, StepInfo, StrongOrders
 
 CHI = 0.5 * np.array([[1.0, 0.2, 0.0], [0.0, 1.0, 0.3], [0.4, 0.0, 1.0]])
 Y0 = jnp.asarray([0.45, -0.5, 0.4])

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 import slps_jax as sj
-from slps_jax._solver import METHODS
+from slps_jax._methods import METHODS
 from levy_reference import (coarsen, fine_path, fitted_order, salt_rigid_body_fields,
                             salt_so_n_fields, wong_zakai_solution)
 
@@ -89,10 +89,10 @@ def _norm2(model, y):
 SALT = sj.RigidBody(INERTIA, noise=sj.salt_noise(CHI))
 # Every method of the registry that runs on the SALT rigid body (a new method is checked
 # here without a test of its own), on so(4) the two coadjoint-orbit methods, and on
-# Euler-Zeitlin su(3) the isospectral midpoint rule.
+# Euler-Zeitlin su(3) the isospectral midpoint rule and scheme (42) on U(3).
 PARAMS = [("so(3)", cls) for cls in METHODS if cls.requires <= SALT.structure] + [
     ("so(4)", sj.IsospectralMidpoint), ("so(4)", sj.LiePoisson),
-    ("su(3)", sj.IsospectralMidpoint)]
+    ("su(3)", sj.IsospectralMidpoint), ("su(3)", sj.LiePoisson)]
 
 
 @pytest.mark.parametrize("name,cls", PARAMS, ids=[f"{n}-{c.__name__}" for n, c in PARAMS])

@@ -1,4 +1,4 @@
-"""Every registered method (`slps_jax._solver.METHODS`) on every kind of system: one suite.
+"""Every registered method (`slps_jax._methods.METHODS`) on every kind of system: one suite.
 
 A new method added to the registry is checked here without writing a test for it: on each
 system whose structures it declares (`requires`) it runs a small ensemble with every sample
@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 import slps_jax as sj
-from slps_jax._solver import METHODS
+from slps_jax._methods import METHODS
 
 
 
@@ -42,7 +42,7 @@ SYSTEMS = {  # one of each kind: the structures they offer differ
                          _skew(4, 0.8)),
     "Euler-Zeitlin su(3), 2 SALT noises": (
         sj.EulerZeitlin(3, noise=sj.salt_noise(0.3 * sj.zeitlin.shr2mat(np.eye(9)[[1, 5]], 3))),
-        sj.zeitlin.shr2mat(np.array([0, 0.3, -0.2, 0.4, 0.5, -0.3, 0.2, 0.1, 0.4]), 3)),
+        sj.zeitlin.shr2mat(0.5 * np.array([0, 0.3, -0.2, 0.4, 0.5, -0.3, 0.2, 0.1, 0.4]), 3)),
 }
 PAIRS = list(itertools.product(METHODS, SYSTEMS))
 N_SAMPLES, N_STEPS, DT = 4, 16, 2.0 ** -5

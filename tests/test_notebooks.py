@@ -22,7 +22,7 @@ NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
 def test_there_are_notebooks():
     assert [p.name for p in NOTEBOOKS] == [
         "01_paper.ipynb", "02_accuracy_and_speed.ipynb", "03_gradients_and_calibration.ipynb",
-        "04_several_noises.ipynb", "05_so_n.ipynb"]
+        "04_several_noises.ipynb", "05_so_n.ipynb", "06_euler_sphere.ipynb"]
 
 
 def test_notebooks_are_committed_without_outputs():

@@ -1,4 +1,4 @@
-"""Issue 9: sharded ensembles (simulate over several devices) and streamed statistics.
+"""Sharded ensembles (simulate over several devices) and streamed statistics.
 
 References are independent of the code under test: the unsharded run for the sharded one,
 and NumPy's moments of an unchunked `simulate` for the streamed ones.
@@ -54,6 +54,20 @@ SHARDED = textwrap.dedent("""
     ys = np.asarray(ref.ys)
     assert np.allclose(st.mean, ys.mean(0), rtol=0, atol=1e-14)
     assert np.allclose(st.var, ys.var(0, ddof=1), rtol=1e-10, atol=1e-18)
+    # complex states (Euler-Zeitlin on su(4), two transport noises, Lévy areas) alike
+    X = 0.3 * sj.zeitlin.shr2mat(np.eye(16)[[1, 6]], 4)
+    body = sj.EulerZeitlin(4, noise=sj.salt_noise(X))
+    w0 = sj.zeitlin.shr2mat(0.3 * np.arange(16) / 16, 4)
+    zk = dict(t1=0.25, dt=2.0 ** -5, n_samples=8, key=jax.random.key(6),
+              method=sj.IsospectralMidpoint())
+    ref = sj.simulate(body, w0, **zk)
+    out = sj.simulate(body, w0, sharding=sh, **zk)
+    assert out.ys.dtype == jnp.complex128 and len(out.ys.sharding.device_set) == 4
+    assert np.array_equal(np.asarray(out.ys), np.asarray(ref.ys))
+    st = sj.ensemble_statistics(body, w0, chunk_size=4, sharding=sh, progress=False,
+                                observable=lambda ws: body.energy(ws), **zk)
+    e = np.asarray(body.energy(ref.ys))
+    assert np.allclose(st.mean[-1], e[:, -1].mean(), rtol=1e-13)
     print("SHARDED OK")
 """)
 

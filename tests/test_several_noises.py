@@ -15,9 +15,9 @@ import pytest
 import scipy.linalg
 
 import slps_jax as sj
-from slps_jax._solver import METHODS
-from slps_jax import _so3
-from slps_jax._solver.lie_poisson_sym import _solve_rotation
+from slps_jax._methods import METHODS
+from slps_jax import _components
+from slps_jax._methods.lie_poisson_sym import _solve_rotation
 from slps_jax.so3 import hat, skew, vee
 
 Y0 = jnp.asarray([0.6, 0.5, 0.3])
@@ -102,15 +102,15 @@ def test_adjoint_step_for_a_salt_hamiltonian():
     def s_bar(a):  # the first-order generating function of psi_{-K/2}
         return 0.5 * jnp.trace(a) + 0.5 * k_step(so3_vee_skew(a))
 
-    b, info = _solve_rotation(model, _so3.vec(-z), 0.5 * dt, 0.5 * dW, -1.0, 1e-14, 12, True)
+    b, info = _solve_rotation(model, _components.vec(-z), 0.5 * dt, 0.5 * dW, -1.0, 1e-14, 12, True)
     assert bool(info.ok)
-    a = _so3.unmat(b).T
+    a = _components.unmat(b).T
     out = vee(-2.0 * skew(jax.grad(s_bar)(a) @ a.T))
     np.testing.assert_allclose(out, z, atol=1e-14)
     np.testing.assert_allclose(a.T @ a, np.eye(3), atol=1e-14)
     # the even-Hamiltonian shortcut (in-map of -K/2 at -z) gives another, wrong, rotation
-    b_even, _ = _solve_rotation(model, _so3.vec(-z), -0.5 * dt, -0.5 * dW, 1.0, 1e-14, 12, True)
-    assert np.abs(_so3.unmat(b_even) - _so3.unmat(b)).max() > 1e-3
+    b_even, _ = _solve_rotation(model, _components.vec(-z), -0.5 * dt, -0.5 * dW, 1.0, 1e-14, 12, True)
+    assert np.abs(_components.unmat(b_even) - _components.unmat(b)).max() > 1e-3
 
 
 def so3_vee_skew(a):

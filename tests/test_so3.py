@@ -5,7 +5,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from slps_jax import so3
-from slps_jax import _so3
+from slps_jax import _components
 
 rng = np.random.default_rng(1)
 XIS = rng.normal(size=(20, 3)) * rng.uniform(0.0, 2.5, size=(20, 1))
@@ -77,5 +77,5 @@ def test_exp_gradient_matches_finite_differences_near_threshold():
 
 def test_cofactor_solve():
     m, b = rng.normal(size=(3, 3)), rng.normal(size=3)
-    x = _so3.unvec(_so3.solve3(_so3.mat(jnp.asarray(m)), _so3.vec(jnp.asarray(b))))
+    x = _components.unvec(_components.solve3(_components.mat(jnp.asarray(m)), _components.vec(jnp.asarray(b))))
     np.testing.assert_allclose(x, np.linalg.solve(m, b), rtol=1e-12)

@@ -7,8 +7,8 @@ import pytest
 from scipy.integrate import solve_ivp
 
 import slps_jax as sj
-from slps_jax import _so3
-from slps_jax._solver.strang import axis_flow
+from slps_jax import _components
+from slps_jax._methods.strang import axis_flow
 from reference import exact_sde_solution, fitted_order, rigid_body_flow
 
 rng = np.random.default_rng(7)
@@ -45,7 +45,7 @@ def test_axis_flow_matches_scipy(axis, tau):
         return np.cross(x, x[axis] / inertia[axis] * e)  # y x grad H_i(y)
 
     ref = solve_ivp(rhs, (0.0, tau), y, method="DOP853", rtol=1e-13, atol=1e-15).y[:, -1]
-    got = _so3.unvec(axis_flow(_so3.vec(jnp.asarray(y)), _so3.vec(jnp.asarray(1.0 / inertia)),
+    got = _components.unvec(axis_flow(_components.vec(jnp.asarray(y)), _components.vec(jnp.asarray(1.0 / inertia)),
                                axis, jnp.asarray(tau)))
     np.testing.assert_allclose(np.asarray(got), ref, rtol=0, atol=1e-12)
 
@@ -54,7 +54,7 @@ def test_axis_vector_fields_sum_to_full_vector_field(paper):
     model, _ = paper
     y = jnp.asarray(rng.normal(size=3))
     total = sum(
-        jax.jvp(lambda t, a=axis: _so3.unvec(axis_flow(_so3.vec(y), model.inverse_inertia(),
+        jax.jvp(lambda t, a=axis: _components.unvec(axis_flow(_components.vec(y), model.inverse_inertia(),
                                                        a, t)),
                 (jnp.asarray(0.0),), (jnp.asarray(1.0),))[1]
         for axis in range(3)

@@ -163,7 +163,7 @@ def test_bad_input_refused_by_name():
                     key=jax.random.PRNGKey(0), method=sj.Heun())
     with pytest.raises(TypeError, match="IsospectralMidpoint"):  # names what works
         sj.simulate(body, np.zeros((4, 4)), t1=1.0, dt=0.1, n_samples=1,
-                    key=jax.random.PRNGKey(0), method=sj.LiePoisson())
+                    key=jax.random.PRNGKey(0), method=sj.Strang())
 
 
 def _observe(ys):
@@ -190,3 +190,24 @@ def test_ensemble_statistics_of_observables_match_the_paths():
     assert np.all(st.var[-1][4:] < 1e-24)  # and not the Casimirs
     with pytest.raises(TypeError, match="complex"):
         sj.ensemble_statistics(body, w0, chunk_size=5, **run)
+
+
+def _weighted_square(y, p):  # H = 1/2 sum_ij p_ij |Y_ij|^2: the same function on so(n), su(n)
+    return 0.5 * jnp.sum(p * jnp.abs(y) ** 2)
+
+
+def test_lie_poisson_on_the_unitary_group_equals_so_n_on_real_states():
+    """Scheme (42) on U(N) (conjugate transposes, Hermitian parts) restricted to real skew
+    states is scheme (42) on SO(n)."""
+    n, dt = 4, 2.0 ** -5
+    p = jnp.asarray(1.0 + np.add.outer(np.arange(n), np.arange(n)) % 3)
+    a = np.random.default_rng(2).normal(size=(n, n))
+    y0 = 0.6 * (a - a.T) / np.linalg.norm(a - a.T, 2)
+    dW = sj.brownian_increments(jax.random.key(4), 32, dt)
+    real = sj.integrate(sj.LiePoissonSystem(_weighted_square, p, c=0.4, algebra=sj.so(n)), y0,
+                        dW, dt, method=sj.LiePoisson())
+    unitary = sj.integrate(sj.LiePoissonSystem(_weighted_square, p, c=0.4, algebra=sj.su(n)),
+                           y0, dW, dt, method=sj.LiePoisson())
+    assert unitary.dtype == jnp.complex128
+    np.testing.assert_allclose(unitary, real, atol=1e-12)
+    assert float(jnp.max(jnp.abs(real - y0))) > 0.1  # (the state moved)

@@ -30,7 +30,6 @@ import numpy as np
 
 # What an algebra may offer to methods beyond the interface (`structure`), declared by the
 # methods that need it in `requires`.
-REAL_STATES = "real states"  # states are real matrices (orthogonal group maps)
 SO3_VECTORS = "so(3)* as 3-vectors"  # states are y in R^3 (the component fast paths)
 
 
@@ -45,7 +44,7 @@ class AbstractAlgebra:
     dim: int
     matrix_size: int  # the size n of the matrices (`to_matrix`)
     is_complex = False  # states are complex arrays
-    structure = frozenset({REAL_STATES})
+    structure = frozenset()
 
     # -- the vector space
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from .. import _so3
-from .base import REAL_STATES, SO3_VECTORS, AbstractAlgebra
+from .. import _components, so3
+from .base import SO3_VECTORS, AbstractAlgebra
 
 
 class SO3Algebra(AbstractAlgebra):
@@ -21,7 +21,7 @@ class SO3Algebra(AbstractAlgebra):
     shape = (3,)
     matrix_size = 3
     condition = "a 3-vector"
-    structure = frozenset({REAL_STATES, SO3_VECTORS})
+    structure = frozenset({SO3_VECTORS})
 
     def pairing(self, x, y):
         return jnp.sum(x * y, axis=-1)
@@ -42,16 +42,16 @@ class SO3Algebra(AbstractAlgebra):
         return 0.5 * jnp.sum(jnp.asarray(y) ** 2, axis=-1, keepdims=True)
 
     def structure_matrix(self, y):
-        return _so3.hat(y)
+        return so3.hat(y)
 
     def to_matrix(self, y):
-        return _so3.hat(y)
+        return so3.hat(y)
 
     def from_matrix(self, m):
-        return _so3.vee(m)
+        return so3.vee(m)
 
     def project(self, m):
-        return _so3.vee(m)  # the axial vector of the skew part
+        return so3.vee(m)  # the axial vector of the skew part
 
     def __repr__(self):
         return "SO3"

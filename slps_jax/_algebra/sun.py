@@ -30,7 +30,6 @@ class SUnAlgebra(AbstractAlgebra):
     """
 
     is_complex = True
-    structure = frozenset()
     condition = "traceless and skew-Hermitian"
 
     def __init__(self, n):

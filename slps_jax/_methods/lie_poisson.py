@@ -8,13 +8,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _so3 as so3
-from .._checks import check_options
+from .. import _components as comp
+from .._algebra import adjoint
+from .._checks import check_options, real_dtype
 from .._noise import scale
 from .._solution import RESULTS
-from .._system import NOISE_PROPORTIONAL_TO_DRIFT, QUADRATIC, REAL_STATES, RIGID_BODY, SO3_VECTORS
+from .._system import NOISE_PROPORTIONAL_TO_DRIFT, QUADRATIC, RIGID_BODY, SO3_VECTORS
 from .base import AbstractMethod, StepInfo, StrongOrders, default_tol, finite_result
-from .newton import implicit_root, newton, solve_array
+from .._newton import implicit_root, newton, solve_array
 
 
 def branch_rotation(v):
@@ -27,10 +28,10 @@ def branch_rotation(v):
 
     **Returns:** `(A, c, g)` with `g = 1/(1 + c)`.
     """
-    s2 = so3.dot(v, v)
+    s2 = comp.dot(v, v)
     c = jnp.sqrt(jnp.maximum(1.0 - s2, 0.0))
     g = 1.0 / (1.0 + c)
-    a = so3.madd(so3.shift(so3.hat_c(v), c), so3.outer(so3.scale(g, v), v))
+    a = comp.madd(comp.shift(comp.hat(v), c), comp.outer(comp.scale(g, v), v))
     return a, c, g
 
 
@@ -51,20 +52,20 @@ def sine_chart_in_map(v, y, d, tau, kappa, jacobian=True):
     `branch_rotation(v)`).
     About 3x fewer operations than the matrix form of the in-map plus a chain rule.
     """
-    s2 = so3.dot(v, v)
+    s2 = comp.dot(v, v)
     c = jnp.sqrt(jnp.maximum(1.0 - s2, 0.0))
     opc = 1.0 + c
     g = 1.0 / opc
-    w = so3.mul(d, v)
-    s = so3.dot(v, w)
-    n2 = so3.dot(w, w)
-    vxw = so3.cross(v, w)
+    w = comp.mul(d, v)
+    s = comp.dot(v, w)
+    n2 = comp.dot(w, w)
+    vxw = comp.cross(v, w)
     gs = g * s
     f = tuple(0.5 * (opc * wi - ci - gs * vi) for wi, ci, vi in zip(w, vxw, v))
     m = tuple(gs * vi - opc * wi for vi, wi in zip(v, w))
-    x = so3.mul(d, m)
-    vx = so3.dot(v, x)
-    vxx = so3.cross(v, x)
+    x = comp.mul(d, m)
+    vx = comp.dot(v, x)
+    vxx = comp.cross(v, x)
     qx = tuple(0.5 * (opc * xi - ci - g * vx * vi) for xi, ci, vi in zip(x, vxx, v))
     b = tuple(0.25 * (n2 * vi + s * wi - gs * ci) + 0.5 * qi
               for vi, wi, ci, qi in zip(v, w, vxw, qx))
@@ -75,37 +76,37 @@ def sine_chart_in_map(v, y, d, tau, kappa, jacobian=True):
     # Gradients of the scalars: grad c = -v/c, grad g = g^2 v/c, grad s = 2 w,
     # grad |w|^2 = 2 I^{-1} w, grad(g s) = s grad g + g grad s.
     ic = 1.0 / jnp.maximum(c, jnp.finfo(c.dtype).tiny)
-    grad_c = so3.scale(-ic, v)
+    grad_c = comp.scale(-ic, v)
     grad_gs = tuple(s * g * g * ic * vi + 2.0 * g * wi for vi, wi in zip(v, w))
     zero = jnp.zeros_like(c)
     dmat = ((d[0] + zero, zero, zero), (zero, d[1] + zero, zero), (zero, zero, d[2] + zero))
-    hv_d = so3.diag_right(so3.hat_c(v), d)  # hat(v) I^{-1}
-    hw = so3.hat_c(w)
+    hv_d = comp.diag_right(comp.hat(v), d)  # hat(v) I^{-1}
+    hw = comp.hat(w)
     # F' = (w grad_c^T + (1+c) I^{-1} + hat(w) - hat(v) I^{-1} - v grad_gs^T - g s Id) / 2
-    jf = so3.mscale(0.5, so3.shift(so3.madd(
-        so3.outer(w, grad_c), so3.mscale(opc, dmat), hw, so3.mscale(-1.0, hv_d),
-        so3.mscale(-1.0, so3.outer(v, grad_gs))), -gs))
+    jf = comp.mscale(0.5, comp.shift(comp.madd(
+        comp.outer(w, grad_c), comp.mscale(opc, dmat), hw, comp.mscale(-1.0, hv_d),
+        comp.mscale(-1.0, comp.outer(v, grad_gs))), -gs))
     # m' and x' = I^{-1} m'
-    jm = so3.shift(so3.madd(so3.mscale(-1.0, so3.outer(w, grad_c)), so3.mscale(-opc, dmat),
-                            so3.outer(v, grad_gs)), gs)
-    jx = so3.diag_left(d, jm)
+    jm = comp.shift(comp.madd(comp.mscale(-1.0, comp.outer(w, grad_c)), comp.mscale(-opc, dmat),
+                            comp.outer(v, grad_gs)), gs)
+    jx = comp.diag_left(d, jm)
     # (Q x)' = (x grad_c^T + (1+c) x' + hat(x) - hat(v) x' - v grad(g v.x)^T - g (v.x) Id)/2,
     # grad(g v.x) = (v.x) grad g + g (x + x'^T v)
-    jxtv = so3.mtv(jx, v)
+    jxtv = comp.mtv(jx, v)
     grad_gvx = tuple(vx * g * g * ic * vi + g * (xi + ti) for vi, xi, ti in zip(v, x, jxtv))
-    jq = so3.mscale(0.5, so3.shift(so3.madd(
-        so3.outer(x, grad_c), so3.mscale(opc, jx), so3.hat_c(x),
-        so3.mscale(-1.0, so3.hat_mat(v, jx)), so3.mscale(-1.0, so3.outer(v, grad_gvx))),
+    jq = comp.mscale(0.5, comp.shift(comp.madd(
+        comp.outer(x, grad_c), comp.mscale(opc, jx), comp.hat(x),
+        comp.mscale(-1.0, comp.hat_mat(v, jx)), comp.mscale(-1.0, comp.outer(v, grad_gvx))),
         -g * vx))
     # B' = (v grad|w|^2^T + |w|^2 Id + w grad_s^T + s I^{-1} - (v x w) grad_gs^T
     #       + g s (hat(w) - hat(v) I^{-1}))/4 + (Q x)'/2
-    jb = so3.madd(
-        so3.mscale(0.25, so3.shift(so3.madd(
-            so3.outer(v, so3.scale(2.0, so3.mul(d, w))), so3.outer(w, so3.scale(2.0, w)),
-            so3.mscale(s, dmat), so3.mscale(-1.0, so3.outer(vxw, grad_gs)),
-            so3.mscale(gs, so3.madd(hw, so3.mscale(-1.0, hv_d)))), n2)),
-        so3.mscale(0.5, jq))
-    jac = so3.shift(so3.madd(so3.mscale(tau, jf), so3.mscale(-kappa, jb)), 1.0)
+    jb = comp.madd(
+        comp.mscale(0.25, comp.shift(comp.madd(
+            comp.outer(v, comp.scale(2.0, comp.mul(d, w))), comp.outer(w, comp.scale(2.0, w)),
+            comp.mscale(s, dmat), comp.mscale(-1.0, comp.outer(vxw, grad_gs)),
+            comp.mscale(gs, comp.madd(hw, comp.mscale(-1.0, hv_d)))), n2)),
+        comp.mscale(0.5, jq))
+    jac = comp.shift(comp.madd(comp.mscale(tau, jf), comp.mscale(-kappa, jb)), 1.0)
     return r, jac
 
 
@@ -132,21 +133,21 @@ def sine_chart_in_map_noise(v, y, fields, jacobian=True):
     def residual(v):
         k, u, ju = fields(v)
         # (tiny, not 0: off the ball the derivative stays finite and the iterate is flagged)
-        c = jnp.sqrt(jnp.maximum(1.0 - so3.dot(v, v), jnp.finfo(v[0].dtype).tiny))
+        c = jnp.sqrt(jnp.maximum(1.0 - comp.dot(v, v), jnp.finfo(v[0].dtype).tiny))
         opc = 1.0 + c
         g = 1.0 / opc
 
         def q(x):
-            vx = so3.dot(v, x)
+            vx = comp.dot(v, x)
             return tuple(0.5 * (opc * xi - ci - g * vx * vi)
-                         for xi, ci, vi in zip(x, so3.cross(v, x), v))
+                         for xi, ci, vi in zip(x, comp.cross(v, x), v))
 
-        vu = so3.dot(v, u)
-        p = tuple(c * ui - ci + g * vu * vi for ui, ci, vi in zip(u, so3.cross(v, u), v))
+        vu = comp.dot(v, u)
+        p = tuple(c * ui - ci + g * vu * vi for ui, ci, vi in zip(u, comp.cross(v, u), v))
         m = tuple(g * vu * vi - opc * ui for ui, vi in zip(u, v))
-        uxp = so3.cross(u, p)
-        n2 = so3.dot(u, u)
-        qk, qjm = q(k), q(so3.mtv(ju, m))
+        uxp = comp.cross(u, p)
+        n2 = comp.dot(u, u)
+        qk, qjm = q(k), q(comp.mtv(ju, m))
         return tuple(vi + a - 0.25 * b - 0.5 * n2 * vi - 0.5 * e - yi
                      for vi, a, b, e, yi in zip(v, qk, uxp, qjm, y))
 
@@ -183,14 +184,14 @@ def solve_on_branch(sine_fn, z, *, tol, max_iter, feasible=True, unroll=0):
 
     def solve():
         s = newton(sine_fn, z, tol=tol, max_iter=max_iter, active=feasible,
-                   admissible=lambda v: so3.dot(v, v) < 1.0, continuation=CONTINUATION,
+                   admissible=lambda v: comp.dot(v, v) < 1.0, continuation=CONTINUATION,
                    unroll=unroll)
         return s.x, s.result == RESULTS.successful, (s.result, s.iterations, s.residual)
 
     # Derivatives (with respect to the model's parameters, y and dW) by the implicit
     # function theorem at the root, never through the iterations; v = 0 (A = Id) where it
     # failed.
-    zero = so3.scale(0.0, z)
+    zero = comp.scale(0.0, z)
     v, _, (result, iterations, residual) = implicit_root(
         lambda v: sine_fn(v, 1.0, jacobian=False), solve, zero)
     return v, result.astype(jnp.int32), iterations.astype(jnp.int32), residual
@@ -204,11 +205,11 @@ def branch_point(y):
     $1 - \|Y\|_2^2$ of $I + Y^2$ (the distance to the fold)."""
     eye = jnp.eye(y.shape[-1], dtype=y.dtype)
     m = eye + y @ y
-    w, q = jnp.linalg.eigh(0.5 * (m + m.T))
-    return y + (q * jnp.sqrt(jnp.maximum(w, 0.0))) @ q.T, w[0]
+    w, q = jnp.linalg.eigh(0.5 * (m + adjoint(m)))
+    return y + (q * jnp.sqrt(jnp.maximum(w, 0.0))) @ adjoint(q), w[0]
 
 
-def matrix_in_map(model, a, dt, dW, second):
+def group_in_map(model, a, dt, dW, second):
     r"""Scheme (42)'s in-map on SO(n), $-2\,\mathrm{skew}(A^T \partial\bar S/\partial A)$, for
     the truncated generating function
     $\bar S(A) = \tfrac12\operatorname{tr}A - K(V) - \tfrac14\operatorname{tr}(A\,u^Tu)$,
@@ -217,14 +218,17 @@ def matrix_in_map(model, a, dt, dW, second):
     last term is $\tfrac14(u^TAu - \operatorname{tr}A|u|^2)$ of so(3)
     (`docs/so-n.md`); $\partial\bar S/\partial A$ by reverse-mode autodiff."""
 
-    def sbar(a):
-        v = 0.5 * (a - a.T)
-        u = second * model.noise_gradient(v, dW)
-        return (0.5 * jnp.trace(a) - model.step_hamiltonian(v, dt, dW)
-                - 0.25 * jnp.trace(a @ u.T @ u))
+    alg = model.algebra
 
-    m = a.T @ jax.grad(sbar)(a)
-    return m.T - m
+    def sbar(a):
+        v = alg.project(a)
+        u = second * model.noise_gradient(v, dW)
+        return (0.5 * jnp.real(jnp.trace(a)) - model.step_hamiltonian(v, dt, dW)
+                - 0.25 * jnp.real(jnp.trace(a @ adjoint(u) @ u)))
+
+    # (the gradient for Re tr(X^H Y): the conjugate of JAX's for complex A)
+    m = adjoint(a) @ jnp.conj(jax.grad(sbar)(a))
+    return adjoint(m) - m
 
 
 @dataclasses.dataclass(frozen=True)
@@ -288,7 +292,6 @@ class LiePoisson(AbstractMethod):
 
     strong_orders = StrongOrders(one=1.0, increments=0.5, areas=1.0)
     poisson = True
-    requires = frozenset({REAL_STATES})  # (the orthogonal group SO(n); U(N) not derived)
 
     tol: float | None = None
     max_iter: int | None = None
@@ -334,15 +337,15 @@ class LiePoisson(AbstractMethod):
         dtype = y.dtype
         tol = default_tol(dtype) if self.tol is None else self.tol
         if SO3_VECTORS not in model.structure:
-            return self._step_matrix(model, y, dt, dW, tol)
-        z = so3.vec(y)
+            return self._step_group(model, y, dt, dW, tol)
+        z = comp.vec(y)
         if _ANALYTIC <= model.structure:
             lam = 1.0 if self.scale is None else self.scale
             d = model.inverse_inertia()
             cdw = model.noise_time(dW)
             tau = lam * (dt + cdw)
             kappa = lam * lam * self._kappa(cdw)
-            z = so3.scale(1.0 / lam, z)
+            z = comp.scale(1.0 / lam, z)
 
             def sine_fn(v, lam, jacobian=True):
                 return sine_chart_in_map(v, z, d, lam * tau, lam * lam * kappa, jacobian)
@@ -352,25 +355,27 @@ class LiePoisson(AbstractMethod):
 
             def sine_fn(v, lam, jacobian=True):
                 def fields(v):
-                    k, u, ju = model.step_fields_c(v, dt, dW)
-                    return (so3.scale(lam, k), so3.scale(second * lam, u),
-                            so3.mscale(lam, ju))
+                    k, u, ju = model.step_fields_components(v, dt, dW)
+                    return (comp.scale(lam, k), comp.scale(second * lam, u),
+                            comp.mscale(lam, ju))
                 return sine_chart_in_map_noise(v, z, fields, jacobian)
 
-        feasible = so3.dot(z, z) < 1.0
+        feasible = comp.dot(z, z) < 1.0
         v, result, iterations, residual = solve_on_branch(
             sine_fn, z, tol=tol, max_iter=12 if self.max_iter is None else self.max_iter,
             feasible=feasible, unroll=self.unroll)
         a, _, _ = branch_rotation(v)
-        y_next = so3.unvec(so3.mv(a, so3.vec(y))).astype(dtype)
+        y_next = comp.unvec(comp.mv(a, comp.vec(y))).astype(dtype)
         return y_next, StepInfo(finite_result(y_next, result), iterations,
                                 residual.astype(dtype))
 
-    def _step_matrix(self, model, y, dt, dW, tol):
-        r"""The step on so(n): Newton in Cayley coordinates $A = A_0\,\mathrm{cay}(X)$ about
-        the branch point $A_0$ of $Y_n$ (`branch_point`), on the `n(n-1)/2` entries of $X$,
-        with the same continuation as on so(3); $Y_{n+1} = A Y_n A^T$."""
+    def _step_group(self, model, y, dt, dW, tol):
+        r"""The step on SO(n) and U(N): Newton in Cayley coordinates
+        $A = A_0\,\mathrm{cay}(X)$ about the branch point $A_0$ of $Y_n$ (`branch_point`), on
+        the real coordinates of $X$, with the same continuation as on so(3);
+        $Y_{n+1} = A Y_n A^H$."""
         alg = model.algebra
+        real = real_dtype(y.dtype)
         lam = 1.0 if self.scale is None else self.scale
         z = y / lam
         dt_s, dW_s = lam * dt, scale(dW, lam)
@@ -384,13 +389,13 @@ class LiePoisson(AbstractMethod):
 
         def residual(x, lam_):
             a = rotation(x)
-            return alg.coordinates(matrix_in_map(model, a, lam_ * dt_s, scale(dW_s, lam_), second) - z)
+            return alg.coordinates(group_in_map(model, a, lam_ * dt_s, scale(dW_s, lam_), second)
+                                   - z)
 
-        zero = jnp.zeros((alg.dim,), y.dtype)
+        zero = jnp.zeros((alg.dim,), real)
 
         def chart():  # d skew(A_0 cay(X)) / dX at X = 0: the in-map of a step of size 0
-            return jax.jacfwd(lambda x: alg.coordinates(0.5 * (rotation(x) - rotation(x).T)))(
-                zero)
+            return jax.jacfwd(lambda x: alg.coordinates(alg.project(rotation(x))))(zero)
 
         mode = "newton" if self.jacobian == "newton" else chart
         x, result, iterations, res = solve_array(
@@ -400,14 +405,13 @@ class LiePoisson(AbstractMethod):
         # The branch: a positive definite symmetric part. Tested once, at the root (a
         # Cholesky factorisation in every update would cost a third of the step at so(4));
         # a root off it is a failure the driver reports (and `retry_substeps` splits).
-        on_branch = jnp.all(jnp.isfinite(jnp.linalg.cholesky(0.5 * (a + a.T))))
+        on_branch = jnp.all(jnp.isfinite(jnp.linalg.cholesky(0.5 * (a + adjoint(a)))))
         result = jnp.where((result == RESULTS.successful) & ~on_branch, RESULTS.off_branch,
                            result).astype(jnp.int32)
-        # (the skew part: a symmetric part left by rounding would add up over the steps and
+        # (projected: a symmetric part left by rounding would add up over the steps and
         # move the Casimirs)
-        m = a @ y @ a.T
-        y_next = (0.5 * (m - m.T)).astype(y.dtype)
-        return y_next, StepInfo(finite_result(y_next, result), iterations, res.astype(y.dtype))
+        y_next = alg.act(a, y).astype(y.dtype)
+        return y_next, StepInfo(finite_result(y_next, result), iterations, res.astype(real))
 
 
 # The structure for which `LiePoisson` has its closed-form residual and Jacobian.

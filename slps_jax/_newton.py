@@ -7,8 +7,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from .. import _so3
-from .._solution import RESULTS
+from . import _components
+from ._solution import RESULTS
 
 _RUNNING = -1  # a result code that is not one: the iteration goes on
 
@@ -48,7 +48,7 @@ def solve_linear(jac, r):
     (far cheaper than a batched LU under `vmap`), LU otherwise."""
     n = len(r)
     if n == 3:
-        return _so3.solve3(jac, r)
+        return _components.solve3(jac, r)
     mat = jnp.stack([jnp.stack(jnp.broadcast_arrays(*row), axis=-1) for row in jac], axis=-2)
     rhs = jnp.stack(jnp.broadcast_arrays(*r), axis=-1)
     x = jnp.linalg.solve(mat, rhs[..., None])[..., 0]

@@ -7,7 +7,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from .. import _so3 as so3
+from .. import _components as comp
 from .._noise import as_step
 from .._system import LINEAR_NOISE, NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
 from .base import AbstractMethod, StrongOrders, explicit_info
@@ -87,7 +87,7 @@ def _strang_flow(yc, inv_i, tau):
 
 def _composed_step(model, y, tau, weights):
     inv_i = model.inverse_inertia()
-    yc = so3.vec(y)
+    yc = comp.vec(y)
     # A loop, not an unrolled chain, even for one Strang step: each flow reads every
     # component twice, and XLA's CPU backend fuses an unrolled chain of flows (with whatever
     # computed tau, the random-number generator in `simulate`) into one elementwise kernel
@@ -97,7 +97,7 @@ def _composed_step(model, y, tau, weights):
     gammas = jnp.asarray(weights, jnp.asarray(tau).dtype)
     yc = jax.lax.fori_loop(0, len(weights),
                            lambda i, u: _strang_flow(u, inv_i, gammas[i] * tau), yc)
-    y_next = so3.unvec(yc).astype(y.dtype)
+    y_next = comp.unvec(yc).astype(y.dtype)
     return y_next, explicit_info(y_next)
 
 
@@ -165,16 +165,16 @@ class SaltSplitting(AbstractMethod):
         u = noise.dW @ model.noise.chi.astype(y.dtype)
         if noise.area is not None:  # the area term's rotation axis (`area_gradient`)
             u = u + model.area_gradient(y, noise.area)
-        u = so3.vec(u)
-        noise = so3.exp_c(so3.scale(-0.5, u))
+        u = comp.vec(u)
+        noise = comp.exp(comp.scale(-0.5, u))
 
         # N, D, N as two rounds of (N, then D in the first round only): a loop, not a chain
         # of flows that XLA would fuse into one kernel re-evaluating them (`_composed_step`);
         # the round index is not batched, so `cond` runs one branch.
         def body(i, v):
-            v = so3.mv(noise, v)
+            v = comp.mv(noise, v)
             return jax.lax.cond(i == 0, lambda w: _strang_flow(w, inv_i, dt), lambda w: w, v)
 
-        yc = jax.lax.fori_loop(0, 2, body, so3.vec(y))
-        y_next = so3.unvec(yc).astype(y.dtype)
+        yc = jax.lax.fori_loop(0, 2, body, comp.vec(y))
+        y_next = comp.unvec(yc).astype(y.dtype)
         return y_next, explicit_info(y_next)

@@ -5,12 +5,12 @@ from __future__ import annotations
 import dataclasses
 import jax.numpy as jnp
 
-from .. import _so3 as so3
+from .. import _components as comp
 from .._algebra import SO3_VECTORS
 from .._checks import check_options, real_dtype
 from .._solution import RESULTS
 from .base import AbstractMethod, StepInfo, StrongOrders, default_tol, finite_result
-from .newton import implicit_root, jacobian_mode, newton, solve_array
+from .._newton import implicit_root, jacobian_mode, newton, solve_array
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,31 +50,31 @@ class Midpoint(AbstractMethod):
         if SO3_VECTORS not in model.structure:
             return self._step_coordinates(model, y, dt, dW, tol)
         # so(3)'s fast path: Newton on components with the analytic Jacobian
-        y0 = so3.vec(y)
+        y0 = comp.vec(y)
 
         def f(u):  # the step's increment field y x grad K(y), K = h H_0 + sum_r dW_r H_r
-            return so3.cross(u, model.step_gradient_c(u, dt, dW))
+            return comp.cross(u, model.step_gradient_components(u, dt, dW))
 
         def residual(y1):
-            m = so3.scale(0.5, so3.add(y0, y1))
+            m = comp.scale(0.5, comp.add(y0, y1))
             return tuple(a - b - c for a, b, c in zip(y1, y0, f(m)))
 
         def system(y1):
-            m = so3.scale(0.5, so3.add(y0, y1))
-            g, hess = model.step_gradient_hessian_c(m, dt, dW)
-            r = tuple(a - b - c for a, b, c in zip(y1, y0, so3.cross(m, g)))
-            fprime = so3.madd(so3.mm(so3.hat_c(m), hess), so3.mscale(-1.0, so3.hat_c(g)))
-            return r, so3.shift(so3.mscale(-0.5, fprime), 1.0)
+            m = comp.scale(0.5, comp.add(y0, y1))
+            g, hess = model.step_gradient_hessian_components(m, dt, dW)
+            r = tuple(a - b - c for a, b, c in zip(y1, y0, comp.cross(m, g)))
+            fprime = comp.madd(comp.mm(comp.hat(m), hess), comp.mscale(-1.0, comp.hat(g)))
+            return r, comp.shift(comp.mscale(-0.5, fprime), 1.0)
 
         def solve():
-            start = so3.add(y0, f(y0))
+            start = comp.add(y0, f(y0))
             s = newton(system, start, tol=tol,
                        max_iter=12 if self.max_iter is None else self.max_iter)
             return s.x, s.result == RESULTS.successful, (s.result, s.iterations, s.residual)
 
         # Derivatives by the implicit function theorem at the root, not through Newton.
         y1, _, (result, it, res) = implicit_root(residual, solve, y0)
-        y_next = so3.unvec(y1).astype(dtype)
+        y_next = comp.unvec(y1).astype(dtype)
         return y_next, StepInfo(finite_result(y_next, result.astype(jnp.int32)),
                                 it.astype(jnp.int32), res.astype(dtype))
 

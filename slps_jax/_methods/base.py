@@ -1,4 +1,4 @@
-"""What every method provides, and the Newton iteration the implicit ones share."""
+"""What every method provides: the interface, its declarations and the step report."""
 
 from __future__ import annotations
 

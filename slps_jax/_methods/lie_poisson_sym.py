@@ -7,7 +7,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from .. import _so3 as so3
+from .. import _components as comp
 from .._solution import RESULTS
 from .._checks import check_options
 from .._noise import scale
@@ -31,7 +31,7 @@ def sine_chart_in_map_general(v, y, fields, jacobian=True):
     `fields(v, jacobian)` returns $k$, or $(k, \nabla^2 K)$, on components. For the rigid
     body with $K = \tau H$ this is `sine_chart_in_map` with $\kappa = 0$.
     """
-    s2 = so3.dot(v, v)
+    s2 = comp.dot(v, v)
     c = jnp.sqrt(jnp.maximum(1.0 - s2, 0.0))
     opc = 1.0 + c
     g = 1.0 / opc
@@ -39,20 +39,20 @@ def sine_chart_in_map_general(v, y, fields, jacobian=True):
         w, hess = fields(v, True)
     else:
         w = fields(v, False)
-    s = so3.dot(v, w)
-    vxw = so3.cross(v, w)
+    s = comp.dot(v, w)
+    vxw = comp.cross(v, w)
     qw = tuple(0.5 * (opc * wi - ci - g * s * vi) for wi, ci, vi in zip(w, vxw, v))
     r = tuple(vi + qi - yi for vi, qi, yi in zip(v, qw, y))
     if not jacobian:
         return r
     ic = 1.0 / jnp.maximum(c, jnp.finfo(c.dtype).tiny)
-    grad_c = so3.scale(-ic, v)
+    grad_c = comp.scale(-ic, v)
     grad_gs = tuple(s * g * g * ic * vi + g * wi for vi, wi in zip(v, w))
-    dq = so3.mscale(0.5, so3.shift(so3.madd(
-        so3.outer(w, grad_c), so3.hat_c(w), so3.mscale(-1.0, so3.outer(v, grad_gs))), -g * s))
-    qm = so3.mscale(0.5, so3.madd(so3.shift(so3.mscale(-1.0, so3.hat_c(v)), opc),
-                                  so3.mscale(-g, so3.outer(v, v))))
-    jac = so3.shift(so3.madd(dq, so3.mm(qm, hess)), 1.0)
+    dq = comp.mscale(0.5, comp.shift(comp.madd(
+        comp.outer(w, grad_c), comp.hat(w), comp.mscale(-1.0, comp.outer(v, grad_gs))), -g * s))
+    qm = comp.mscale(0.5, comp.madd(comp.shift(comp.mscale(-1.0, comp.hat(v)), opc),
+                                  comp.mscale(-g, comp.outer(v, v))))
+    jac = comp.shift(comp.madd(dq, comp.mm(qm, hess)), 1.0)
     return r, jac
 
 
@@ -63,11 +63,11 @@ def _solve_rotation(model, y, dt, dW, sign, tol, max_iter, active):
     continuation, implicit derivatives)."""
     def sine_fn(v, lam, jacobian=True):
         def fields(u, jac):
-            x = so3.scale(sign, u)
+            x = comp.scale(sign, u)
             if jac:
-                k, hess = model.step_gradient_hessian_c(x, lam * dt, scale(dW, lam))
-                return k, so3.mscale(sign, hess)
-            return model.step_gradient_c(x, lam * dt, scale(dW, lam))
+                k, hess = model.step_gradient_hessian_components(x, lam * dt, scale(dW, lam))
+                return k, comp.mscale(sign, hess)
+            return model.step_gradient_components(x, lam * dt, scale(dW, lam))
         return sine_chart_in_map_general(v, y, fields, jacobian)
 
     v, result, iterations, res = solve_on_branch(sine_fn, y, tol=tol, max_iter=max_iter,
@@ -95,9 +95,9 @@ def _composition(model, y, dt, dW, weights, tol, max_iter, info):
         u, info = carry
         sign = jnp.where(k % 2 == 0, -1.0, 1.0)
         w = 0.5 * gammas[k // 2]
-        r, new = _solve_rotation(model, so3.scale(sign, u), w * dt, scale(dW, w), sign, tol,
+        r, new = _solve_rotation(model, comp.scale(sign, u), w * dt, scale(dW, w), sign, tol,
                                  max_iter, info.ok)
-        return so3.mv(r, u), combine([info, new])
+        return comp.mv(r, u), combine([info, new])
 
     return jax.lax.fori_loop(0, 2 * len(weights), body, (y, info))
 
@@ -129,12 +129,12 @@ class _SymmetricLiePoisson(AbstractMethod):
     def step(self, model, y, dt, dW):
         dtype = y.dtype
         tol = default_tol(dtype) if self.tol is None else self.tol
-        yc = so3.vec(y)
-        inside = jnp.where(so3.dot(yc, yc) < 1.0, RESULTS.successful, RESULTS.outside_domain)
+        yc = comp.vec(y)
+        inside = jnp.where(comp.dot(yc, yc) < 1.0, RESULTS.successful, RESULTS.outside_domain)
         info0 = StepInfo(inside.astype(jnp.int32), jnp.zeros((), jnp.int32),
                          jnp.zeros((), dtype))
         yc, info = _composition(model, yc, dt, dW, self._substeps, tol, self.max_iter, info0)
-        y_next = so3.unvec(yc).astype(dtype)
+        y_next = comp.unvec(yc).astype(dtype)
         return y_next, StepInfo(finite_result(y_next, info.result), info.iterations,
                                 info.residual.astype(dtype))
 

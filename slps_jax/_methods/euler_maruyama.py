@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from .. import _so3 as so3
+from .. import _components as comp
 from .._algebra import SO3_VECTORS
 from .base import AbstractMethod, StrongOrders, explicit_info
 
@@ -26,7 +26,7 @@ class EulerMaruyama(AbstractMethod):
         if SO3_VECTORS not in model.structure:
             y_next = y + model.algebra.bracket(y, model.step_gradient(y, dt, dW))
             return y_next.astype(y.dtype), explicit_info(y_next)
-        yc = so3.vec(y)  # so(3)'s fast path, on components
-        f = so3.cross(yc, model.step_gradient_c(yc, dt, dW))
-        y_next = so3.unvec(so3.add(yc, f)).astype(y.dtype)
+        yc = comp.vec(y)  # so(3)'s fast path, on components
+        f = comp.cross(yc, model.step_gradient_components(yc, dt, dW))
+        y_next = comp.unvec(comp.add(yc, f)).astype(y.dtype)
         return y_next, explicit_info(y_next)

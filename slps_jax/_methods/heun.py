@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from .. import _so3 as so3
+from .. import _components as comp
 from .._algebra import SO3_VECTORS
 from .base import AbstractMethod, StrongOrders, explicit_info
 
@@ -34,12 +34,12 @@ class Heun(AbstractMethod):
             k1 = f(y)
             y_next = y + 0.5 * (k1 + f(y + k1))
             return y_next.astype(y.dtype), explicit_info(y_next)
-        yc = so3.vec(y)  # so(3)'s fast path, on components
+        yc = comp.vec(y)  # so(3)'s fast path, on components
 
         def f(u):
-            return so3.cross(u, model.step_gradient_c(u, dt, dW))
+            return comp.cross(u, model.step_gradient_components(u, dt, dW))
 
         k1 = f(yc)
-        k2 = f(so3.add(yc, k1))
-        y_next = so3.unvec(tuple(a + 0.5 * (b + c) for a, b, c in zip(yc, k1, k2)))
+        k2 = f(comp.add(yc, k1))
+        y_next = comp.unvec(tuple(a + 0.5 * (b + c) for a, b, c in zip(yc, k1, k2)))
         return y_next.astype(y.dtype), explicit_info(y_next)

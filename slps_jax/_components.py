@@ -1,9 +1,7 @@
-"""The Lie algebra so(3) and the group SO(3): hat, vee, exponential, Cayley map.
+"""so(3) and SO(3) on components: the layer under `slps_jax.so3` and the so(3) fast paths.
 
-Two layers. The public functions take arrays whose last axis has length 3 (vectors) or whose
-last two axes are 3x3 (matrices), and broadcast over leading axes. Underneath, every formula
-is written once on *components*: a vector is a tuple of three arrays, a matrix a tuple of three
-rows. Under `vmap` each component becomes one array over the batch, so the integrators' hot
+Every formula is written once on *components*: a vector is a tuple of three arrays, a matrix
+a tuple of three rows (`vec`, `mat` and their inverses convert from and to arrays). Under `vmap` each component becomes one array over the batch, so the integrators' hot
 loop is element-wise arithmetic on long vectors (structure of arrays) rather than many tiny
 batched 3x3 products, which XLA executes poorly on CPU.
 """
@@ -14,8 +12,6 @@ import math
 
 import jax.numpy as jnp
 
-# --------------------------------------------------------------------------------------
-# Component algebra (private, shared by the integrators).
 
 
 def vec(x):
@@ -131,7 +127,7 @@ def hat_mat(x, m):
     return tuple(tuple(cols[j][i] for j in range(3)) for i in range(3))
 
 
-def hat_c(v):
+def hat(v):
     z = jnp.zeros_like(v[0])
     return ((z, -v[2], v[1]), (v[2], z, -v[0]), (-v[1], v[0], z))
 
@@ -165,7 +161,7 @@ def solve3(m, b):
     )
 
 
-def _small_angle_threshold(dtype):
+def small_angle_threshold(dtype):
     # Below this theta^2 the two-term Taylor series is exact to round-off: its first
     # neglected term is O(theta^4) = O(eps).
     return math.sqrt(float(jnp.finfo(dtype).eps))
@@ -178,7 +174,7 @@ def exp_coefficients(theta2):
     the series branch is used there. `1 - cos t` is computed as `2 sin^2(t/2)`, which does not
     cancel.
     """
-    small = theta2 < _small_angle_threshold(theta2.dtype)
+    small = theta2 < small_angle_threshold(theta2.dtype)
     t2 = jnp.where(small, 1.0, theta2)
     t = jnp.sqrt(t2)
     s = jnp.sin(t)
@@ -189,99 +185,15 @@ def exp_coefficients(theta2):
     return a, b, c
 
 
-def exp_c(xi):
+def exp(xi):
     """Rodrigues' formula on components: `exp(hat xi) = Id + a X + b X^2`."""
     a, b, _ = exp_coefficients(dot(xi, xi))
-    x = hat_c(xi)
+    x = hat(xi)
     return shift(madd(mscale(a, x), mscale(b, mm(x, x))), 1.0)
 
 
-def cayley_c(xi):
+def cayley(xi):
     """Cayley map on components: `(Id - X/2)^{-1} (Id + X/2) = Id + 4/(4+|xi|^2) (X + X^2/2)`."""
-    x = hat_c(xi)
+    x = hat(xi)
     s = 4.0 / (4.0 + dot(xi, xi))
     return shift(madd(mscale(s, x), mscale(0.5 * s, mm(x, x))), 1.0)
-
-
-# --------------------------------------------------------------------------------------
-# Public array API.
-
-
-def hat(v):
-    """The skew matrix of a vector: `hat(v) @ u = v x u`.
-
-    **Arguments:** `v`, shape `(..., 3)`. **Returns:** shape `(..., 3, 3)`.
-    """
-    return unmat(hat_c(vec(jnp.asarray(v))))
-
-
-def vee(m):
-    """Inverse of `hat` on skew matrices: the axial vector. For a general matrix it returns
-    the axial vector of its skew part.
-
-    **Arguments:** `m`, shape `(..., 3, 3)`. **Returns:** shape `(..., 3)`.
-    """
-    return unvec(vee_skew(mat(jnp.asarray(m))))
-
-
-def skew(m):
-    """$\\mathrm{skew}(M) = (M - M^T)/2$."""
-    m = jnp.asarray(m)
-    return 0.5 * (m - jnp.swapaxes(m, -1, -2))
-
-
-def sym(m):
-    """$\\mathrm{sym}(M) = (M + M^T)/2$."""
-    m = jnp.asarray(m)
-    return 0.5 * (m + jnp.swapaxes(m, -1, -2))
-
-
-def exp(xi):
-    """The exponential map so(3) -> SO(3) (Rodrigues' formula).
-
-    $\\exp(\\hat\\xi) = I + \\frac{\\sin\\theta}{\\theta}\\hat\\xi
-    + \\frac{1-\\cos\\theta}{\\theta^2}\\hat\\xi^2$, $\\theta = |\\xi|$, with a Taylor series
-    below a dtype-dependent threshold so that values and gradients are exact at $\\theta = 0$.
-
-    **Arguments:** `xi`, shape `(..., 3)`. **Returns:** rotation matrices `(..., 3, 3)`.
-    """
-    return unmat(exp_c(vec(jnp.asarray(xi))))
-
-
-def log(r):
-    """Inverse of `exp` for rotations by an angle $\\theta < \\pi$.
-
-    Uses $\\theta = \\operatorname{atan2}(|w|, (\\operatorname{tr} R - 1)/2)$ with
-    $w = \\mathrm{vee}(\\mathrm{skew}\\,R) = \\sin\\theta\\, u$; accurate away from
-    $\\theta = \\pi$, where the axis is not determined by the skew part.
-
-    **Arguments:** `r`, rotation matrices `(..., 3, 3)`. **Returns:** `(..., 3)`.
-    """
-    m = mat(jnp.asarray(r))
-    w = vee_skew(m)
-    s2 = dot(w, w)
-    small = s2 < _small_angle_threshold(s2.dtype) ** 2
-    s = jnp.sqrt(jnp.where(small, 1.0, s2))
-    theta = jnp.arctan2(s, 0.5 * (trace(m) - 1.0))
-    # theta / sin(theta) -> 1 + theta^2/6 as theta -> 0.
-    factor = jnp.where(small, 1.0 + s2 / 6.0, theta / s)
-    return unvec(scale(factor, w))
-
-
-def cayley(xi):
-    """The Cayley map so(3) -> SO(3): $(I - \\hat\\xi/2)^{-1}(I + \\hat\\xi/2)$.
-
-    It is the rotation by $\\theta = 2\\arctan(|\\xi|/2)$ about $\\xi/|\\xi|$, smooth everywhere.
-
-    **Arguments:** `xi`, shape `(..., 3)`. **Returns:** `(..., 3, 3)`.
-    """
-    return unmat(cayley_c(vec(jnp.asarray(xi))))
-
-
-def cayley_inv(r):
-    """Inverse of `cayley` for rotations by $\\theta < \\pi$: $\\xi = 4 w / (1 + \\operatorname{tr} R)$.
-
-    **Arguments:** `r`, rotation matrices `(..., 3, 3)`. **Returns:** `(..., 3)`.
-    """
-    m = mat(jnp.asarray(r))
-    return unvec(scale(4.0 / (1.0 + trace(m)), vee_skew(m)))
