@@ -63,7 +63,9 @@ SHARDED = textwrap.dedent("""
     ref = sj.simulate(body, w0, **zk)
     out = sj.simulate(body, w0, sharding=sh, **zk)
     assert out.ys.dtype == jnp.complex128 and len(out.ys.sharding.device_set) == 4
-    assert np.array_equal(np.asarray(out.ys), np.asarray(ref.ys))
+    # (the same arithmetic up to the order XLA's batched matrix products take: round-off)
+    diff = np.max(np.abs(np.asarray(out.ys) - np.asarray(ref.ys)))
+    assert diff < 1e-13, diff
     st = sj.ensemble_statistics(body, w0, chunk_size=4, sharding=sh, progress=False,
                                 observable=lambda ws: body.energy(ws), **zk)
     e = np.asarray(body.energy(ref.ys))
