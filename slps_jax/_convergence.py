@@ -106,6 +106,18 @@ class _Study:
     areas: dict  # method name -> whether it gets the Lévy areas
 
 
+def _warn_single_precision(caller, dtype):
+    """A study in float32 measures round-off as soon as errors near its floor: say so, once
+    per call (the library never flips `jax_enable_x64` itself)."""
+    if jnp.finfo(dtype).bits < 64:
+        eps = float(jnp.finfo(dtype).eps)
+        warnings.warn(
+            f"{caller} runs in {jnp.dtype(dtype).name}: its round-off floor is about {eps:.1e} "
+            f"per step (errors below about {100 * eps:.0e} are not resolved, and fitted orders "
+            f"near it are wrong). For accuracy work enable float64 before creating any array: "
+            f"jax.config.update(\"jax_enable_x64\", True).", UserWarning, stacklevel=4)
+
+
 def _study(caller, model, y0, t1, dts, n_samples, key, methods, reference, reference_dt,
            reference_factor, truncate_k, retry_substeps, levy_area="auto"):
     """Validate a study's arguments (before anything compiles) and set up its shared paths
@@ -119,6 +131,7 @@ def _study(caller, model, y0, t1, dts, n_samples, key, methods, reference, refer
     for m in methods.values():
         check_method(m)
         y0 = check_y0(y0, m, model)
+    _warn_single_precision(caller, model.dtype)
     t1_np = check_positive("t1", t1)
     if t1_np is None:
         raise TypeError(f"{caller} needs a concrete t1: call it outside jax.jit.")

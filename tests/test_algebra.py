@@ -154,3 +154,18 @@ def test_algebras_are_refused_by_name():
             sj.su(bad)
     with pytest.raises(TypeError, match="algebra"):
         sj.LiePoissonSystem(lambda y, p: 0.0, algebra="su(3)")
+
+
+def test_group_coordinates_span_the_group_algebra(alg):
+    """The unknowns of implicit solves: coordinates of the group's Lie algebra (u(N) for
+    su(N): one more, the centre), inverse to each other, skew(-Hermitian) matrices whose
+    Cayley map is unitary; on states they extend the state's coordinates."""
+    x = jax.random.normal(jax.random.key(8), (alg.group_dim,))
+    m = alg.from_group_coordinates(x)
+    _close(alg.group_coordinates(m), x)
+    _close(m, -np.conj(np.asarray(m)).T)
+    q = alg.cayley(0.3 * m)
+    _close(q @ np.conj(np.asarray(q)).T, np.eye(alg.matrix_size))
+    (y,) = _states(alg, 1, seed=9)
+    _close(alg.group_coordinates(alg.to_matrix(y))[:alg.dim], alg.coordinates(y))
+    assert alg.group_dim - alg.dim == (1 if alg.is_complex else 0)

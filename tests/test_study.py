@@ -80,7 +80,7 @@ def test_paper_command_fast(tmp_path):
     from slps_jax.__main__ import main
 
     out = tmp_path / "paper"
-    assert main(["paper", "--fast", "--out", str(out)]) == 0
+    assert main(["paper", "--fast", "--no-cache", "--out", str(out)]) == 0
     names = {"fig4_1_sample_path.png", "fig4_2_invariants.png", "fig4_3_phase_sphere.png",
              "fig4_4_strong_order.png", "results.json", "results.md"}
     assert names <= set(os.listdir(out))
@@ -98,21 +98,44 @@ def test_paper_command_fast(tmp_path):
 def test_paper_command_output_folders(monkeypatch, capsys):
     """`--fast` writes to its own default folder, so it never overwrites a full run; `--out`
     wins; `--help` describes the commands and every option."""
+    import slps_jax.__main__ as cli
     import slps_jax._paper as paper_module
     from slps_jax.__main__ import main
 
-    seen = []
+    seen, cached = [], []
     monkeypatch.setattr(paper_module, "run", lambda out_dir, fast, seed: seen.append(out_dir))
+    monkeypatch.setattr(cli, "use_compilation_cache", lambda jax: cached.append(True))
     main(["paper"])
     main(["paper", "--fast"])
     main(["paper", "--fast", "--out", "mine"])
-    assert seen == ["paper-output", "paper-output-fast", "mine"]
+    main(["paper", "--no-cache"])
+    assert seen == ["paper-output", "paper-output-fast", "mine", "paper-output"]
+    assert cached == [True, True, True]  # the cache is on unless --no-cache
     for args in (["--help"], ["paper", "--help"], ["summary", "--help"]):
         with pytest.raises(SystemExit):
             main(args)
     text = capsys.readouterr().out
     assert "reproduce Figures 4.1-4.4" in text and "seed of the Brownian samples" in text
     assert "paper-output-fast" in text and "Command line:" not in text
+    assert "--no-cache" in text
+
+
+def test_the_command_line_keeps_compiled_programs_in_the_user_cache(tmp_path):
+    """The persistent compilation cache goes to the user's cache folder ($XDG_CACHE_HOME)
+    and is filled by what the command line compiles."""
+    import subprocess
+    import sys
+
+    code = ("import jax; from slps_jax.__main__ import use_compilation_cache; "
+            "print(use_compilation_cache(jax)); jax.jit(lambda x: 2.0 * x + 1.0)(3.0)")
+    env = dict(os.environ, XDG_CACHE_HOME=str(tmp_path), JAX_PLATFORMS="cpu")
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          env=env, timeout=120, cwd=os.path.dirname(os.path.dirname(__file__)))
+    assert proc.returncode == 0, proc.stderr
+    folder = tmp_path / "slps-jax" / "jax-compilation-cache"
+    assert proc.stdout.strip() == str(folder)
+    assert any(folder.iterdir())
 
 
 def test_summary_writes_each_line_as_it_is_produced():
@@ -145,3 +168,22 @@ def test_plus_minus_gives_the_error_one_significant_digit():
     assert plus_minus(1.0551, 0.0012) == "1.055 ± 0.001"
     assert plus_minus(1.05, 0.0004) == "1.0500 ± 0.0004"
     assert plus_minus(1.2, 0.096) == "1.2 ± 0.1"
+
+
+def test_a_float32_study_warns_once_and_a_float64_study_does_not():
+    import warnings
+
+    kw = dict(t1=0.25, dts=[2.0 ** -3, 2.0 ** -4], n_samples=4, key=jax.random.key(0),
+              methods={"Strang": sj.Strang()})
+    y0 = jnp.asarray(sj.PAPER_Y0)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        sj.strong_convergence(sj.RigidBody(jnp.asarray([2.0, 1.0, 2.0 / 3.0], jnp.float32), 0.5),
+                              y0.astype(jnp.float32), **kw)
+    single = [w for w in caught if "float32" in str(w.message)]
+    assert len(single) == 1 and "jax_enable_x64" in str(single[0].message)
+    assert single[0].filename == __file__  # it points at the caller's line
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        sj.strong_convergence(sj.RigidBody.paper(), y0, **kw)
+    assert not [w for w in caught if "float32" in str(w.message)]

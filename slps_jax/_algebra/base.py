@@ -14,7 +14,8 @@ What a method may use, and nothing else:
   $dy = [y, \\nabla H]$), `casimirs`;
 - the group: `to_matrix`, `from_matrix`, `project` (the state nearest to a matrix),
   `adjoint` ($M^H$), `cayley` ($(I - X)^{-1}(I + X)$), `act(a, y)` ($a\\,y\\,a^{-1}$ for a
-  unitary `a`);
+  unitary `a`), and real coordinates of the group's Lie algebra (`group_dim`,
+  `group_coordinates`, `from_group_coordinates`: u(N) for su(N));
 - `validate` (a concrete state, with a clear message) and `random_state` (for tests).
 
 The defaults below are written once for every matrix algebra; an algebra overrides what it
@@ -95,6 +96,23 @@ class AbstractAlgebra:
         raise NotImplementedError
 
     adjoint = staticmethod(adjoint)
+
+    # The Lie algebra of the group the methods act with (`cayley`, `act`): the algebra itself
+    # for so(3) and so(n); for su(N) it is u(N), one dimension more (the centre i R I), since
+    # the Cayley map takes su(N) into U(N) and an implicit midpoint of su(N) states has a
+    # trace. Real coordinates of its matrices, for the unknowns of implicit solves.
+
+    @property
+    def group_dim(self):
+        return self.dim
+
+    def group_coordinates(self, m):
+        """Real coordinates (`group_dim`) of a matrix of the group's Lie algebra."""
+        return self.coordinates(self.from_matrix(m))
+
+    def from_group_coordinates(self, x):
+        """The matrix of the group's Lie algebra with coordinates `x`."""
+        return self.to_matrix(self.from_coordinates(x))
 
     def cayley(self, x):
         r"""The Cayley map $(I - X)^{-1}(I + X) = I + 2X + O(X^2)$ of one matrix `x` of the

@@ -68,6 +68,19 @@ class SUnAlgebra(AbstractAlgebra):
         tr = jnp.trace(s, axis1=-2, axis2=-1)[..., None, None] / self.n
         return s - tr * jnp.eye(self.n, dtype=s.dtype)
 
+    @property
+    def group_dim(self):
+        return self.n * self.n  # u(N): su(N) and the centre
+
+    def group_coordinates(self, m):
+        return jnp.concatenate([self.coordinates(self.project(m)),
+                                jnp.imag(jnp.trace(m, axis1=-2, axis2=-1))[..., None]
+                                / np.sqrt(2.0 * self.n)], axis=-1)
+
+    def from_group_coordinates(self, x):
+        centre = (1j * np.sqrt(2.0 / self.n)) * x[..., -1:, None]
+        return self.from_coordinates(x[..., :-1]) + centre * jnp.eye(self.n, dtype=centre.dtype)
+
     def coordinates(self, y):
         upper = y[..., self._rows, self._cols]
         d = jnp.imag(jnp.diagonal(y, axis1=-2, axis2=-1))

@@ -75,22 +75,24 @@ class IsospectralMidpoint(AbstractMethod):
         yn = alg.to_matrix(y)
         eye = jnp.eye(yn.shape[-1], dtype=yn.dtype)
 
-        def half_w(x):  # (1/2) W^ = -(1/2) grad K(X), X a state
-            return -0.5 * alg.to_matrix(model.step_gradient(x, dt, dW))
+        def half_w(x):  # (1/2) W^ = -(1/2) grad K(X) for a matrix X of the group's algebra
+            return -0.5 * alg.to_matrix(model.step_gradient(alg.project(x), dt, dW))
 
-        def residual(xc, lam):  # (I - W/2) X (I + W/2) - Y_n, on the real coordinates
-            x = alg.from_coordinates(xc)
+        # The midpoint X lies in the group's Lie algebra, not always in the system's: on
+        # su(N), tr Y_n = 0 gives tr X = tr((W/2)^2 X), and X is solved for in u(N).
+        def residual(xc, lam):  # (I - W/2) X (I + W/2) - Y_n, on real coordinates
+            x = alg.from_group_coordinates(xc)
             b = eye - half_w(x)
-            return alg.coordinates(alg.project(b @ alg.to_matrix(x) @ adjoint(b))) - x0
+            return alg.group_coordinates(b @ x @ adjoint(b)) - x0
 
-        x0 = alg.coordinates(y)
+        x0 = alg.group_coordinates(yn)
         xc, result, it, res = solve_array(residual, x0, x0, tol=tol, max_iter=self.max_iter,
-                                          jacobian=jacobian_mode(self.jacobian, alg.dim,
+                                          jacobian=jacobian_mode(self.jacobian, alg.group_dim,
                                                                  large="identity"))
         # Y_{n+1} = Q Y_n Q^H with the Cayley rotation Q = (I + W/2)(I - W/2)^{-1}: equal to
         # (I + W/2) X (I - W/2) at the root, and isospectral to round-off whatever the
         # solver's tolerance
-        q = alg.cayley(half_w(alg.from_coordinates(xc)))  # (I - W/2)^{-1}(I + W/2)
+        q = alg.cayley(half_w(alg.from_group_coordinates(xc)))  # (I - W/2)^{-1}(I + W/2)
         y_next = alg.act(q, y).astype(dtype)
         return y_next, StepInfo(finite_result(y_next, result), it,
                                 res.astype(real_dtype(dtype)))

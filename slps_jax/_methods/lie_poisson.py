@@ -381,21 +381,24 @@ class LiePoisson(AbstractMethod):
         dt_s, dW_s = lam * dt, scale(dW, lam)
         # (the chart's base point: constant for derivatives, which the implicit function
         # theorem gives through the residual; eigh's derivative is singular here anyway)
-        a0, gap = jax.tree_util.tree_map(jax.lax.stop_gradient, branch_point(z))
+        a0, gap = jax.tree_util.tree_map(jax.lax.stop_gradient, branch_point(alg.to_matrix(z)))
         second = 1.0 if self._second_order else 0.0
 
+        # (unknowns and equations on the group's Lie algebra: u(N) for su(N), where A is
+        # unitary and the in-map has a trace)
         def rotation(x):
-            return a0 @ alg.cayley(alg.from_coordinates(x))
+            return a0 @ alg.cayley(alg.from_group_coordinates(x))
 
         def residual(x, lam_):
             a = rotation(x)
-            return alg.coordinates(group_in_map(model, a, lam_ * dt_s, scale(dW_s, lam_), second)
-                                   - z)
+            return alg.group_coordinates(
+                group_in_map(model, a, lam_ * dt_s, scale(dW_s, lam_), second) - alg.to_matrix(z))
 
-        zero = jnp.zeros((alg.dim,), real)
+        zero = jnp.zeros((alg.group_dim,), real)
 
         def chart():  # d skew(A_0 cay(X)) / dX at X = 0: the in-map of a step of size 0
-            return jax.jacfwd(lambda x: alg.coordinates(alg.project(rotation(x))))(zero)
+            return jax.jacfwd(lambda x: alg.group_coordinates(
+                0.5 * (rotation(x) - adjoint(rotation(x)))))(zero)
 
         mode = "newton" if self.jacobian == "newton" else chart
         x, result, iterations, res = solve_array(
