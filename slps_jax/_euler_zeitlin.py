@@ -56,15 +56,9 @@ class EulerZeitlin(LiePoissonSystem):
         return zeitlin.hbar(self.N)
 
     def __repr__(self):
-        noise = "" if self.noise is None and not self._c_nonzero() else (
-            f", c={self.c!r}" if self.noise is None else f", noise={self.noise!r}")
-        return f"EulerZeitlin({self.N}{noise})"
-
-    def _c_nonzero(self):
-        try:
-            return bool(self.c != 0)
-        except jax.errors.TracerBoolConversionError:
-            return True
+        if self.noise is not None:  # (the noise's matrices are N x N: their count only)
+            return f"EulerZeitlin({self.N}, noise={type(self.noise).__name__} of {self.n_noises})"
+        return f"EulerZeitlin({self.N}, c={self.c!r})"
 
     @property
     def structure(self):

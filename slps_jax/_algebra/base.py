@@ -151,8 +151,9 @@ class AbstractAlgebra:
         with jax.ensure_compile_time_eval():  # (concrete even while a caller is traced)
             m = np.asarray(self.to_matrix(y))
             off = float(np.max(np.abs(m - np.asarray(self.to_matrix(self.project(m))))))
-        scale = max(1.0, float(np.max(np.abs(m))))
-        if off > 1e-12 * scale:
+        # (relative to the state's size and its own precision: float32 states are 1e-7 off)
+        tol = max(1e-12, 64.0 * float(np.finfo(m.dtype).eps)) * max(1.0, float(np.max(np.abs(m))))
+        if off > tol:
             raise ValueError(f"{name} must be {self.condition} (a state of {self.name}); it "
                              f"is {off:.3g} away.")
 
