@@ -95,6 +95,22 @@ def _inexact_leaves(model):
                              if jnp.issubdtype(jnp.result_type(leaf), jnp.inexact)]
 
 
+def _real(x):
+    """`x` flattened to real numbers: complex arrays (su(N) states, their noise parameters)
+    as their real parts followed by their imaginary parts, so that the Jacobians below are
+    real matrices (`jacfwd` differentiates real inputs only)."""
+    x = jnp.reshape(x, -1)
+    return jnp.concatenate([jnp.real(x), jnp.imag(x)]) if jnp.iscomplexobj(x) else x
+
+
+def _unreal(v, like):
+    """`_real`'s inverse, to the shape and dtype of `like`."""
+    if jnp.iscomplexobj(like):
+        n = v.shape[0] // 2
+        v = v[:n] + 1j * v[n:]
+    return jnp.reshape(v, jnp.shape(like)).astype(like.dtype)
+
+
 def _jacobian_tools(method, model, y, dW):
     """For `_attempts` with Jacobians: `substep(ys, h, w) -> (y_next, info, derivatives)`
     (one `jacfwd` of the step with respect to `(ys, h, w, the model's inexact leaves)`), the
@@ -102,20 +118,21 @@ def _jacobian_tools(method, model, y, dW):
     Jacobians after one more substep of `(dt/m, dW/m)`."""
     leaves, treedef, idx = _inexact_leaves(model)
     p0 = [leaves[i] for i in idx]
-    dtype, d = y.dtype, y.size
+    # (on real coordinates: a complex state or leaf as its real and imaginary parts)
+    dtype, d = real_dtype(y.dtype), _real(y).size
     # the step's noise (increments, and areas when present) as one flat vector
     w0, unravel = ravel_pytree(dW)
 
-    def step(ys, h, w, p):
+    def step(yr, h, w, pr):
         full = list(leaves)
-        for i, leaf in zip(idx, p):
-            full[i] = leaf
-        y2, info = method.step(treedef.unflatten(full), ys, h, unravel(w))
-        return y2, (y2, info)
+        for i, leaf in zip(idx, pr):
+            full[i] = _unreal(leaf, leaves[i])
+        y2, info = method.step(treedef.unflatten(full), _unreal(yr, y), h, unravel(w))
+        return _real(y2), (y2, info)
 
     def substep(ys, h, w):
         (a, b, c, e), (y2, info) = jax.jacfwd(step, argnums=(0, 1, 2, 3), has_aux=True)(
-            ys, h, ravel_pytree(w)[0], p0)
+            _real(ys), h, ravel_pytree(w)[0], [_real(p) for p in p0])
         return y2, info, (a, b, c, e)
 
     def chain(jac, derivatives, mf):
@@ -127,7 +144,7 @@ def _jacobian_tools(method, model, y, dW):
                 [a @ j + ei.reshape(d, -1) for j, ei in zip(jp, e)])
 
     j0 = (jnp.eye(d, dtype=dtype), jnp.zeros(d, dtype), jnp.zeros((d, w0.size), dtype),
-          [jnp.zeros((d, p.size), dtype) for p in p0])
+          [jnp.zeros((d, _real(p).size), dtype) for p in p0])
     return substep, j0, chain
 
 
@@ -154,14 +171,14 @@ def _robust_step_jvp(method, k, primals, tangents):
     y2, code2, its2, res2, _, (jy, jdt, jdw, jp) = _attempts(method, model, y, dt, dW, need,
                                                             k, k, jacobians=True)
     leaves, idx = jax.tree_util.tree_leaves(t_model), _inexact_leaves(model)[2]
-    t_re = jy @ t_y.reshape(-1) + jdt * t_dt + jdw @ ravel_pytree(t_dW)[0]
+    t_re = jy @ _real(t_y) + jdt * t_dt + jdw @ ravel_pytree(t_dW)[0]
     for i, j in zip(idx, jp):
-        t_re = t_re + j @ jnp.reshape(leaves[i], -1).astype(dtype)
+        t_re = t_re + j @ _real(leaves[i]).astype(dtype)
     y_next = jnp.where(need, y2, y1)
     out = (y_next, jnp.where(need, code2, code1),
            jnp.where(act, info.iterations, 0) + its2,
            jnp.where(need, res2, jnp.where(act, info.residual, 0.0)).astype(dtype), need)
-    return out, _zero_tangents(out, jnp.where(need, t_re.reshape(y.shape), t_y1))
+    return out, _zero_tangents(out, jnp.where(need, _unreal(t_re, y), t_y1))
 
 
 def _zero_tangents(out, t_y):

@@ -234,3 +234,27 @@ def test_isospectral_step_is_modin_viviani_with_the_midpoint_in_u_n():
     ours = sj.integrate(sj.EulerZeitlin(N), w0, np.zeros((1, 1)), h,
                         method=sj.IsospectralMidpoint())
     np.testing.assert_allclose(ours, ref, atol=1e-13)
+
+
+def test_gradients_through_complex_states_and_retried_steps_match_finite_differences():
+    """d/da of the mean energy at t1, the transport noise's amplitude a, through su(4)
+    states: plain steps, and steps the solver fails at once (a budget of 8 updates) and the
+    driver redoes as substeps (the retry's Jacobians, on the states' real coordinates)."""
+    w0 = z.shr2mat(0.3 * np.arange(16) / 16, 4)
+    e = z.shr2mat(np.eye(16)[[1, 6]], 4)
+
+    def mean_energy(a, method):
+        body = sj.EulerZeitlin(4, noise=sj.salt_noise(a * e))
+        sol = sj.simulate(body, w0, t1=0.25, dt=2.0 ** -3, n_samples=4, key=jax.random.key(0),
+                          method=method)
+        return jnp.mean(z.energy(sol.ys[:, -1])), (sol.stats["n_retried_steps"],
+                                                   sol.stats["n_failed"])
+
+    for method, retried in ((sj.IsospectralMidpoint(), False),
+                            (sj.IsospectralMidpoint(max_iter=8), True)):
+        value = lambda a: mean_energy(a, method)[0]  # noqa: E731
+        n_retried, n_failed = mean_energy(0.3, method)[1]
+        assert (int(n_retried) > 0) == retried and int(n_failed) == 0
+        g = jax.grad(value)(0.3)
+        fd = (value(0.3 + 1e-5) - value(0.3 - 1e-5)) / 2e-5
+        np.testing.assert_allclose(float(g), float(fd), rtol=1e-6)
