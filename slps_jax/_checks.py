@@ -36,36 +36,26 @@ def float_dtype(*xs):
     return jnp.result_type(float, *xs)
 
 
-def numeric_array(name, x, allow_complex):
+def numeric_array(name, x, allow_complex=False):
     """`x` as an array of real numbers (with `allow_complex`, of real or complex numbers),
     or a `TypeError` naming the argument."""
-    if not allow_complex:
-        return real_array(name, x)
+    what, kinds = ("numbers", "fiuc") if allow_complex else ("real numbers", "fiu")
     if isinstance(x, str):
-        raise TypeError(f"{name} must be numbers, got the string {x!r}.")
+        raise TypeError(f"{name} must be {what}, got the string {x!r}.")
     try:
-        arr = jnp.asarray(x)
+        arr = jnp.asarray(x)  # (also a list of tracers, inside jit)
     except (TypeError, ValueError) as err:
-        raise TypeError(f"{name} must be numbers, got {x!r} ({err}).") from None
+        raise TypeError(f"{name} must be {what}, got {x!r} ({err}).") from None
+    # (a key array has an extended dtype, which NumPy cannot describe)
     if jax.dtypes.issubdtype(arr.dtype, jax.dtypes.extended) or \
-            np.dtype(arr.dtype).kind not in "fiuc":
-        raise TypeError(f"{name} must be numbers, got dtype {arr.dtype}.")
+            np.dtype(arr.dtype).kind not in kinds:
+        raise TypeError(f"{name} must be {what}, got dtype {arr.dtype}.")
     return arr
 
 
 def real_array(name, x):
     """`x` as an array of real numbers, or a `TypeError` naming the argument."""
-    if isinstance(x, str):
-        raise TypeError(f"{name} must be real numbers, got the string {x!r}.")
-    try:
-        arr = jnp.asarray(x)  # (also a list of tracers, inside jit)
-    except (TypeError, ValueError) as err:
-        raise TypeError(f"{name} must be real numbers, got {x!r} ({err}).") from None
-    # (a key array has an extended dtype, which NumPy cannot describe)
-    if jax.dtypes.issubdtype(arr.dtype, jax.dtypes.extended) or \
-            np.dtype(arr.dtype).kind not in "fiu":
-        raise TypeError(f"{name} must be real numbers, got dtype {arr.dtype}.")
-    return arr
+    return numeric_array(name, x)
 
 
 def is_int(x):

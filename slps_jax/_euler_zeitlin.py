@@ -11,9 +11,10 @@ from ._system import QUADRATIC, LiePoissonSystem
 
 
 def _euler_hamiltonian(w, params):
-    # (the system's closed-form gradient and Hamiltonian replace this; kept for `_h`)
+    """$H_0 = N E(W) / (2\hbar)$, $E$ quflow's energy (its gradient is in closed form:
+    `EulerZeitlin.gradient`)."""
     n = w.shape[-1]
-    return -0.5 * su(n).pairing(w, zeitlin.solve_poisson(w)) / zeitlin.hbar(n)
+    return n * zeitlin.energy(w) / (2.0 * zeitlin.hbar(n))
 
 
 @jax.tree_util.register_pytree_node_class
@@ -76,9 +77,6 @@ class EulerZeitlin(LiePoissonSystem):
     def enstrophy(self, w):
         r"""quflow's enstrophy $\tfrac12\langle W, W\rangle_{L^2}$, over leading axes."""
         return zeitlin.enstrophy(w)
-
-    def hamiltonian(self, y):
-        return self.N * zeitlin.energy(y) / (2.0 * self.hbar)
 
     def gradient(self, y):
         return -zeitlin.solve_poisson(y) / self.hbar

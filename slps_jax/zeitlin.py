@@ -58,10 +58,9 @@ def _tridiagonal(N):
     m = np.arange(N)[:, None]
     mu = lambda i: s - i  # noqa: E731
     a = lambda k: np.sqrt(np.clip(k * (N - k), 0, None))  # noqa: E731
-    valid = t + m < N
-    d = np.where(valid, -2 * s * (s + 1) + 2 * mu(t + m) * mu(t), 1.0)
+    d = np.where(t + m < N, -2 * s * (s + 1) + 2 * mu(t + m) * mu(t), 1.0)
     e = np.where(t + m + 1 < N, a(t + 1) * a(t + m + 1), 0.0)
-    return d, e, valid
+    return d, e
 
 
 def laplacian(P):
@@ -115,7 +114,7 @@ def solve_poisson(W):
     trace is removed afterwards."""
     W = jnp.asarray(W)
     N = W.shape[-1]
-    d, e, _ = _tridiagonal(N)
+    d, e = _tridiagonal(N)
     d = d.copy()
     d[0, 0] -= 0.5
     real = jnp.finfo(W.dtype).dtype
@@ -162,7 +161,7 @@ def _basis(N):
     diagonal $m$ of $T_{\ell m}$ (before quflow's phase), orthogonal with norm $\sqrt N$:
     the eigenvectors of the Laplacian's tridiagonal block, ordered by $\ell$, signed so that
     the last entry has the sign $(-1)^m$ (the orientation of the spherical harmonics)."""
-    d, e, _ = _tridiagonal(N)
+    d, e = _tridiagonal(N)
     out = []
     for m in range(N):
         n = N - m
@@ -177,15 +176,21 @@ def _basis(N):
 
 
 @functools.cache
+def _harmonic_indices(L):
+    """`(plus, minus, valid)`, each `(m, l)` for `m, l < L`: the indices of
+    $\omega_{\ell m}$ and $\omega_{\ell,-m}$ (0 where $\ell < m$), and $\ell \ge m$."""
+    el, m = np.meshgrid(np.arange(L), np.arange(L))
+    valid = el >= m
+    return (np.where(valid, elm2ind(el, m), 0), np.where(valid, elm2ind(el, -m), 0), valid)
+
+
+@functools.cache
 def _index_tables(N):
     basis = _basis(N)
     table = np.zeros((N, N, N))  # table[m, t, l]: lower diagonal m of T_lm (zero-padded)
     for m in range(N):
         table[m, :N - m, m:] = basis[m]
-    plus = np.array([[elm2ind(el, m) if el >= m else 0 for el in range(N)] for m in range(N)])
-    minus = np.array([[elm2ind(el, -m) if el >= m else 0 for el in range(N)] for m in range(N)])
-    valid = np.array([[el >= m for el in range(N)] for m in range(N)])
-    return table, plus, minus, valid
+    return (table, *_harmonic_indices(N))
 
 
 def shr2mat(omega, N):
@@ -280,9 +285,7 @@ def field(omega, theta, phi):
     p = _legendre(L, tuple(theta.tolist()))  # (l, m, theta)
     m = np.arange(L)
     cos, sin = np.cos(np.outer(m, phi)), np.sin(np.outer(m, phi))  # (m, phi)
-    plus = np.array([[elm2ind(el, k) if el >= k else 0 for k in range(L)] for el in range(L)])
-    minus = np.array([[elm2ind(el, -k) if el >= k else 0 for k in range(L)] for el in range(L)])
-    valid = np.array([[el >= k for k in range(L)] for el in range(L)])
+    plus, minus, valid = (x.T for x in _harmonic_indices(L))  # (l, m)
     f = np.where(m == 0, 1.0, math.sqrt(2.0))[None, :]
     wp = jnp.where(valid, omega[..., plus], 0.0) * f  # (..., l, m)
     wm = jnp.where(valid & (m[None, :] > 0), omega[..., minus], 0.0) * f
