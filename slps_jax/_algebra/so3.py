@@ -23,6 +23,9 @@ class SO3Algebra(AbstractAlgebra):
     condition = "a 3-vector"
     structure = frozenset({SO3_VECTORS})
 
+    def distance(self, y):
+        return 0.0  # (every 3-vector is a state)
+
     def pairing(self, x, y):
         return jnp.sum(x * y, axis=-1)
 

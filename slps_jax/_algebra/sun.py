@@ -68,6 +68,9 @@ class SUnAlgebra(AbstractAlgebra):
         tr = jnp.trace(s, axis1=-2, axis2=-1)[..., None, None] / self.n
         return s - tr * jnp.eye(self.n, dtype=s.dtype)
 
+    def distance(self, y):
+        return max(super().distance(y), abs(complex(np.trace(y))) / self.n)
+
     @property
     def group_dim(self):
         return self.n * self.n  # u(N): su(N) and the centre
