@@ -11,7 +11,7 @@ from ._system import QUADRATIC, LiePoissonSystem
 
 
 def _euler_hamiltonian(w, params):
-    """$H_0 = N E(W) / (2\hbar)$, $E$ quflow's energy (its gradient is in closed form:
+    r"""$H_0 = N E(W) / (2\hbar)$, $E$ quflow's energy (its gradient is in closed form:
     `EulerZeitlin.gradient`)."""
     n = w.shape[-1]
     return n * zeitlin.energy(w) / (2.0 * zeitlin.hbar(n))

@@ -177,7 +177,7 @@ def _basis(N):
 
 @functools.cache
 def _harmonic_indices(L):
-    """`(plus, minus, valid)`, each `(m, l)` for `m, l < L`: the indices of
+    r"""`(plus, minus, valid)`, each `(m, l)` for `m, l < L`: the indices of
     $\omega_{\ell m}$ and $\omega_{\ell,-m}$ (0 where $\ell < m$), and $\ell \ge m$."""
     el, m = np.meshgrid(np.arange(L), np.arange(L))
     valid = el >= m
