@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _noise
-from ._sharding import check_sharding
+from ._sharding import check_sharding, gather, sharded_keys
 from ._checks import (check_grid, check_count, check_levy_area, check_levy_option, check_method,
                       check_model, check_positive, check_retry, check_save_every, check_throw,
                       check_y0, concrete, real_array, real_dtype)
@@ -221,7 +221,7 @@ def failure_summary(fail_step, result):
     """`(n_failed, n, first_step, why)` of the paths that failed, `None` if none did.
     `fail_step`, `result`: per path (any shape), `-1` / `successful` where none failed;
     `why` counts the `RESULTS` messages."""
-    fail_step, result = np.ravel(fail_step), np.ravel(result)
+    fail_step, result = np.ravel(gather(fail_step)), np.ravel(gather(result))
     failed = fail_step >= 0
     if not np.any(failed):
         return None
@@ -436,9 +436,8 @@ def simulate_unreported(model, y0, *, t1, dt, n_samples, key, method, save_every
         levy_area, method, model) else None
     dtype = real_dtype(y0.dtype)
 
-    keys = _noise.sample_keys(key, n_samples)
-    if sharding is not None:
-        keys = jax.device_put(keys, sharding)
+    keys = (_noise.sample_keys(key, n_samples) if sharding is None
+            else sharded_keys(key, n_samples, sharding))
     bound = jnp.asarray(_noise.truncation_bound(dt, truncate_k), dtype)
     ys, fail_step, result, n_retried, acc = _ensemble_jit(
         method, model, y0, keys, jnp.asarray(dt, dtype), bound, n_steps // k, k,
