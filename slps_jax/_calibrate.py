@@ -13,6 +13,7 @@ import numpy as np
 import optax
 
 from . import _noise
+from ._failures import message
 from ._integrate import simulate_unreported
 from ._model import RigidBody
 from ._noise_hamiltonians import _ParameterNoise
@@ -207,12 +208,12 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
     def check(n_failed, theta, where):
         n_failed = int(n_failed)
         if n_failed > 0:
-            raise RuntimeError(
-                f"calibrate: {n_failed} of {n_samples} samples failed (Newton solve) {where}, "
-                f"at {params.describe(full(theta))}. Failed samples are "
-                "frozen at their last good state and are never used as data, so the fit "
-                "stops. Use a smaller dt, a method without Newton solves such as "
-                "method=Strang(), or an init / y0 away from the failing region.")
+            raise RuntimeError(message(
+                "calibrate", n_failed, n_samples,
+                f"The fit stops {where}, at {params.describe(full(theta))}: failed samples "
+                f"are frozen at their last good state and never used as data; an init or "
+                f"y0 away from the failing region may help too.",
+                retried=retry_substeps is not None))
 
     theta = theta_all[free]
     jac, n_failed = jax.jacfwd(residuals, has_aux=True)(theta)

@@ -1,6 +1,8 @@
-"""Validation of every public entry point, in one place: the same message for the same
-mistake wherever it is made. Every check runs in Python on concrete values, before anything
-compiles; traced values (inside `jit`, `vmap`, `grad`) pass unchecked.
+"""The argument checks of every public entry point: the same message for the same mistake
+wherever it is made. Every check runs in Python on concrete values, before anything
+compiles; traced values (inside `jit`, `vmap`, `grad`) pass unchecked. A leaf module: the
+checks that need systems or methods (their pairing, `y0` against the algebra) are in
+`_plan.py`, `check_model` in `_system.py`.
 
 Dtype policy: the model's dtype (that of its parameters and `c`) is the dtype of the
 computation. `y0` and `dW` are cast to it: a float32 `y0` with a float64 model is promoted
@@ -60,108 +62,6 @@ def real_array(name, x):
 
 def is_int(x):
     return isinstance(x, (int, np.integer)) and not isinstance(x, (bool, np.bool_))
-
-
-def check_model(model):
-    from ._system import LiePoissonSystem
-
-    if not isinstance(model, LiePoissonSystem):
-        raise TypeError(
-            f"model must be a RigidBody or a LiePoissonSystem, got {type(model).__name__}: "
-            f"build one with slps_jax.RigidBody(inertia, c).")
-
-
-def check_pair(method, model):
-    """The one check of a method against a system: what the method `requires` (a set of
-    structures, such as the rigid body's) the system must offer (`structure`)."""
-    from ._methods import METHODS
-    from ._system import RIGID_BODY
-
-    missing = method.requires - model.structure
-    if missing:
-        works = [cls.__name__ for cls in METHODS if cls.requires <= model.structure]
-        only = " (it works for a RigidBody only)" if RIGID_BODY in missing else ""
-        raise TypeError(
-            f"{type(method).__name__} needs a system with the structure "
-            f"{', '.join(sorted(missing))}{only}; this {type(model).__name__} does not have "
-            f"it. Methods for this system: {', '.join(works)}.")
-
-
-def check_method(method):
-    from ._methods.base import AbstractMethod
-
-    if not isinstance(method, AbstractMethod):
-        raise TypeError(
-            f"method must be an instance such as LiePoisson(), got {method!r}"
-            + (" (a class: call it)" if isinstance(method, type) else "") + "."
-        )
-    check_options(method)  # again here: a dataclass can be built around its constructor
-
-
-def _area_methods():
-    from ._methods import METHODS
-
-    return ", ".join(cls.__name__ for cls in METHODS if cls.uses_levy_area())
-
-
-def check_levy_area(area, n_steps, n_noises, method):
-    """The Lévy areas given to `integrate`: `None`, or an array of shape
-    `(n_steps, s, s)`, finite and antisymmetric, for a method that uses them. Returns the
-    array, or `None` for one noise (its areas are zero)."""
-    if area is None:
-        return None
-    if not method.uses_levy_area():
-        raise TypeError(f"{type(method).__name__} does not use Lévy areas (its step sees only "
-                        f"the increments); methods that do: {_area_methods()}.")
-    area = real_array("levy_area", area)
-    shape = (n_steps, n_noises, n_noises)
-    if area.shape != shape:
-        raise ValueError(f"levy_area must have shape (n_steps, s, s) = {shape}, one "
-                         f"antisymmetric (s, s) matrix per step, got shape {area.shape}.")
-    a_np = concrete(area)
-    if a_np is not None:
-        if not np.all(np.isfinite(a_np)):
-            bad = np.flatnonzero(~np.all(np.isfinite(a_np), axis=(1, 2)))
-            raise ValueError(f"levy_area must be finite; steps {bad[:5].tolist()} are not.")
-        asym = float(np.max(np.abs(a_np + np.swapaxes(a_np, 1, 2))))
-        if asym > 1e-12 * max(1.0, float(np.max(np.abs(a_np)))):
-            raise ValueError(f"levy_area must be antisymmetric, A[n, q, r] = -A[n, r, q]; "
-                             f"max |A + A^T| = {asym:.3g}.")
-    return None if n_noises == 1 else area
-
-
-def check_levy_option(levy_area, method, model):
-    """Whether an ensemble draws Lévy areas: `"auto"` (for a method that uses them and a
-    system with several noises), `True` (refused for a method that cannot use them) or
-    `False`. One noise never needs areas (they are zero): `False` then."""
-    if isinstance(levy_area, str) and levy_area == "auto":
-        return bool(method.uses_levy_area() and model.n_noises > 1)
-    if not isinstance(levy_area, (bool, np.bool_)):
-        raise TypeError(f"levy_area must be 'auto', True or False, got {levy_area!r}.")
-    if levy_area and not method.uses_levy_area():
-        raise TypeError(f"levy_area=True: {type(method).__name__} does not use Lévy areas; "
-                        f"methods that do: {_area_methods()}.")
-    return bool(levy_area) and model.n_noises > 1
-
-
-def check_y0(y0, method, model):
-    check_pair(method, model)
-    alg = model.algebra
-    y0 = numeric_array("y0", y0, alg.is_complex)
-    shape = alg.shape
-    if y0.shape != shape:
-        several = y0.ndim == len(shape) + 1 and y0.shape[1:] == shape
-        raise ValueError(
-            f"y0 must have shape {shape} (a state of {model.algebra.name}), got shape "
-            f"{y0.shape}"
-            + ("; for several initial values use jax.vmap over integrate." if several
-               else "."))
-    y0 = y0.astype(alg.state_dtype(model.dtype))
-    y_np = concrete(y0)
-    if y_np is not None:
-        alg.validate("y0", y_np)
-        method.check_initial(model, y_np)
-    return y0
 
 
 def check_positive(name, x):

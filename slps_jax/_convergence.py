@@ -16,9 +16,10 @@ import numpy as np
 from . import _noise
 from ._exact import exact_flow, exact_solution
 from ._flow import deterministic_flow
-from ._checks import (check_count, check_levy_option, check_method, check_model, check_positive,
-                      check_retry, check_y0, real_dtype)
-from ._integrate import _ensemble_dynamic_jit, failure_summary
+from ._checks import check_count, check_positive, check_retry, real_dtype
+from ._failures import message, summary
+from ._integrate import ensemble_dynamic_jit
+from ._plan import check_levy_option, check_method, check_model, check_y0
 from ._system import NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
 from ._methods.base import AbstractMethod
 from ._methods.midpoint import Midpoint
@@ -104,6 +105,7 @@ class _Study:
     ref_failed: np.ndarray  # samples on which a method reference failed
     ref_why: str | None  # what failed there, in words
     areas: dict  # method name -> whether it gets the Lévy areas
+    retried: bool  # failing steps are split into substeps (retry_substeps)
 
 
 def _warn_single_precision(caller, dtype):
@@ -205,11 +207,11 @@ def _study(caller, model, y0, t1, dts, n_samples, key, methods, reference, refer
         """The final states, the failed samples (a NumPy mask) and what failed, in words
         (`None` if nothing); with `areas`, the method gets the Lévy areas."""
         s = _substeps(dt, fine_dt, name)
-        ys, fail_step, result, _, _ = _ensemble_dynamic_jit(
+        ys, fail_step, result, _, _ = ensemble_dynamic_jit(
             method, model, y0, keys, jnp.asarray(dt, dtype), bound, 1, jnp.asarray(n_fine // s),
             False, jnp.asarray(s), retry=retry, terms=fine_terms if areas else None)
-        summary = failure_summary(fail_step, result)
-        why = None if summary is None else f"{summary[0]} at dt={dt:g} ({summary[3]})"
+        found = summary(fail_step, result)
+        why = None if found is None else f"{found[0]} at dt={dt:g} ({found[3]})"
         return ys[:, -1], np.asarray(fail_step) >= 0, why
 
     half = None  # a method reference at twice its step
@@ -240,7 +242,7 @@ def _study(caller, model, y0, t1, dts, n_samples, key, methods, reference, refer
 
     kind = "method" if is_method else "flow" if callable(reference) else "exact"
     return _Study(caller, dts, methods, final_states, y_ref, reference_error, int(n_samples),
-                  y0, t1, kind, half, ref_failed, ref_why, areas)
+                  y0, t1, kind, half, ref_failed, ref_why, areas, retry is not None)
 
 
 def _runs(st, name, method):
@@ -259,11 +261,10 @@ def _runs(st, name, method):
             raise RuntimeError(f"{st.caller}: {name} failed on {n_failed} of {st.n_samples} "
                                f"samples ({why}): nothing left to estimate from. Use "
                                f"smaller dts.")
-        warnings.warn(f"{st.caller}: {n_failed} of {st.n_samples} samples failed for {name} "
-                      f"(failed samples: {why}; failing steps are split into substeps unless "
-                      f"retry_substeps=None), and are left out of "
-                      f"{name}'s estimates at every step size (n_failed). Smaller dts usually "
-                      f"help.", RuntimeWarning, stacklevel=3)
+        warnings.warn(message(f"{st.caller} ({name})", n_failed, st.n_samples,
+                              f"They are left out of {name}'s estimates at every step size "
+                              f"(n_failed), so that its errors stay paired.", why=why,
+                              retried=st.retried), RuntimeWarning, stacklevel=3)
     return np.stack([np.asarray(y) for y, _, _ in runs]), ~failed
 
 

@@ -9,7 +9,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._checks import check_model, check_positive, concrete, numeric_array, real_array
+from ._checks import check_positive, concrete, numeric_array, real_array
+from ._system import check_model
 
 
 @functools.partial(jax.jit, static_argnames=("n_steps",))

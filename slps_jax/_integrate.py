@@ -4,17 +4,17 @@ from __future__ import annotations
 
 import functools
 import math
-import warnings
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from . import _noise
-from ._sharding import check_sharding, gather, sharded_keys
-from ._checks import (check_grid, check_count, check_levy_area, check_levy_option, check_method,
-                      check_model, check_positive, check_retry, check_save_every, check_throw,
-                      check_y0, concrete, real_array, real_dtype)
+from ._checks import (check_positive, check_retry, check_save_every, check_throw, concrete,
+                      real_array, real_dtype)
+from ._failures import report
+from ._plan import check_levy_area, check_method, check_model, check_y0, plan_ensemble
+from ._sharding import sharded_keys
 from ._solution import RESULTS, Solution
 from ._methods.base import finite_result
 from ._methods.lie_poisson import LiePoisson
@@ -190,7 +190,7 @@ def _integrate_jit(method, model, y0, noise, dt, save_every, want_stats, retry=N
                  noise.dW.shape[0] // save_every, save_every, want_stats, retry)
 
 
-def _ensemble(method, model, y0, keys, dt, bound, n_blocks, block_len, want_stats,
+def ensemble(method, model, y0, keys, dt, bound, n_blocks, block_len, want_stats,
               substeps=1, retry=None, terms=None):
     """Each sample draws its steps' noise from its key (`_noise.draw`; with `terms`, the
     series length of the fine step's area sampler, also the Lévy areas). With
@@ -210,88 +210,11 @@ def _ensemble(method, model, y0, keys, dt, bound, n_blocks, block_len, want_stat
     return jax.vmap(one)(keys)
 
 
-_ensemble_jit = jax.jit(_ensemble, static_argnames=("method", "n_blocks", "block_len",
+ensemble_jit = jax.jit(ensemble, static_argnames=("method", "n_blocks", "block_len",
                                                    "want_stats", "substeps", "retry", "terms"))
 # Step count and substeps traced: one compilation for every step size of a study.
-_ensemble_dynamic_jit = jax.jit(_ensemble, static_argnames=("method", "n_blocks", "want_stats",
+ensemble_dynamic_jit = jax.jit(ensemble, static_argnames=("method", "n_blocks", "want_stats",
                                                            "retry", "terms"))
-
-
-def failure_summary(fail_step, result):
-    """`(n_failed, n, first_step, why)` of the paths that failed, `None` if none did.
-    `fail_step`, `result`: per path (any shape), `-1` / `successful` where none failed;
-    `why` counts the `RESULTS` messages."""
-    fail_step, result = np.ravel(gather(fail_step)), np.ravel(gather(result))
-    failed = fail_step >= 0
-    if not np.any(failed):
-        return None
-    first = int(np.min(fail_step[failed]))
-    codes, counts = np.unique(result[failed], return_counts=True)
-    why = "; ".join(f"{int(n)} x {RESULTS.message(c)}" for c, n in zip(codes, counts))
-    return int(np.sum(failed)), fail_step.size, first, why
-
-
-def _failure_message(caller, fail_step, result, retried=True):
-    """What failed, where and why, for the error or warning of `caller`; `None` if nothing
-    failed. `retried`: failing steps were split into substeps (`retry_substeps`)."""
-    summary = failure_summary(fail_step, result)
-    if summary is None:
-        return None
-    n_failed, n, first, why = summary
-    even = (", even split into substeps (retry_substeps)" if retried else
-            " (retry_substeps=None: failing steps were not split into substeps; the "
-            "default, 4, splits them)")
-    if caller == "integrate":
-        which = f" (first failure; {n_failed} of {n} paths failed)" if n > 1 else ""
-        return (f"integrate: step {first} could not be solved{which}: {why}{even}. The path is frozen at its last good state from "
-                f"there on. Pass throw=False to return it anyway, or use a smaller dt (or "
-                f"LiePoisson(scale=...) near |y| = 1).")
-    return (f"{caller}: {n_failed} of {n} samples failed (first at step {first}): {why}{even}. "
-            f"They are frozen at their last good "
-            f"state: leave them out with Solution.ok (Solution.result and fail_step say why "
-            f"and where). A smaller dt usually helps.")
-
-
-def _report_failures(caller, throw, retried, fail_step, result):
-    msg = _failure_message(caller, fail_step, result, retried)
-    if msg is None:
-        return
-    if throw:
-        raise RuntimeError(msg + (" Pass throw=False to get the other samples."
-                                  if caller != "integrate" else ""))
-    warnings.warn(msg, RuntimeWarning, stacklevel=4)
-
-
-@functools.cache
-def _reporter(caller, throw, retried):
-    """Raise or warn (through a host callback) if any path failed: for failures under `jit`,
-    `vmap` or `grad`, which are not known in Python.
-
-    Under `vmap` the callback gets the whole batch, once: `jax.debug.callback`'s own rule
-    unrolls the batch into one host call per sample, which made a `vmap`ped `integrate`
-    3x slower and its compilation about twice as long (500 samples x 512 steps).
-    """
-
-    @jax.custom_batching.custom_vmap
-    def report(fail_step, result):
-        jax.debug.callback(functools.partial(_report_failures, caller, throw, retried),
-                           fail_step, result)
-        return fail_step
-
-    @report.def_vmap
-    def _batched(axis_size, in_batched, fail_step, result):
-        return report(fail_step, result), in_batched[0]
-
-    return report
-
-
-def _report(caller, throw, retried, fail_step, result):
-    """Raise (`throw`) or warn if any path failed: now if the failures are concrete, through
-    a callback when the compiled function runs if they are traced."""
-    if isinstance(fail_step, jax.core.Tracer):
-        _reporter(caller, throw, retried)(fail_step, result)
-    else:
-        _report_failures(caller, throw, retried, fail_step, result)
 
 
 # --------------------------------------------------------------------------------------
@@ -358,7 +281,7 @@ def integrate(model, y0, dW, dt, *, levy_area=None, method=LiePoisson(), save_ev
     noise = _noise.BrownianStep(dW.astype(dtype), None if area is None else area.astype(dtype))
     ys, fail_step, result, _, _ = _integrate_jit(method, model, y0, noise, dt, k, False, retry)
     if throw:
-        _report("integrate", True, retry is not None, fail_step, result)
+        report("integrate", True, retry is not None, fail_step, result)
     if save_every is None:
         return ys[-1]
     return jnp.concatenate([y0[None], ys], axis=0)
@@ -414,7 +337,7 @@ def simulate(model, y0, *, t1, dt, n_samples, key, method=LiePoisson(), save_eve
                               method=method, save_every=save_every, truncate_k=truncate_k,
                               newton_stats=newton_stats, retry_substeps=retry_substeps,
                               sharding=sharding, levy_area=levy_area)
-    _report("simulate", throw, retry_substeps is not None, sol.fail_step, sol.result)
+    report("simulate", throw, retry_substeps is not None, sol.fail_step, sol.result)
     return sol
 
 
@@ -422,26 +345,15 @@ def simulate_unreported(model, y0, *, t1, dt, n_samples, key, method, save_every
                         newton_stats, retry_substeps, sharding, levy_area="auto"):
     """`simulate` without the failure report (for callers that report failures their own
     way, such as `calibrate`)."""
-    check_model(model)
-    check_method(method)
-    y0 = check_y0(y0, method, model)
-    dt, n_steps = check_grid("simulate", t1, dt)
-    n_samples = check_count("n_samples", n_samples)
-    key = _noise.check_key(key)
-    _noise.check_truncation(dt, truncate_k)
-    k = check_save_every(save_every, n_steps)
-    retry = check_retry(retry_substeps)
-    sharding = check_sharding(sharding, n_samples)
-    terms = _noise.levy_area_terms(dt, model.n_noises) if check_levy_option(
-        levy_area, method, model) else None
-    dtype = real_dtype(y0.dtype)
-
-    keys = (_noise.sample_keys(key, n_samples) if sharding is None
-            else sharded_keys(key, n_samples, sharding))
-    bound = jnp.asarray(_noise.truncation_bound(dt, truncate_k), dtype)
-    ys, fail_step, result, n_retried, acc = _ensemble_jit(
-        method, model, y0, keys, jnp.asarray(dt, dtype), bound, n_steps // k, k,
-        bool(newton_stats), retry=retry, terms=terms)
+    p = plan_ensemble("simulate", model, y0, t1=t1, dt=dt, n_samples=n_samples, key=key,
+                      method=method, save_every=save_every, truncate_k=truncate_k,
+                      retry_substeps=retry_substeps, sharding=sharding, levy_area=levy_area)
+    y0, dt, n_steps, k, dtype = p.y0, p.dt, p.n_steps, p.save_every, p.dtype
+    keys = (_noise.sample_keys(p.key, p.n_samples) if p.sharding is None
+            else sharded_keys(p.key, p.n_samples, p.sharding))
+    ys, fail_step, result, n_retried, acc = ensemble_jit(
+        method, model, y0, keys, jnp.asarray(dt, dtype), jnp.asarray(p.bound, dtype),
+        n_steps // k, k, bool(newton_stats), retry=p.retry, terms=p.terms)
     if save_every is None:
         ts = jnp.asarray([n_steps * dt], dtype)
     else:
@@ -449,10 +361,10 @@ def simulate_unreported(model, y0, *, t1, dt, n_samples, key, method, save_every
         ts = jnp.arange(0, n_steps + 1, k, dtype=dtype) * dt
     failed = fail_step >= 0
     stats = {"n_failed": jnp.sum(failed)}
-    if retry is not None:
+    if p.retry is not None:
         stats["n_retried_steps"] = jnp.sum(n_retried)
     if newton_stats:
-        stats["newton_iterations_mean"] = jnp.sum(acc[0]) / (n_samples * n_steps)
+        stats["newton_iterations_mean"] = jnp.sum(acc[0]) / (p.n_samples * n_steps)
         stats["newton_iterations_max"] = jnp.max(acc[1])
         stats["residual_max"] = jnp.max(acc[2])
     return Solution(ts=ts, ys=ys, result=result.astype(jnp.int8), fail_step=fail_step,

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import sys
 import warnings
 
 import jax
@@ -19,10 +18,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _noise
-from ._checks import (check_count, check_grid, check_levy_option, check_method, check_model,
-                      check_retry, check_save_every, check_y0, real_dtype)
-from ._integrate import _ensemble
-from ._sharding import check_sharding
+from ._failures import message
+from ._integrate import ensemble
+from ._plan import plan_ensemble
+from ._progress import advance, progress_bar
 from ._methods.lie_poisson import LiePoisson
 
 STATISTICS = ("mean", "var", "cov", "skewness", "kurtosis")
@@ -101,7 +100,7 @@ def _chunk(state, offset, n_samples, method, model, y0, key, dt, bound, n_blocks
     keys = _noise.sample_keys(key, chunk_size, offset)
     if sharding is not None:
         keys = jax.lax.with_sharding_constraint(keys, sharding)
-    ys, fail_step, _, _, _ = _ensemble(method, model, y0, keys, dt, bound, n_blocks,
+    ys, fail_step, _, _, _ = ensemble(method, model, y0, keys, dt, bound, n_blocks,
                                        block_len, False, retry=retry, terms=terms)
     ys = jnp.concatenate([jnp.broadcast_to(y0, (chunk_size, 1, *y0.shape)), ys], axis=1)
     obs = _observe(observable, ys)
@@ -141,29 +140,19 @@ def ensemble_statistics(model, y0, *, t1, dt, n_samples, key, chunk_size, method
       compiled once.
     - `sharding`: as for `simulate`, applied to each chunk (`chunk_size` must be a multiple
       of the number of shards).
-    - `progress`: show a progress bar across chunks on stderr.
+    - `progress`: show a progress bar across chunks (tqdm: on a terminal or in a notebook,
+      nothing in a log file or a pipe).
 
     **Returns:** an `EnsembleStatistics` (NumPy arrays). Samples that fail (even split into
     substeps, `retry_substeps`) are left out of the moments and counted in `n_failed`, with a
     `RuntimeWarning`: the run returns its results, and failures are never used as data.
     """
-    check_model(model)
-    check_method(method)
-    y0 = check_y0(y0, method, model)
-    dt, n_steps = check_grid("ensemble_statistics", t1, dt)
-    n_samples = check_count("n_samples", n_samples)
-    if n_samples >= 2 ** 32:
-        raise ValueError(f"n_samples must be below 2^32 (sample indices are uint32), "
-                         f"got {n_samples}.")
-    chunk_size = check_count("chunk_size", chunk_size)
-    chunk_size = min(chunk_size, n_samples)
-    key = _noise.check_key(key)
-    _noise.check_truncation(dt, truncate_k)
-    k = check_save_every(save_every, n_steps)
-    retry = check_retry(retry_substeps)
-    sharding = check_sharding(sharding, chunk_size, name="chunk_size")
-    terms = _noise.levy_area_terms(dt, model.n_noises) if check_levy_option(
-        levy_area, method, model) else None
+    p = plan_ensemble("ensemble_statistics", model, y0, t1=t1, dt=dt, n_samples=n_samples,
+                      key=key, method=method, save_every=save_every, truncate_k=truncate_k,
+                      retry_substeps=retry_substeps, sharding=sharding, levy_area=levy_area,
+                      chunk_size=chunk_size)
+    y0, dt, n_steps, k, n_samples = p.y0, p.dt, p.n_steps, p.save_every, p.n_samples
+    chunk_size, dtype = min(chunk_size, n_samples), p.dtype
     if isinstance(statistics, str):
         statistics = (statistics,)
     unknown = [s for s in statistics if s not in STATISTICS]
@@ -172,15 +161,13 @@ def ensemble_statistics(model, y0, *, t1, dt, n_samples, key, chunk_size, method
     if observable is not None and not callable(observable):
         raise TypeError(f"observable must be None or a function, got {observable!r}.")
     want_cov = "cov" in statistics
-    dtype = real_dtype(y0.dtype)
 
     n_blocks = n_steps // k
     ts = np.arange(0, n_steps + 1, k, dtype=np.float64) * dt
     if save_every is None:
         ts = np.array([0.0, n_steps * dt])
-    args = (method, model, y0, key, jnp.asarray(dt, dtype),
-            jnp.asarray(_noise.truncation_bound(dt, truncate_k), dtype), n_blocks, k,
-            chunk_size, observable, want_cov, retry, sharding, terms)
+    args = (method, model, y0, p.key, jnp.asarray(dt, dtype), jnp.asarray(p.bound, dtype),
+            n_blocks, k, chunk_size, observable, want_cov, p.retry, p.sharding, p.terms)
     # The zero state: its shapes from an abstract evaluation of one chunk's moments.
     observed = jax.eval_shape(
         lambda: _observe(observable, jnp.zeros((chunk_size, n_blocks + 1, *y0.shape), y0.dtype)))
@@ -198,7 +185,7 @@ def ensemble_statistics(model, y0, *, t1, dt, n_samples, key, chunk_size, method
     zero = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
     state = (jnp.zeros((), jnp.int32), zero)
     n_chunks = -(-n_samples // chunk_size)
-    bar = _progress(n_chunks) if progress else None
+    bar = progress_bar(n_chunks, "ensemble_statistics", unit="chunk") if progress else None
     for c in range(n_chunks):
         state = _chunk(state, jnp.asarray(c * chunk_size, jnp.uint32),
                        jnp.asarray(n_samples, jnp.uint32), *args)
@@ -206,17 +193,16 @@ def ensemble_statistics(model, y0, *, t1, dt, n_samples, key, chunk_size, method
         # chunk's buffers be allocated before this one's are freed.
         jax.block_until_ready(state)
         if bar is not None:
-            bar.advance(f"{min((c + 1) * chunk_size, n_samples)}/{n_samples} samples")
+            advance(bar, f"{min((c + 1) * chunk_size, n_samples)}/{n_samples} samples")
+    if bar is not None:
+        bar.close()
     n_failed = int(state[0])
     n, mean, m2, m3, m4, cov = jax.tree_util.tree_map(np.asarray, state[1])
     n = int(n)
     if n_failed:
-        warnings.warn(f"ensemble_statistics: {n_failed} of {n_samples} samples failed and are "
-                      f"left out of the moments ("
-                      + ("failing steps were split into substeps first" if retry else
-                         "retry_substeps=None: failing steps were not split into substeps; "
-                         "the default, 4, splits them")
-                      + "); a smaller dt usually helps.", RuntimeWarning, stacklevel=2)
+        warnings.warn(message("ensemble_statistics", n_failed, n_samples,
+                              "They are left out of the moments (n_failed).",
+                              retried=p.retry is not None), RuntimeWarning, stacklevel=2)
     with np.errstate(divide="ignore", invalid="ignore"):
         var = m2 / (n - 1) if n > 1 else np.full_like(m2, np.nan)
         mom2 = m2 / n
@@ -232,8 +218,3 @@ def ensemble_statistics(model, y0, *, t1, dt, n_samples, key, chunk_size, method
 def _observe(observable, ys):
     return ys if observable is None else jax.vmap(observable)(ys)
 
-
-def _progress(total):
-    from ._paper import Progress
-
-    return Progress(total, stream=sys.stderr)

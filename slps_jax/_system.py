@@ -285,3 +285,10 @@ def _noise_or_c(c, noise, params, leaves, algebra=SO3):
     if c_np is not None and not np.isfinite(c_np):
         raise ValueError(f"c must be finite, got {c_np}.")
     return c, None
+
+
+def check_model(model):
+    if not isinstance(model, LiePoissonSystem):
+        raise TypeError(
+            f"model must be a RigidBody or a LiePoissonSystem, got {type(model).__name__}: "
+            f"build one with slps_jax.RigidBody(inertia, c).")

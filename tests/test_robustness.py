@@ -212,9 +212,9 @@ def no_compile():
     """Fail if the driver would start compiling."""
     def boom(*args, **kwargs):
         raise AssertionError("compiled before validating")
-    targets = ["_ensemble_jit", "_integrate_jit", "_ensemble_dynamic_jit"]
+    targets = ["ensemble_jit", "_integrate_jit", "ensemble_dynamic_jit"]
     patches = [mock.patch(f"slps_jax._integrate.{t}", boom) for t in targets]
-    patches.append(mock.patch("slps_jax._convergence._ensemble_dynamic_jit", boom))
+    patches.append(mock.patch("slps_jax._convergence.ensemble_dynamic_jit", boom))
     for p in patches:
         p.start()
     yield

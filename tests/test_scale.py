@@ -140,10 +140,11 @@ def _energy(ys):
     return jax.vmap(sj.RigidBody.paper().hamiltonian)(ys)
 
 
-def test_streaming_compiles_once_and_shows_progress(reference, capsys):
-    from slps_jax import _stream
+def test_streaming_compiles_once_and_shows_progress(reference, capsys, monkeypatch):
+    from slps_jax import _progress, _stream
 
     model, y0, _ = reference
+    monkeypatch.setattr(_progress, "interactive", lambda: True)  # as on a terminal
     before = _stream._chunk._cache_size()
     st = sj.ensemble_statistics(model, y0, n_samples=45, chunk_size=15, key=jax.random.key(9),
                                 method=sj.Strang(), **KW)
@@ -151,6 +152,10 @@ def test_streaming_compiles_once_and_shows_progress(reference, capsys):
     assert _stream._chunk._cache_size() == before + 1
     err = capsys.readouterr().err
     assert "3/3" in err and "45/45 samples" in err
+    monkeypatch.setattr(_progress, "interactive", lambda: False)  # a log: nothing in it
+    sj.ensemble_statistics(model, y0, n_samples=45, chunk_size=15, key=jax.random.key(9),
+                           method=sj.Strang(), **KW)
+    assert capsys.readouterr().err == ""
 
 
 def test_streaming_counts_and_leaves_out_failed_samples(paper):

@@ -1,0 +1,159 @@
+"""What every run checks before anything compiles, and the validated plan of an ensemble.
+
+The checks here need systems and methods: a method against the structure a system offers
+(`check_pair`, the one place a method's `requires` is enforced), `y0` against the system's
+algebra and the method's domain, the Lévy-area options. `plan_ensemble` validates the
+arguments of an ensemble once, for `simulate`, `ensemble_statistics` and (through
+`simulate`) `calibrate`; the studies validate theirs with the same checks.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from . import _noise
+from ._checks import (check_count, check_grid, check_retry, check_save_every, concrete,
+                      numeric_array, real_array, real_dtype, check_options)
+from ._methods import METHODS
+from ._methods.base import AbstractMethod
+from ._sharding import check_sharding
+from ._system import RIGID_BODY, LiePoissonSystem, check_model
+
+
+def check_pair(method, model):
+    """The one check of a method against a system: what the method `requires` (a set of
+    structures, such as the rigid body's) the system must offer (`structure`)."""
+    missing = method.requires - model.structure
+    if missing:
+        works = [cls.__name__ for cls in METHODS if cls.requires <= model.structure]
+        only = " (it works for a RigidBody only)" if RIGID_BODY in missing else ""
+        raise TypeError(
+            f"{type(method).__name__} needs a system with the structure "
+            f"{', '.join(sorted(missing))}{only}; this {type(model).__name__} does not have "
+            f"it. Methods for this system: {', '.join(works)}.")
+
+
+def check_method(method):
+    if not isinstance(method, AbstractMethod):
+        raise TypeError(
+            f"method must be an instance such as LiePoisson(), got {method!r}"
+            + (" (a class: call it)" if isinstance(method, type) else "") + "."
+        )
+    check_options(method)  # again here: a dataclass can be built around its constructor
+
+
+def _area_methods():
+    return ", ".join(cls.__name__ for cls in METHODS if cls.uses_levy_area())
+
+
+def check_levy_area(area, n_steps, n_noises, method):
+    """The Lévy areas given to `integrate`: `None`, or an array of shape
+    `(n_steps, s, s)`, finite and antisymmetric, for a method that uses them. Returns the
+    array, or `None` for one noise (its areas are zero)."""
+    if area is None:
+        return None
+    if not method.uses_levy_area():
+        raise TypeError(f"{type(method).__name__} does not use Lévy areas (its step sees only "
+                        f"the increments); methods that do: {_area_methods()}.")
+    area = real_array("levy_area", area)
+    shape = (n_steps, n_noises, n_noises)
+    if area.shape != shape:
+        raise ValueError(f"levy_area must have shape (n_steps, s, s) = {shape}, one "
+                         f"antisymmetric (s, s) matrix per step, got shape {area.shape}.")
+    a_np = concrete(area)
+    if a_np is not None:
+        if not np.all(np.isfinite(a_np)):
+            bad = np.flatnonzero(~np.all(np.isfinite(a_np), axis=(1, 2)))
+            raise ValueError(f"levy_area must be finite; steps {bad[:5].tolist()} are not.")
+        asym = float(np.max(np.abs(a_np + np.swapaxes(a_np, 1, 2))))
+        if asym > 1e-12 * max(1.0, float(np.max(np.abs(a_np)))):
+            raise ValueError(f"levy_area must be antisymmetric, A[n, q, r] = -A[n, r, q]; "
+                             f"max |A + A^T| = {asym:.3g}.")
+    return None if n_noises == 1 else area
+
+
+def check_levy_option(levy_area, method, model):
+    """Whether an ensemble draws Lévy areas: `"auto"` (for a method that uses them and a
+    system with several noises), `True` (refused for a method that cannot use them) or
+    `False`. One noise never needs areas (they are zero): `False` then."""
+    if isinstance(levy_area, str) and levy_area == "auto":
+        return bool(method.uses_levy_area() and model.n_noises > 1)
+    if not isinstance(levy_area, (bool, np.bool_)):
+        raise TypeError(f"levy_area must be 'auto', True or False, got {levy_area!r}.")
+    if levy_area and not method.uses_levy_area():
+        raise TypeError(f"levy_area=True: {type(method).__name__} does not use Lévy areas; "
+                        f"methods that do: {_area_methods()}.")
+    return bool(levy_area) and model.n_noises > 1
+
+
+def check_y0(y0, method, model):
+    check_pair(method, model)
+    alg = model.algebra
+    y0 = numeric_array("y0", y0, alg.is_complex)
+    shape = alg.shape
+    if y0.shape != shape:
+        several = y0.ndim == len(shape) + 1 and y0.shape[1:] == shape
+        raise ValueError(
+            f"y0 must have shape {shape} (a state of {model.algebra.name}), got shape "
+            f"{y0.shape}"
+            + ("; for several initial values use jax.vmap over integrate." if several
+               else "."))
+    y0 = y0.astype(alg.state_dtype(model.dtype))
+    y_np = concrete(y0)
+    if y_np is not None:
+        alg.validate("y0", y_np)
+        method.check_initial(model, y_np)
+    return y0
+
+
+@dataclasses.dataclass(frozen=True)
+class EnsemblePlan:
+    """The validated arguments of an ensemble run: `y0` cast to the system's dtype, the step
+    count, the checked key, `save_every` as a step count `k` (all `n_steps` when `None`),
+    the retry, the sharding, the Lévy-area series length `terms` (`None`: no areas) and the
+    truncation bound of the increments."""
+
+    model: LiePoissonSystem
+    method: AbstractMethod
+    y0: object
+    dt: float
+    n_steps: int
+    n_samples: int
+    key: object
+    save_every: int
+    retry: int | None
+    sharding: object
+    terms: int | None
+    bound: float
+
+    @property
+    def dtype(self):
+        return real_dtype(self.y0.dtype)
+
+
+def plan_ensemble(caller, model, y0, *, t1, dt, n_samples, key, method, save_every,
+                  truncate_k, retry_substeps, sharding, levy_area, chunk_size=None):
+    """Check an ensemble's arguments (the sharding against `chunk_size` when it is run in
+    chunks) and return its `EnsemblePlan`."""
+    check_model(model)
+    check_method(method)
+    y0 = check_y0(y0, method, model)
+    dt, n_steps = check_grid(caller, t1, dt)
+    n_samples = check_count("n_samples", n_samples)
+    if chunk_size is None:
+        sharding = check_sharding(sharding, n_samples)
+    else:
+        if n_samples >= 2 ** 32:
+            raise ValueError(f"n_samples must be below 2^32 (sample indices are uint32), "
+                             f"got {n_samples}.")
+        chunk = min(check_count("chunk_size", chunk_size), n_samples)
+        sharding = check_sharding(sharding, chunk, name="chunk_size")
+    key = _noise.check_key(key)
+    _noise.check_truncation(dt, truncate_k)
+    terms = (_noise.levy_area_terms(dt, model.n_noises)
+             if check_levy_option(levy_area, method, model) else None)
+    return EnsemblePlan(model, method, y0, dt, n_steps, n_samples, key,
+                        check_save_every(save_every, n_steps), check_retry(retry_substeps),
+                        sharding, terms, _noise.truncation_bound(dt, truncate_k))
