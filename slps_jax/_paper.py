@@ -15,32 +15,6 @@ import sys
 import time
 
 
-class Progress:
-    """A one-line progress bar on stderr for the long parts of a run: redrawn in place on a
-    terminal; elsewhere (a log file, a pipe, a notebook's captured stream) only the final
-    line, so a log gets no carriage-return soup."""
-
-    def __init__(self, total, stream=None, width=28):
-        # sys.stderr looked up now, not when this module was imported (it may be replaced,
-        # e.g. by pytest's capture, in between)
-        self.total, self.done, self.width = total, 0, width
-        self.stream = sys.stderr if stream is None else stream
-        self.start = time.perf_counter()
-
-    def advance(self, label):
-        self.done += 1
-        filled = round(self.width * self.done / self.total)
-        bar = "#" * filled + "." * (self.width - filled)
-        elapsed = time.perf_counter() - self.start
-        last = self.done == self.total
-        if getattr(self.stream, "isatty", lambda: False)():
-            self.stream.write(f"\r[{bar}] {self.done}/{self.total} {elapsed:5.1f}s {label:<40}"
-                              + ("\n" if last else ""))
-        elif last:
-            self.stream.write(f"{self.done}/{self.total} done in {elapsed:.1f}s ({label})\n")
-        self.stream.flush()
-
-
 def _settings(fast):
     if fast:
         return dict(n_samples=100, levels=[5, 6, 7], path_t1=5.0, path_dt=1e-2,
@@ -91,6 +65,7 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
     import numpy as np
 
     import slps_jax as sj
+    from ._progress import advance, progress_bar
 
     os.makedirs(out_dir, exist_ok=True)
     cfg = _settings(fast)
@@ -102,7 +77,7 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
     methods["EulerMaruyama"] = sj.EulerMaruyama()
     colors = {"LiePoisson": "C0", "Midpoint": "C2", "Strang": "C1", "EulerMaruyama": "C3",
               "exact": "k"}
-    progress = Progress(3 + len(methods) + 1)
+    progress = progress_bar(3 + len(methods) + 1, "slps-jax paper", unit="part")
     results = {"settings": {**cfg, "seed": seed, "inertia": np.asarray(model.inertia).tolist(),
                             "c": float(model.c), "y0": list(sj.PAPER_Y0),
                             "truncate_k": 4, "dtype": str(y0.dtype)},
@@ -152,21 +127,34 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
         dt, n = dt41, n41
         ys, ye = paths["4.1", "LiePoisson"], paths["4.1", "exact"]
         ts = np.arange(n + 1) * dt
-        fig, axes = plt.subplots(3, 1, figsize=(7, 6.5), sharex=True)
-        for i, ax in enumerate(axes):
-            ax.plot(ts, ye[:, i], color="k", lw=2.2, alpha=0.35, label="exact $\\varphi_{t+cW(t)}(y_0)$")
+        # the two paths overlap at this scale: a fourth panel shows their distance, per time
+        # the largest component's (its maximum is the deviation in the title)
+        fig, axes = plt.subplots(4, 1, figsize=(7, 8), sharex=True, layout="constrained",
+                                 gridspec_kw={"height_ratios": [1, 1, 1, 1.3]})
+        for i, ax in enumerate(axes[:3]):
+            ax.plot(ts, ye[:, i], color="k", lw=2.2, alpha=0.35,
+                    label=r"exact $\varphi_{t+cW(t)}(y_0)$")
             ax.plot(ts, ys[:, i], color=colors["LiePoisson"], lw=1.0, ls="--",
-                    label=f"LiePoisson, h = {dt:g}")
+                    label=f"LiePoisson, $h = {dt:g}$")
             ax.set_ylabel(f"$y_{i + 1}$")
-        axes[0].legend(loc="upper right", fontsize=8)
-        axes[-1].set_xlabel("time t")
-        fig.suptitle(f"Fig. 4.1: one sample path (max deviation {np.abs(ys - ye).max():.1e})")
-        fig.tight_layout()
+        dev = np.abs(ys - ye).max(axis=1)
+        ax = axes[3]
+        ax.semilogy(ts[1:], dev[1:], color=colors["LiePoisson"], lw=0.9)  # 0 at t = 0
+        ax.axhline(dev.max(), color="0.5", ls=":", lw=1)
+        ax.text(ts[-1], dev.max(), f"max {dev.max():.1e} ", ha="right", va="bottom", fontsize=8,
+                color="0.3")
+        ax.set_ylim(top=4 * dev.max())
+        ax.set_ylabel(r"error $\|y_h(t) - y(t)\|_\infty$")
+        ax.grid(True, which="major", alpha=0.3)
+        ax.set_xlabel("time $t$")
+        axes[0].legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=2, fontsize=9,
+                       frameon=False)
+        fig.suptitle(f"Fig. 4.1: one sample path (max deviation {dev.max():.1e})")
         fig.savefig(os.path.join(out_dir, "fig4_1_sample_path.png"), dpi=110)
         plt.close(fig)
         results["fig4_1"] = {"h": dt, "t1": cfg["path_t1"], "max_abs_deviation": float(np.abs(ys - ye).max())}
         results["wall_seconds"]["fig4_1"] = time.perf_counter() - t0
-        progress.advance("Fig 4.1 sample path")
+        advance(progress, "Fig 4.1 sample path")
 
         # Figure 4.2: Casimir and Hamiltonian errors along time.
         t0 = time.perf_counter()
@@ -196,41 +184,51 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
         plt.close(fig)
         results["fig4_2"] = {"h": dt, "t1": cfg["drift_t1"], "drift": drift}
         results["wall_seconds"]["fig4_2"] = time.perf_counter() - t0
-        progress.advance("Fig 4.2 invariants")
+        advance(progress, "Fig 4.2 invariants")
 
         # Figure 4.3: phase trajectories on the sphere |y| = |y0|.
         t0 = time.perf_counter()
         dt = dt43
         paths = {name: paths["4.3", name] for name in ("LiePoisson", "EulerMaruyama", "exact")}
-        fig = plt.figure(figsize=(13, 4.5))
+        fig = plt.figure(figsize=(13, 5.2), layout="constrained")
         r0 = float(np.linalg.norm(y0))
-        u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 30), np.linspace(0, np.pi, 16))
+        u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 37), np.linspace(0, np.pi, 19))
+        sphere = r0 * np.cos(u) * np.sin(v), r0 * np.sin(u) * np.sin(v), r0 * np.cos(v)
+        lim = 1.05 * max(r0, *(np.abs(p).max() for p in paths.values()))  # one scale for all
+        tick = float(f"{lim / 1.05:.1g}")
         for k, (name, p) in enumerate(paths.items()):
             ax = fig.add_subplot(1, 3, k + 1, projection="3d")
-            ax.plot_wireframe(r0 * np.cos(u) * np.sin(v), r0 * np.sin(u) * np.sin(v), r0 * np.cos(v),
-                              color="0.85", lw=0.4)
+            ax.plot_surface(*sphere, color="C0", alpha=0.08, lw=0, shade=False)
+            ax.plot_wireframe(*sphere, color="0.45", lw=0.3, alpha=0.35)
             ax.plot(p[:, 0], p[:, 1], p[:, 2], color=colors[name], lw=0.8)
-            ax.set_title(f"{name}" + ("" if name == "exact" else f", h = {dt:g}"), fontsize=10)
-            ax.set_xlabel("$y_1$"), ax.set_ylabel("$y_2$"), ax.set_zlabel("$y_3$")
-            lim = 1.1 * max(r0, np.abs(p).max())
+            ax.scatter(*p[-1], color=colors[name], s=18, depthshade=False)  # the final state
+            r_end = float(np.linalg.norm(p[-1]))
+            ax.set_title(f"{name}" + ("" if name == "exact" else f", $h = {dt:g}$")
+                         + f"\nfinal $|y|$ = {r_end:.6f}, $|y|/|y_0| - 1$ = {r_end / r0 - 1:.1e}",
+                         fontsize=10)
+            ax.set_xlabel("$y_1$", labelpad=-4), ax.set_ylabel("$y_2$", labelpad=-4)
+            ax.set_zlabel("$y_3$", labelpad=-4)
+            for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
+                axis.set_ticks([-tick, 0, tick])
+                axis.set_tick_params(labelsize=8, pad=-2)
             ax.set_xlim(-lim, lim), ax.set_ylim(-lim, lim), ax.set_zlim(-lim, lim)
-        fig.suptitle(f"Fig. 4.3: phase trajectories, t ∈ [0, {cfg['sphere_t1']:g}] "
-                     f"(sphere of radius |y0| = {r0:.3f})")
-        fig.tight_layout()
+            ax.set_box_aspect((1, 1, 1))  # a sphere looks like one
+        fig.suptitle(f"Fig. 4.3: phase trajectories, $t \\in [0, {cfg['sphere_t1']:g}]$, on the "
+                     f"sphere $|y| = |y_0| = {r0:.6f}$ (dot: the final state)")
         fig.savefig(os.path.join(out_dir, "fig4_3_phase_sphere.png"), dpi=110)
         plt.close(fig)
         results["fig4_3"] = {name: {"final_norm": float(np.linalg.norm(p[-1]))} for name, p in paths.items()}
         results["wall_seconds"]["fig4_3"] = time.perf_counter() - t0
-        progress.advance("Fig 4.3 phase trajectories")
+        advance(progress, "Fig 4.3 phase trajectories")
 
         # Figure 4.4: the studies, started with the paths, as they finish.
         t0 = time.perf_counter()
         conv = {}
         for name in methods:
             conv[name] = study_futures[name].result()
-            progress.advance(f"Fig 4.4 {name}")
+            advance(progress, f"Fig 4.4 {name}")
         exact_err = study_futures["Exact"].result()
-        progress.advance("Fig 4.4 Exact")
+        advance(progress, "Fig 4.4 Exact")
         fig, ax = plt.subplots(figsize=(6.5, 5))
         hs = np.asarray(dts)
         for name, res in conv.items():
@@ -262,6 +260,7 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
     finally:
         # at once on an error; after the last result, nothing is left to cancel
         pool.shutdown(cancel_futures=True)
+        progress.close()
     results["wall_seconds"]["total"] = time.perf_counter() - t_start
 
     md = _table(results, list(methods))
