@@ -43,8 +43,8 @@ def test_notebook_runs(path, monkeypatch, request):
     monkeypatch.delenv("MPLBACKEND", raising=False)
     monkeypatch.setenv("PYTHONPATH", os.pathsep.join(
         [str(ROOT)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
-    # Compilation is most of a small run's time (LiePoisson ~3 s per step size, calibrate's
-    # L-BFGS step ~10 s); JAX's persistent cache in pytest's cache folder makes reruns fast.
+    # Compilation is most of a small run's time (about a second per method and step size,
+    # more for calibrate's L-BFGS step); JAX's persistent cache in pytest's cache folder makes reruns fast.
     # Delete .pytest_cache (or run with -p no:cacheprovider) for a cold run.
     cache = getattr(request.config, "cache", None)  # absent under -p no:cacheprovider
     if cache is not None:
