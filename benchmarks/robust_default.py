@@ -7,7 +7,7 @@ default (`retry_substeps=4`: a failing step is redone as 4, 16, 64 substeps), an
 time of each run (compilation included, one per step size and setting).
 
     python benchmarks/robust_default.py            # 10^6 samples, h = 2^-4, 2^-5, 2^-6
-    python benchmarks/robust_default.py --fast     # 10^4 samples, h = 2^-4
+    python benchmarks/robust_default.py --fast     # 4000 samples, h = 2^-4
 """
 
 from __future__ import annotations
@@ -42,11 +42,11 @@ def main(argv=None):
     parser.add_argument("--samples", type=int, default=10 ** 6)
     parser.add_argument("--chunk", type=int, default=1000)
     parser.add_argument("--levels", default="4,5,6", help="k of the step sizes 2^-k")
-    parser.add_argument("--fast", action="store_true", help="10^4 samples, h = 2^-4")
+    parser.add_argument("--fast", action="store_true", help="4000 samples, h = 2^-4")
     parser.add_argument("--out", default=None)
     args = parser.parse_args(argv)
     if args.fast:
-        args.samples, args.chunk, args.levels = 10 ** 4, 1000, "4"
+        args.samples, args.chunk, args.levels = 4000, 1000, "4"
     import jax
 
     jax.config.update("jax_enable_x64", True)

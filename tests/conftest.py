@@ -1,3 +1,5 @@
+import ctypes
+import gc
 import os
 import subprocess
 import sys
@@ -37,9 +39,34 @@ def paper():
     return sj.RigidBody.paper(), jax.numpy.asarray(sj.PAPER_Y0)
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _free_compiled_programs():
-    """Each module compiles its own programs; dropping them after it keeps the suite's memory
-    flat (JAX keeps every compiled executable of a process otherwise)."""
+# The suite's memory: JAX keeps every compiled program (and every traced step) of a process.
+# Modules share many (the paper's system, the methods' traced steps), so they are kept across
+# tests and modules, and dropped only once a worker holds this much: eager operations on many
+# shapes (the Zeitlin tables at several N, say) each compile a program, and one module's
+# programs alone once took a worker to 1.9 GB.
+_RSS_LIMIT = 1200 * 2 ** 20
+
+
+@pytest.fixture(autouse=True)
+def _bounded_memory():
     yield
+    if _rss() > _RSS_LIMIT:
+        _free()
+
+
+def _rss():
+    """This process's resident memory in bytes (0 where /proc is not there)."""
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        return 0
+
+
+def _free():
     jax.clear_caches()
+    gc.collect()
+    try:  # give freed heap back to the system (glibc)
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass

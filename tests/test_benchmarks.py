@@ -224,8 +224,8 @@ def test_gradients(tmp_path):
 
 
 def test_robust_default(tmp_path):
-    # The paper's setup at h = 2^-4, 10^4 samples of key 0: without the retry of failing
-    # steps LiePoisson loses samples (49 at the time of writing); by default none.
+    # The paper's setup at h = 2^-4, 4000 samples of key 0: without the retry of failing
+    # steps LiePoisson loses samples (24 at the time of writing); by default none.
     stdout = run_script("robust_default.py", tmp_path)
     rows = json.loads((tmp_path / "robust_default.json").read_text())["rows"]
     assert [r["dt"] for r in rows] == [2 ** -4]

@@ -1,8 +1,9 @@
 """README.md stays a short user guide whose Python examples run as written.
 
 Every ```python block of README.md is one test case (id: the block's index and its first line
-that is not an import or the `jax.config` line). Each block runs in a fresh namespace, in this process, with its own imports (the
-README's blocks are self-contained; `tests/conftest.py` has already enabled float64, as each
+that is not an import or the `jax.config` line). Each block runs in a fresh namespace, in this
+process, with its own imports, and fails if it loses samples (the README's blocks are
+self-contained; `tests/conftest.py` has already enabled float64, as each
 block's own `jax.config.update("jax_enable_x64", True)` line does).
 
 Shrinking for the test. The README shows realistic sizes (`n_samples=10**6`); a line may end
@@ -74,9 +75,8 @@ def test_block_runs(index, code):
     source = shrink(code)
     namespace = {"__name__": f"readme_block_{index}"}
     with warnings.catch_warnings():
-        # an example may report failed samples or a float32 round-off floor; that is output,
-        # not an error of the example
-        warnings.simplefilter("ignore", RuntimeWarning)
+        # an example that loses samples (a RuntimeWarning) is a bad example
+        warnings.simplefilter("error", RuntimeWarning)
         exec(compile(source, f"README.md python block {index}", "exec"), namespace)
 
 
