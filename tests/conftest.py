@@ -1,8 +1,10 @@
 import ctypes
 import gc
 import os
+import shutil
 import subprocess
 import sys
+import tempfile
 
 # The suite's time is compilation: its programs run for milliseconds on small ensembles but
 # take a second or more each to compile. Two options of XLA's CPU backend trade run time for
@@ -24,6 +26,14 @@ if "SLPS_TESTS_XLA_FLAGS" not in os.environ:
     os.environ["SLPS_TESTS_XLA_FLAGS"] = _env["XLA_FLAGS"] if _probe.returncode == 0 else (
         os.environ.get("XLA_FLAGS", ""))
 os.environ["XLA_FLAGS"] = os.environ["SLPS_TESTS_XLA_FLAGS"]
+# One persistent compilation cache for the run, shared by every process of it (the xdist
+# workers, the notebook kernels, the benchmark scripts and the command line the tests start):
+# a program one of them compiled, another loads instead of compiling it again. It starts
+# empty, so a run's time is that of a fresh machine; it is removed at the end.
+if "SLPS_TESTS_JAX_CACHE" not in os.environ:
+    os.environ["SLPS_TESTS_JAX_CACHE"] = tempfile.mkdtemp(prefix="slps-tests-jax-cache-")
+os.environ["JAX_COMPILATION_CACHE_DIR"] = os.environ["SLPS_TESTS_JAX_CACHE"]
+os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0.1"
 
 import jax  # noqa: E402
 import pytest  # noqa: E402
@@ -70,3 +80,8 @@ def _free():
         ctypes.CDLL("libc.so.6").malloc_trim(0)
     except (OSError, AttributeError):
         pass
+
+
+def pytest_sessionfinish(session):
+    if not hasattr(session.config, "workerinput"):  # the controller, after the workers
+        shutil.rmtree(os.environ["SLPS_TESTS_JAX_CACHE"], ignore_errors=True)

@@ -36,21 +36,14 @@ def test_notebooks_are_committed_without_outputs():
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
-def test_notebook_runs(path, monkeypatch, request):
+def test_notebook_runs(path, monkeypatch):
     # The kernel inherits this process's environment. The inline backend draws every figure,
     # so a bad label (mathtext) fails here too.
     monkeypatch.setenv("SLPS_NOTEBOOK_SIZE", "small")
     monkeypatch.delenv("MPLBACKEND", raising=False)
     monkeypatch.setenv("PYTHONPATH", os.pathsep.join(
         [str(ROOT)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
-    # Compilation is most of a small run's time (about a second per method and step size,
-    # more for calibrate's L-BFGS step); JAX's persistent cache in pytest's cache folder makes reruns fast.
-    # Delete .pytest_cache (or run with -p no:cacheprovider) for a cold run.
-    cache = getattr(request.config, "cache", None)  # absent under -p no:cacheprovider
-    if cache is not None:
-        monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR",
-                           str(cache.mkdir("jax-compilation-cache")))
-        monkeypatch.setenv("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
+    # (the kernel shares the run's persistent compilation cache: tests/conftest.py)
     nb = nbformat.read(path, as_version=4)
     # kernel "python3": jupyter_client starts it with sys.executable, this environment's python
     client = nbclient.NotebookClient(nb, timeout=600, kernel_name="python3",
