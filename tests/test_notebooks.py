@@ -35,17 +35,31 @@ def test_notebooks_are_committed_without_outputs():
                     "(jupyter nbconvert --clear-output --inplace notebooks/*.ipynb)")
 
 
+@pytest.fixture(scope="module")
+def kernel():
+    """One kernel for all the notebooks: started once (its imports, JAX's start-up and the
+    methods' traced steps are then shared), each notebook run in a fresh namespace
+    (`%reset -f` first). It inherits this process's environment, set here; the inline
+    backend draws every figure, so a bad label (mathtext) fails too. Kernel "python3":
+    jupyter_client starts it with sys.executable, this environment's python."""
+    jupyter_client = pytest.importorskip("jupyter_client")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("SLPS_NOTEBOOK_SIZE", "small")
+        mp.delenv("MPLBACKEND", raising=False)
+        mp.setenv("PYTHONPATH", os.pathsep.join(
+            [str(ROOT)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
+        # (the kernel shares the run's persistent compilation cache: tests/conftest.py)
+        km = jupyter_client.KernelManager(kernel_name="python3")
+        km.start_kernel(cwd=str(ROOT / "notebooks"))
+    try:
+        yield km
+    finally:
+        km.shutdown_kernel(now=True)
+
+
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
-def test_notebook_runs(path, monkeypatch):
-    # The kernel inherits this process's environment. The inline backend draws every figure,
-    # so a bad label (mathtext) fails here too.
-    monkeypatch.setenv("SLPS_NOTEBOOK_SIZE", "small")
-    monkeypatch.delenv("MPLBACKEND", raising=False)
-    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(
-        [str(ROOT)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
-    # (the kernel shares the run's persistent compilation cache: tests/conftest.py)
+def test_notebook_runs(path, kernel):
     nb = nbformat.read(path, as_version=4)
-    # kernel "python3": jupyter_client starts it with sys.executable, this environment's python
-    client = nbclient.NotebookClient(nb, timeout=600, kernel_name="python3",
-                                     resources={"metadata": {"path": str(path.parent)}})
+    nb.cells.insert(0, nbformat.v4.new_code_cell("%reset -f"))
+    client = nbclient.NotebookClient(nb, km=kernel, timeout=600, kernel_name="python3")
     client.execute()
