@@ -35,13 +35,24 @@ def test_notebooks_are_committed_without_outputs():
                     "(jupyter nbconvert --clear-output --inplace notebooks/*.ipynb)")
 
 
+# Each notebook starts from a fresh namespace, and without the previous one's compiled
+# programs (they would add up in the kernel's memory: 2.1 GB after the six).
+FRESH = """%reset -f
+import ctypes as _ctypes, gc as _gc, jax as _jax
+_jax.clear_caches()
+_gc.collect()
+_ctypes.CDLL("libc.so.6").malloc_trim(0)
+%reset -f
+"""
+
+
 @pytest.fixture(scope="module")
 def kernel():
-    """One kernel for all the notebooks: started once (its imports, JAX's start-up and the
-    methods' traced steps are then shared), each notebook run in a fresh namespace
-    (`%reset -f` first). It inherits this process's environment, set here; the inline
-    backend draws every figure, so a bad label (mathtext) fails too. Kernel "python3":
-    jupyter_client starts it with sys.executable, this environment's python."""
+    """One kernel for all the notebooks: started once (its imports and JAX's start-up are
+    then paid once), each notebook run in a fresh namespace without the previous one's
+    compiled programs (`FRESH` first). It inherits this process's environment, set here; the
+    inline backend draws every figure, so a bad label (mathtext) fails too. Kernel
+    "python3": jupyter_client starts it with sys.executable, this environment's python."""
     jupyter_client = pytest.importorskip("jupyter_client")
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("SLPS_NOTEBOOK_SIZE", "small")
@@ -60,6 +71,6 @@ def kernel():
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
 def test_notebook_runs(path, kernel):
     nb = nbformat.read(path, as_version=4)
-    nb.cells.insert(0, nbformat.v4.new_code_cell("%reset -f"))
+    nb.cells.insert(0, nbformat.v4.new_code_cell(FRESH))
     client = nbclient.NotebookClient(nb, km=kernel, timeout=600, kernel_name="python3")
     client.execute()
