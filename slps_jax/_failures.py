@@ -35,13 +35,12 @@ def summary(fail_step, result):
     return int(np.sum(failed)), fail_step.size, first, why
 
 
-def message(caller, n_failed, n, consequence, *, why=None, first=None, retried=True,
-            advice=ADVICE):
+def message(caller, n_failed, n, consequence, *, why=None, first=None, retried=True):
     """`caller: k of n samples failed (first at step j): why, even split into substeps.
-    <consequence> <advice>`."""
+    <consequence> ADVICE`."""
     at = "" if first is None else f" (first at step {first})"
     return (f"{caller}: {n_failed} of {n} samples failed{at}"
-            + ("" if why is None else f": {why}") + f"{_even(retried)}. {consequence} {advice}")
+            + ("" if why is None else f": {why}") + f"{_even(retried)}. {consequence} {ADVICE}")
 
 
 def _even(retried):

@@ -191,7 +191,7 @@ def _integrate_jit(method, model, y0, noise, dt, save_every, want_stats, retry=N
 
 
 def ensemble(method, model, y0, keys, dt, bound, n_blocks, block_len, want_stats,
-              substeps=1, retry=None, terms=None):
+             substeps=1, retry=None, terms=None):
     """Each sample draws its steps' noise from its key (`_noise.draw`; with `terms`, the
     series length of the fine step's area sampler, also the Lévy areas). With
     `substeps = m > 1`, step `n`'s noise joins the fine steps `n m, ..., n m + m - 1` of size
@@ -211,10 +211,10 @@ def ensemble(method, model, y0, keys, dt, bound, n_blocks, block_len, want_stats
 
 
 ensemble_jit = jax.jit(ensemble, static_argnames=("method", "n_blocks", "block_len",
-                                                   "want_stats", "substeps", "retry", "terms"))
+                                                  "want_stats", "substeps", "retry", "terms"))
 # Step count and substeps traced: one compilation for every step size of a study.
 ensemble_dynamic_jit = jax.jit(ensemble, static_argnames=("method", "n_blocks", "want_stats",
-                                                           "retry", "terms"))
+                                                          "retry", "terms"))
 
 
 # --------------------------------------------------------------------------------------

@@ -112,7 +112,7 @@ def check_y0(y0, method, model):
 class EnsemblePlan:
     """The validated arguments of an ensemble run: `y0` cast to the system's dtype, the step
     count, the checked key, `save_every` as a step count `k` (all `n_steps` when `None`),
-    the retry, the sharding, the Lévy-area series length `terms` (`None`: no areas) and the
+    the samples run at a time (`chunk_size`: all of them unless in chunks), the retry, the sharding, the Lévy-area series length `terms` (`None`: no areas) and the
     truncation bound of the increments."""
 
     model: LiePoissonSystem
@@ -121,6 +121,7 @@ class EnsemblePlan:
     dt: float
     n_steps: int
     n_samples: int
+    chunk_size: int
     key: object
     save_every: int
     retry: int | None
@@ -143,17 +144,18 @@ def plan_ensemble(caller, model, y0, *, t1, dt, n_samples, key, method, save_eve
     dt, n_steps = check_grid(caller, t1, dt)
     n_samples = check_count("n_samples", n_samples)
     if chunk_size is None:
+        chunk_size = n_samples
         sharding = check_sharding(sharding, n_samples)
     else:
         if n_samples >= 2 ** 32:
             raise ValueError(f"n_samples must be below 2^32 (sample indices are uint32), "
                              f"got {n_samples}.")
-        chunk = min(check_count("chunk_size", chunk_size), n_samples)
-        sharding = check_sharding(sharding, chunk, name="chunk_size")
+        chunk_size = min(check_count("chunk_size", chunk_size), n_samples)
+        sharding = check_sharding(sharding, chunk_size, name="chunk_size")
     key = _noise.check_key(key)
     _noise.check_truncation(dt, truncate_k)
     terms = (_noise.levy_area_terms(dt, model.n_noises)
              if check_levy_option(levy_area, method, model) else None)
-    return EnsemblePlan(model, method, y0, dt, n_steps, n_samples, key,
+    return EnsemblePlan(model, method, y0, dt, n_steps, n_samples, chunk_size, key,
                         check_save_every(save_every, n_steps), check_retry(retry_substeps),
                         sharding, terms, _noise.truncation_bound(dt, truncate_k))

@@ -152,7 +152,7 @@ def ensemble_statistics(model, y0, *, t1, dt, n_samples, key, chunk_size, method
                       retry_substeps=retry_substeps, sharding=sharding, levy_area=levy_area,
                       chunk_size=chunk_size)
     y0, dt, n_steps, k, n_samples = p.y0, p.dt, p.n_steps, p.save_every, p.n_samples
-    chunk_size, dtype = min(chunk_size, n_samples), p.dtype
+    chunk_size, dtype = p.chunk_size, p.dtype
     if isinstance(statistics, str):
         statistics = (statistics,)
     unknown = [s for s in statistics if s not in STATISTICS]
