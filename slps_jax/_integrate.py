@@ -354,17 +354,27 @@ def simulate_unreported(model, y0, *, t1, dt, n_samples, key, method, save_every
     ys, fail_step, result, n_retried, acc = ensemble_jit(
         method, model, y0, keys, jnp.asarray(dt, dtype), jnp.asarray(p.bound, dtype),
         n_steps // k, k, bool(newton_stats), retry=p.retry, terms=p.terms)
+    return _solution(y0, ys, fail_step, result, n_retried, acc, jnp.asarray(dt, dtype),
+                     jnp.asarray([n_steps * dt], dtype), n_steps=n_steps,
+                     save_every=None if save_every is None else k, retried=p.retry is not None,
+                     newton_stats=bool(newton_stats))
+
+
+@functools.partial(jax.jit, static_argnames=("n_steps", "save_every", "retried", "newton_stats"))
+def _solution(y0, ys, fail_step, result, n_retried, acc, dt, t1, *, n_steps, save_every,
+              retried, newton_stats):
+    """`simulate`'s `Solution` from the ensemble's outputs: one program, not one for each of
+    these operations at every new shape."""
     if save_every is None:
-        ts = jnp.asarray([n_steps * dt], dtype)
+        ts = t1
     else:
         ys = jnp.concatenate([jnp.broadcast_to(y0, (ys.shape[0], 1, *y0.shape)), ys], axis=1)
-        ts = jnp.arange(0, n_steps + 1, k, dtype=dtype) * dt
-    failed = fail_step >= 0
-    stats = {"n_failed": jnp.sum(failed)}
-    if p.retry is not None:
+        ts = jnp.arange(0, n_steps + 1, save_every, dtype=dt.dtype) * dt
+    stats = {"n_failed": jnp.sum(fail_step >= 0)}
+    if retried:
         stats["n_retried_steps"] = jnp.sum(n_retried)
     if newton_stats:
-        stats["newton_iterations_mean"] = jnp.sum(acc[0]) / (p.n_samples * n_steps)
+        stats["newton_iterations_mean"] = jnp.sum(acc[0]) / (fail_step.shape[0] * n_steps)
         stats["newton_iterations_max"] = jnp.max(acc[1])
         stats["residual_max"] = jnp.max(acc[2])
     return Solution(ts=ts, ys=ys, result=result.astype(jnp.int8), fail_step=fail_step,

@@ -16,6 +16,7 @@ no increment uses.
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple, Optional
 
@@ -142,9 +143,11 @@ def check_truncation(dt, truncate_k):
         )
 
 
+@functools.partial(jax.jit, static_argnames="n_samples")
 def sample_keys(key, n_samples, offset=0):
     """Keys of samples `offset, ..., offset + n_samples - 1` (`offset` may be traced: one
-    compilation serves every chunk of a streamed ensemble)."""
+    compilation serves every chunk of a streamed ensemble). Jitted: called eagerly it is one
+    program per `n_samples`, not a program for each of its operations."""
     idx = jnp.asarray(offset, jnp.uint32) + jnp.arange(n_samples, dtype=jnp.uint32)
     return jax.vmap(lambda i: jax.random.fold_in(key, i))(idx)
 
@@ -311,19 +314,28 @@ def brownian_increments(key, n_steps, dt, *, n_samples=None, truncate_k=4, dtype
             raise ValueError("dtype=float64 needs jax.config.update('jax_enable_x64', True).")
     bound = jnp.asarray(truncation_bound(dt, truncate_k), dtype)
     terms = levy_area_terms(dt, n_noises) if levy_area and n_noises > 1 else None
-    dt = jnp.asarray(dt, dtype)
-    steps = jnp.arange(int(n_steps), dtype=jnp.uint32)
+    return _brownian_paths(key, jnp.asarray(dt, dtype), bound,
+                           n_samples=None if n_samples is None else int(n_samples),
+                           n_steps=int(n_steps),
+                           n_noises=None if n_noises is None else int(n_noises),
+                           levy_area=bool(levy_area), terms=terms, dtype=jnp.dtype(dtype))
 
+
+@functools.partial(jax.jit, static_argnames=("n_samples", "n_steps", "n_noises", "levy_area",
+                                             "terms", "dtype"))
+def _brownian_paths(key, dt, bound, *, n_samples, n_steps, n_noises, levy_area, terms, dtype):
+    """`brownian_increments` after its checks: one program per shape, not one for each of
+    its operations (a new `dt` of the same shape compiles nothing)."""
+    steps = jnp.arange(n_steps, dtype=jnp.uint32)
     s = 1 if n_noises is None else n_noises
 
     def one(k):
         out = jax.vmap(lambda n: draw(k, n, dt, bound, dtype, s, terms))(steps)
         if levy_area:
-            area = (out.area if terms is not None
-                    else jnp.zeros((int(n_steps), s, s), dtype))
+            area = out.area if terms is not None else jnp.zeros((n_steps, s, s), dtype)
             return out.dW, area
         return out.dW[:, 0] if n_noises is None else out.dW
 
-    keys = sample_keys(key, 1 if n_samples is None else int(n_samples))
+    keys = sample_keys(key, 1 if n_samples is None else n_samples)
     out = jax.vmap(one)(keys)
     return jax.tree_util.tree_map(lambda x: x[0], out) if n_samples is None else out

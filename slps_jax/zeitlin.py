@@ -63,6 +63,7 @@ def _tridiagonal(N):
     return d, e
 
 
+@jax.jit
 def laplacian(P):
     r"""$\Delta_N P = -\sum_a [S_a, [S_a, P]]$ for `(..., N, N)` matrices:
     $(\Delta_N P)_{ij} = (-2s(s+1) + 2\mu_i\mu_j)P_{ij} + a_{i+1}a_{j+1}P_{i+1,j+1}
@@ -105,6 +106,7 @@ def _from_lower_diagonals(D, N):
         diag[..., None, :] * jnp.eye(N, dtype=low.dtype)
 
 
+@jax.jit
 def solve_poisson(W):
     r"""$P = \Delta_N^{-1}W$ for traceless `(..., N, N)` matrices $W$ (skew-Hermitian: the
     stream matrix of the vorticity $W$), the traceless solution. Batched tridiagonal solves
@@ -135,6 +137,7 @@ def solve_poisson(W):
 # --- inner product, energy, enstrophy (quflow's normalisation)
 
 
+@jax.jit
 def inner(P, W):
     r"""$\langle P, W\rangle = \operatorname{Re}\sum_{ij}P_{ij}\bar W_{ij}/N$ (quflow's
     `inner_L2`: the $L^2$ inner product of the fields divided by $4\pi$)."""
@@ -142,11 +145,13 @@ def inner(P, W):
     return jnp.sum(jnp.real(P * jnp.conj(W)), axis=(-2, -1)) / N
 
 
+@jax.jit
 def energy(W):
     r"""$E(W) = -\tfrac12\langle W, \Delta_N^{-1}W\rangle$ (quflow's `energy_euler`)."""
     return -0.5 * inner(W, solve_poisson(W))
 
 
+@jax.jit
 def enstrophy(W):
     r"""$\tfrac12\langle W, W\rangle$ (quflow's `enstrophy`)."""
     return 0.5 * inner(W, W)
@@ -193,6 +198,7 @@ def _index_tables(N):
     return (table, *_harmonic_indices(N))
 
 
+@functools.partial(jax.jit, static_argnames="N")
 def shr2mat(omega, N):
     r"""The matrix $W = \sum_{\ell m}\omega_{\ell m}T_{\ell m}$ of real spherical-harmonic
     coefficients `omega` (shape `(..., L^2)`, $L \le N$, index $\ell^2 + \ell + m$), complex
@@ -219,6 +225,7 @@ def shr2mat(omega, N):
     return W - tr * eye + 1j * omega[..., :1, None].astype(cdtype) * eye
 
 
+@jax.jit
 def mat2shr(W):
     r"""The real spherical-harmonic coefficients `(..., N^2)` of a skew-Hermitian matrix
     (`shr2mat`'s inverse). quflow's `mat2shr`."""

@@ -80,7 +80,9 @@ def test_areas_do_not_depend_on_batch_and_increments_do_not_depend_on_areas():
     np.testing.assert_array_equal(A5[:2], A2[:, :6])
     np.testing.assert_array_equal(dW5[:2], dW2[:, :6])
     plain = sj.brownian_increments(key, 6, 0.1, n_samples=5, n_noises=3)
-    np.testing.assert_array_equal(plain, dW5)
+    # the same draws; to rounding only, as they come from two compiled programs (with and
+    # without the areas), whose fusions may round a product differently (seen: 1 ulp)
+    np.testing.assert_allclose(plain, dW5, rtol=4 * np.finfo(plain.dtype).eps, atol=0)
     one = sj.brownian_increments(key, 6, 0.1, n_noises=3, levy_area=True)
     np.testing.assert_array_equal(one[1], A5[0])
 
