@@ -216,7 +216,10 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
                 retried=retry_substeps is not None))
 
     theta = theta_all[free]
-    jac, n_failed = jax.jacfwd(residuals, has_aux=True)(theta)
+    # one program for the Jacobian at init and at the fitted parameters (eagerly, its
+    # operations would compile one by one)
+    jacobian = jax.jit(jax.jacfwd(residuals, has_aux=True))
+    jac, n_failed = jacobian(theta)
     check(n_failed, theta, "at init")
     sv = _check_identifiable(jac, names, np.asarray(init.inertia))
 
@@ -260,7 +263,7 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
     if observed_stderr is not None:
         # Delta method: Cov(theta) = (J^T J)^{-1} with the weighted Jacobian; then the chain
         # rule d exp(theta) = exp(theta) d theta for the logarithms.
-        jac, n_failed = jax.jacfwd(residuals, has_aux=True)(theta)
+        jac, n_failed = jacobian(theta)
         check(n_failed, theta, "at the fitted parameters")
         checked = True
         jac = np.asarray(jac)

@@ -24,6 +24,8 @@ has in closed form.
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -166,8 +168,7 @@ class AbstractAlgebra:
     def random_state(self, key, dtype=None):
         """A random state with standard normal coordinates (for tests)."""
         dtype = jnp.result_type(float) if dtype is None else dtype
-        return self.from_coordinates(jax.random.normal(key, (self.dim,), dtype)).astype(
-            self.state_dtype(dtype))
+        return _random_state(self, key, jnp.dtype(dtype))
 
     def __repr__(self):
         return self.name
@@ -175,3 +176,10 @@ class AbstractAlgebra:
 
 def _commutator(a, b):
     return a @ b - b @ a
+
+
+@functools.partial(jax.jit, static_argnums=(0, 2))
+def _random_state(algebra, key, dtype):
+    """`AbstractAlgebra.random_state`: one program per algebra and dtype."""
+    return algebra.from_coordinates(jax.random.normal(key, (algebra.dim,), dtype)).astype(
+        algebra.state_dtype(dtype))
