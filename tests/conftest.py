@@ -54,7 +54,7 @@ def paper():
 # tests and modules, and dropped only once a worker holds this much: eager operations on many
 # shapes (the Zeitlin tables at several N, say) each compile a program, and one module's
 # programs alone once took a worker to 1.9 GB.
-_RSS_LIMIT = 1200 * 2 ** 20
+_RSS_LIMIT = 1500 * 2 ** 20
 
 
 @pytest.fixture(autouse=True)
