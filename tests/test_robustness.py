@@ -6,10 +6,7 @@ values known by construction (an injected increment, a fixed point).
 """
 
 import math
-import subprocess
-import sys
 import warnings
-from pathlib import Path
 from unittest import mock
 
 import jax
@@ -25,7 +22,6 @@ import slps_jax as sj
 
 from reference import exact_sde_solution
 
-ROOT = Path(__file__).resolve().parents[1]
 PAPER_DIR = np.array([0.7, 0.7, 0.0]) / math.hypot(0.7, 0.7)
 
 
@@ -558,10 +554,9 @@ def test_sample_paths_independent_of_batch_and_repeatable(paper, method):
 
 
 def test_stress_matrix_fast(tmp_path):
-    cmd = [sys.executable, str(ROOT / "benchmarks" / "stress.py"), "--fast", "--out",
-           str(tmp_path)]
-    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=600)
-    assert proc.returncode == 0, proc.stdout + proc.stderr[-3000:]
+    from test_benchmarks import run_script  # (this checkout's slps_jax, not an installed one)
+
+    run_script("stress.py", tmp_path)
     import csv
     import json
     rows = list(csv.DictReader(open(tmp_path / "stress.csv")))
