@@ -1,16 +1,17 @@
-"""The benchmark scripts run (`--fast`, in a subprocess, into a tmp dir) and write sane files.
+"""The benchmark scripts run (`--fast`, into a tmp dir) and write sane files.
 
 Correctness only: no timing is asserted. The diffrax parts of `work_precision.py` are
 checked only where diffrax (the `bench` extra) is installed; without it the script skips
 them and our own methods are still checked.
 """
 
+import contextlib
 import csv
 import importlib.util
+import io
 import json
 import math
 import os
-import subprocess
 import sys
 from pathlib import Path
 
@@ -23,14 +24,34 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
 def run_script(name, out, *extra):
-    cmd = [sys.executable, str(BENCH / name), "--fast", "--out", str(out), *extra]
-    # The scripts must import this checkout's slps_jax, not an installed (possibly editable,
-    # possibly other) copy: the script's own folder comes first on sys.path, not the cwd.
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
-        [str(ROOT)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
-    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=600, env=env)
-    assert proc.returncode == 0, f"{name} failed:\n{proc.stdout}\n{proc.stderr[-4000:]}"
-    return proc.stdout
+    """`python benchmarks/NAME --fast --out OUT *extra`, run as the script's `main` in this
+    process, which already has JAX imported and many of the programs compiled (a subprocess
+    per script paid both again); **returns** what it printed. The scripts import the
+    slps_jax this process tests, and the processes they start themselves this checkout's
+    (PYTHONPATH)."""
+    saved_path, saved_pythonpath = list(sys.path), os.environ.get("PYTHONPATH")
+    sys.path.insert(0, str(BENCH))  # the scripts import _common and one another
+    os.environ["PYTHONPATH"] = os.pathsep.join([str(ROOT)] + [
+        p for p in (saved_pythonpath or "").split(os.pathsep) if p])
+    try:
+        spec = importlib.util.spec_from_file_location(f"benchmark_{Path(name).stem}", BENCH / name)
+        script = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(script)
+        import _common
+
+        _common.SMOKE = True  # (set from the command line's --fast in a script's own process)
+        printed = io.StringIO()
+        with contextlib.redirect_stdout(printed):
+            status = script.main(["--fast", "--out", str(out), *extra])
+        # (a script's main returns its exit status, or its results)
+        assert not isinstance(status, int) or status == 0, f"{name} exited with {status}"
+        return printed.getvalue()
+    finally:
+        sys.path[:] = saved_path
+        if saved_pythonpath is None:
+            os.environ.pop("PYTHONPATH", None)
+        else:
+            os.environ["PYTHONPATH"] = saved_pythonpath
 
 
 def read_csv(path):
