@@ -42,24 +42,6 @@ import pytest  # noqa: E402
 jax.config.update("jax_enable_x64", True)
 
 
-# The modules by their time in the suite, longest first (measured 2026-11-25): pytest-xdist's
-# `--dist loadfile` hands whole modules to the two workers in collection order, so running the
-# long ones first leaves short ones to even out the end (a long module last keeps one worker
-# busy while the other idles). Modules not named here run after these, in the usual order.
-_LONGEST_FIRST = (
-    "test_benchmarks.py", "test_notebooks.py", "test_levy_order.py", "test_several_noises.py",
-    "test_gradients.py", "test_robustness.py", "test_zeitlin.py", "test_methods.py",
-    "test_driver.py", "test_readme.py", "test_so_n.py", "test_benchmark_several_noises.py",
-    "test_general_hamiltonian.py", "test_benchmark_so_n.py", "test_study.py", "test_scale.py",
-    "test_higher_order.py", "test_levy_area.py", "test_multiprocess.py",
-    "test_benchmark_zeitlin.py", "test_algebra.py", "test_calibrate.py", "test_scheme.py")
-
-
-def pytest_collection_modifyitems(session, config, items):
-    rank = {name: i for i, name in enumerate(_LONGEST_FIRST)}
-    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: tests keep order
-
-
 @pytest.fixture
 def paper():
     import slps_jax as sj

@@ -235,9 +235,9 @@ def test_gradients(tmp_path):
     for row in summary["timing"]:
         assert row["forward_s"] > 0 and row["reverse_s"] > 0 and row["jacfwd_s"] > 0
     mem = sorted(summary["memory"], key=lambda r: r["n_steps"])
-    # XLA's buffer plan of the compiled reverse pass: 16x the steps, far less than 16x the
-    # temporary memory (sqrt(n) checkpoints: 4x at most; measured about 1.05x at 64 -> 1024
-    # steps, 50 samples), and a 1024-step run differentiates at all.
+    # XLA's buffer plan of the compiled reverse pass (--fast: Midpoint's): 16x the steps, far
+    # less than 16x the temporary memory (sqrt(n) checkpoints: 4x at most), and a 1024-step
+    # run differentiates at all.
     assert [r["n_steps"] for r in mem] == [64, 1024]
     growth = mem[-1]["temp_bytes"] / mem[0]["temp_bytes"]
     assert growth < 6, mem
