@@ -27,7 +27,8 @@ if "SLPS_TESTS_XLA_FLAGS" not in os.environ:
         os.environ.get("XLA_FLAGS", ""))
 os.environ["XLA_FLAGS"] = os.environ["SLPS_TESTS_XLA_FLAGS"]
 # One persistent compilation cache for the run, shared by every process of it (the xdist
-# workers, the notebook kernels, the benchmark scripts and the command line the tests start):
+# workers, the notebook kernels, the processes the benchmark scripts start and the command
+# line the tests start):
 # a program one of them compiled, another loads instead of compiling it again. It starts
 # empty, so a run's time is that of a fresh machine; it is removed at the end.
 if "SLPS_TESTS_JAX_CACHE" not in os.environ:
