@@ -46,7 +46,9 @@ def statistic(params, method, n_samples, n_steps, dt, retry_kw=None):
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--fast", action="store_true", help="50 samples, 32 steps, LiePoisson only")
+    parser.add_argument("--fast", action="store_true",
+                        help="50 samples, 32 steps, LiePoisson only (the reverse pass's memory: "
+                             "Midpoint)")
     parser.add_argument("--out", default=_common.DEFAULT_OUT)
     parser.add_argument("--retry", default=None, metavar="K",
                         help="retry_substeps: an integer or 'none' (default: the library's)")

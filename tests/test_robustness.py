@@ -21,6 +21,7 @@ from scipy.spatial.transform import Rotation
 import slps_jax as sj
 
 from reference import exact_sde_solution
+from test_benchmarks import run_script
 
 PAPER_DIR = np.array([0.7, 0.7, 0.0]) / math.hypot(0.7, 0.7)
 
@@ -554,8 +555,6 @@ def test_sample_paths_independent_of_batch_and_repeatable(paper, method):
 
 
 def test_stress_matrix_fast(tmp_path):
-    from test_benchmarks import run_script  # (this checkout's slps_jax, not an installed one)
-
     run_script("stress.py", tmp_path)
     import csv
     import json
