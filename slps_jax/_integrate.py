@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _noise
+from ._batching import batched_like
 from ._checks import (check_positive, check_retry, check_save_every, check_throw, concrete,
                       real_array, real_dtype)
 from ._failures import report
@@ -57,7 +58,7 @@ def _step(method, model, dt, carry, dW, live, *, want_stats, retry):
     return y, result, fail_step, n + live.astype(n.dtype), n_retried, acc
 
 
-def _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats, retry=None):
+def _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats, retry=None, like=()):
     """Integrate one sample: `n_blocks` blocks of `block_len` steps, saving after each block.
 
     `draw(n)` gives step n's increment (`n` traced). With a Python-int `block_len` the time loop is a
@@ -67,6 +68,9 @@ def _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats, retry=No
     `k^2`, ... equal substeps (`_retry_step`, a `while_loop`: no reverse mode) before the
     sample is given up.
 
+    `like`: the arrays that tell the sample apart (its key, or its `y0` and increments): the
+    loop's carry starts batched where they are (`_batching`).
+
     Returns the saved states `(n_blocks, *state_shape)`, the step of failure (-1 if none), the number
     of retried steps, and the Newton statistics `(iterations sum, iterations max, residual
     max)` or `()`.
@@ -74,10 +78,12 @@ def _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats, retry=No
     zero = jnp.zeros((), real_dtype(y0.dtype))
     acc0 = (zero, jnp.zeros((), jnp.int32), zero) if want_stats else ()
     if method.flow_in_time is not None:
-        return _time_change_path(method, model, y0, dt, draw, n_blocks, block_len, acc0)
-    carry0 = (y0, jnp.array(RESULTS.successful, jnp.int32), jnp.array(-1, jnp.int32),
-              jnp.array(0, jnp.int32),
-              jnp.array(0, jnp.int32), acc0)
+        return _time_change_path(method, model, y0, dt, draw, n_blocks, block_len, acc0, like)
+    # (the step counter stays unbatched: every sample is at the same step)
+    y0, result0, fail0, n_retried0, acc0 = batched_like(
+        (y0, jnp.array(RESULTS.successful, jnp.int32), jnp.array(-1, jnp.int32),
+         jnp.array(0, jnp.int32), acc0), like)
+    carry0 = (y0, result0, fail0, jnp.array(0, jnp.int32), n_retried0, acc0)
 
     def steps(carry, length, n_live):
         # `length` (a Python int) slots from the carry's step counter, the first `n_live`
@@ -100,7 +106,7 @@ def _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats, retry=No
     return ys, fail_step, result, n_retried, acc
 
 
-def _time_change_path(method, model, y0, dt, draw, n_blocks, block_len, acc0):
+def _time_change_path(method, model, y0, dt, draw, n_blocks, block_len, acc0, like):
     """`_path` for a method whose steps compose in time (`flow_in_time`): the step with
     increments `(h, dW)` is the flow for the random time `h + c dW`, so between two saved
     states only the sum of the step times is needed. The loop draws the same increments
@@ -115,7 +121,8 @@ def _time_change_path(method, model, y0, dt, draw, n_blocks, block_len, acc0):
 
     def block(carry, _):
         y, n = carry
-        tau, n = _checkpointed_loop(steps, block_len, (jnp.zeros((), y.dtype), n))
+        tau, n = _checkpointed_loop(steps, block_len,
+                                    (batched_like(jnp.zeros((), y.dtype), like), n))
         y = method.flow_in_time(model, y, tau).astype(y.dtype)
         return (y, n), y
 
@@ -187,7 +194,8 @@ def _index(noise, i):
 @functools.partial(jax.jit, static_argnames=("method", "save_every", "want_stats", "retry"))
 def _integrate_jit(method, model, y0, noise, dt, save_every, want_stats, retry=None):
     return _path(method, model, y0, dt, lambda n: _index(noise, n),
-                 noise.dW.shape[0] // save_every, save_every, want_stats, retry)
+                 noise.dW.shape[0] // save_every, save_every, want_stats, retry,
+                 like=(y0, noise))
 
 
 def ensemble(method, model, y0, keys, dt, bound, n_blocks, block_len, want_stats,
@@ -205,7 +213,8 @@ def ensemble(method, model, y0, keys, dt, bound, n_blocks, block_len, want_stats
             return _noise.draw_joined(key, n, substeps, fine_dt, bound, dtype, model.n_noises,
                                       terms)
 
-        return _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats, retry)
+        return _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats, retry,
+                     like=jax.random.key_data(key))
 
     return jax.vmap(one)(keys)
 

@@ -8,6 +8,7 @@ import jax
 import jax.numpy as jnp
 
 from . import _components
+from ._batching import batched_like
 from ._solution import RESULTS
 
 _RUNNING = -1  # a result code that is not one: the iteration goes on
@@ -103,6 +104,7 @@ def newton(fn, x0, *, tol, max_iter, active=True, admissible=None, continuation=
     init = NewtonState(x0, zero, jnp.asarray(jnp.inf, dtype),
                        jnp.where(active, _RUNNING, RESULTS.outside_domain).astype(jnp.int32),
                        zero, zero, zero)
+    init = batched_like(init, (x0, active))  # (one pass over `fn` under vmap: `_batching`)
 
     def evaluate(s):
         if continuation:

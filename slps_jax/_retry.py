@@ -33,6 +33,7 @@ import jax.numpy as jnp
 from jax.flatten_util import ravel_pytree
 
 from . import _noise
+from ._batching import batched_like
 from ._checks import real_dtype
 from ._solution import RESULTS
 from ._methods.base import finite_result
@@ -80,8 +81,9 @@ def _attempts(method, model, y, dt, dW, act, k, m0, jacobians=False):
         going = going & ~(fail & ~refine) & (i < m)
         return i, m, yc, code, its, res, going, jac
 
-    init = (zero_i, jnp.asarray(m0, jnp.int32), y, jnp.asarray(RESULTS.successful, jnp.int32),
-            zero_i, jnp.zeros((), dtype), jnp.asarray(act), j0)
+    init = batched_like((zero_i, jnp.asarray(m0, jnp.int32), y,
+                         jnp.asarray(RESULTS.successful, jnp.int32), zero_i,
+                         jnp.zeros((), dtype), jnp.asarray(act), j0), (y, act))
     _, m, y_next, code, its, res, _, jac = jax.lax.while_loop(lambda s: s[-2], body, init)
     retried = act & ((m > m0) | (code != RESULTS.successful))
     return y_next, code, its, res, retried, jac

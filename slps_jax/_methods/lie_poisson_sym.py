@@ -9,6 +9,7 @@ import jax.numpy as jnp
 
 from .. import _components as comp
 from .._solution import RESULTS
+from .._batching import batched_like
 from .._checks import check_options
 from .._noise import scale
 from .._system import SO3_VECTORS
@@ -99,7 +100,7 @@ def _composition(model, y, dt, dW, weights, tol, max_iter, info):
                                  max_iter, info.ok)
         return comp.mv(r, u), combine([info, new])
 
-    return jax.lax.fori_loop(0, 2 * len(weights), body, (y, info))
+    return jax.lax.fori_loop(0, 2 * len(weights), body, (y, batched_like(info, y)))
 
 
 def _check_unit_ball(name, y0):
