@@ -112,6 +112,8 @@ def _time_change_path(method, model, y0, dt, draw, n_blocks, block_len, acc0, li
     states only the sum of the step times is needed. The loop draws the same increments
     and adds up the times; the flow is evaluated once per saved state (once in all for the
     final state only). It cannot fail (explicit), so the failure outputs are constant."""
+    tau0 = batched_like(jnp.zeros((), y0.dtype), like)  # (built once, outside the loops)
+
     def steps(carry, length, n_live):
         tau, n0 = carry
         dWs = jax.vmap(lambda j: draw(n0 + j))(jnp.arange(length, dtype=n0.dtype))
@@ -121,8 +123,7 @@ def _time_change_path(method, model, y0, dt, draw, n_blocks, block_len, acc0, li
 
     def block(carry, _):
         y, n = carry
-        tau, n = _checkpointed_loop(steps, block_len,
-                                    (batched_like(jnp.zeros((), y.dtype), like), n))
+        tau, n = _checkpointed_loop(steps, block_len, (tau0, n))
         y = method.flow_in_time(model, y, tau).astype(y.dtype)
         return (y, n), y
 
