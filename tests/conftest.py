@@ -16,9 +16,14 @@ import tempfile
 # The benchmark scripts and notebook kernels that the tests start inherit the flags (the
 # tests assert no timing); speed is measured by running the benchmark scripts themselves,
 # with XLA's defaults.
+# A third, --xla_cpu_parallel_codegen_split_count=1, compiles a program's LLVM module as one
+# piece instead of several on a thread pool: with both cores busy with the two workers the
+# split only adds work (7 % less compile time in two concurrent processes, benchmarks/README.md,
+# "The test suite's settings").
+_FLAGS = ("--xla_cpu_use_fusion_emitters=false --xla_backend_optimization_level=0 "
+          "--xla_cpu_parallel_codegen_split_count=1")
 # A jaxlib that no longer knows a flag would abort at start-up, so they are tried first in a
 # subprocess (once: the xdist workers inherit the answer).
-_FLAGS = "--xla_cpu_use_fusion_emitters=false --xla_backend_optimization_level=0"
 if "SLPS_TESTS_XLA_FLAGS" not in os.environ:
     _env = dict(os.environ, XLA_FLAGS=f"{os.environ.get('XLA_FLAGS', '')} {_FLAGS}".strip())
     _probe = subprocess.run([sys.executable, "-c", "import jax; jax.numpy.zeros(1).block_until_ready()"],
