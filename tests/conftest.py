@@ -18,7 +18,7 @@ import tempfile
 # with XLA's defaults.
 # A third, --xla_cpu_parallel_codegen_split_count=1, compiles a program's LLVM module as one
 # piece instead of several on a thread pool: with both cores busy with the two workers the
-# split only adds work (7 % less compile time in two concurrent processes, benchmarks/README.md,
+# split only adds work (0.86x the compile time in two concurrent processes, benchmarks/README.md,
 # "The test suite's settings").
 _FLAGS = ("--xla_cpu_use_fusion_emitters=false --xla_backend_optimization_level=0 "
           "--xla_cpu_parallel_codegen_split_count=1")
