@@ -161,7 +161,7 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
         dt, n, every = dt42, n42, every42
         ts = np.arange(0, n + 1, every) * dt
         c0, h0 = float(model.casimir(y0)), float(model.hamiltonian(y0))
-        fig, (ax_c, ax_h) = plt.subplots(1, 2, figsize=(11, 4.2))
+        fig, (ax_c, ax_h) = plt.subplots(1, 2, figsize=(11, 4.5), layout="constrained")
         drift = {}
         for name, method in methods.items():
             ys = paths["4.2", name]
@@ -177,9 +177,10 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
             ax.set_title(what, fontsize=10)
             ax.set_ylim(2e-18, 1e2)  # the floor 1e-17 inside the frame, not on its edge
             ax.grid(True, which="major", alpha=0.3)
-            ax.legend(fontsize=8)
+        # one legend for both panels, below them: inside, it covered the curves
+        fig.legend(*ax_c.get_legend_handles_labels(), loc="outside lower center", ncol=len(methods),
+                   fontsize=9, frameon=False)
         fig.suptitle(f"Fig. 4.2: invariants along one path, h = {dt:g} (values below 1e-17 drawn at 1e-17)")
-        fig.tight_layout()
         fig.savefig(os.path.join(out_dir, "fig4_2_invariants.png"), dpi=110)
         plt.close(fig)
         results["fig4_2"] = {"h": dt, "t1": cfg["drift_t1"], "drift": drift}
@@ -229,7 +230,7 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
             advance(progress, f"Fig 4.4 {name}")
         exact_err = study_futures["Exact"].result()
         advance(progress, "Fig 4.4 Exact")
-        fig, ax = plt.subplots(figsize=(6.5, 5))
+        fig, ax = plt.subplots(figsize=(9.5, 5), layout="constrained")
         hs = np.asarray(dts)
         for name, res in conv.items():
             e, se = res.errors[name], res.stderr[name]
@@ -245,8 +246,7 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
         ax.set_title(f"Fig. 4.4: strong convergence, {cfg['n_samples']} samples\n"
                      f"(error bars: ±2 standard errors; reference: exact solution)", fontsize=10)
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=8)
-        fig.tight_layout()
+        fig.legend(loc="outside right upper", fontsize=8)  # beside the axes: inside, it covered points
         fig.savefig(os.path.join(out_dir, "fig4_4_strong_order.png"), dpi=110)
         plt.close(fig)
         results["fig4_4"] = {
