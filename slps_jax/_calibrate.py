@@ -30,7 +30,8 @@ class CalibrationResult:
     """What `calibrate` returns.
 
     - `model`: the fitted `RigidBody`.
-    - `loss`: the loss before each optimiser step (`loss[0]` at `init`).
+    - `loss`: the loss at `init` (`loss[0]`) and at each accepted iterate (`loss[-1]` at the
+      fitted parameters).
     - `names`: the parameters, in order: `I_1, I_2, I_3`, then `c`, or the entries of the
       noise family's parameter (`chi[r,j]` for `salt_noise`, `sigma[r,j]` for
       `random_inertia_noise`).
@@ -107,8 +108,9 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
     fitted). For a `RigidBody` with a noise family (`noise=salt_noise(chi)`,
     `random_inertia_noise(sigma)`) $\theta$ is $\log I$ and the family's parameter array as
     it is. Flipping the sign of one noise's row, or mixing the rows by an orthogonal matrix,
-    leaves the law unchanged: with several noises, fix all but the entries you can identify. The ensemble is simulated with the same `key` at every iteration (common random
-    numbers), so $L$ is a smooth deterministic function whose gradient `jax.grad` computes
+    leaves the law unchanged: with several noises, fix all but the entries you can identify.
+    The ensemble is simulated with the same `key` at every iteration (common random
+    numbers), so $L$ is a smooth deterministic function whose derivatives JAX computes
     exactly (pathwise, through the implicit Newton solves); its minimiser estimates the
     parameters, with a bias of order $1/$`n_samples`.
 
@@ -135,8 +137,14 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
       variance).
     - `fixed`: names among `"I_1", "I_2", "I_3", "c"` (or the noise family's entries, such
       as `"chi[0, 1]"`; `CalibrationResult.names` lists them) held at their values in `init`.
-    - `optimizer`: an optax optimiser; default `optax.lbfgs()` (the loss is deterministic and
-      smooth). Optimisers that need the loss value (line searches) get it.
+    - `optimizer`: `None` (default) for Levenberg-Marquardt on the weighted residuals: the
+      loss is a deterministic, smooth sum of squares, and each step evaluates the residuals
+      and their Jacobian (forward mode) with the one compiled program that also checks the
+      identifiability at `init` and gives the standard errors, so the fit compiles nothing
+      more. Or an optax optimiser, minimising the loss with its reverse-mode gradient in a
+      compiled step of its own (a line search, as in `optax.lbfgs()`, holds the simulation
+      in that step once per place it evaluates the loss); optimisers that need the loss
+      value get it.
     - `steps`: at most this many optimiser steps; stops earlier when the loss changes by
       less than `rtol` relative.
     - `progress`: print the loss and parameters as it goes (to stderr).
@@ -201,10 +209,6 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
         stats, n_failed = statistics(theta)
         return ((stats - observed) * weight).ravel(), n_failed
 
-    def loss_aux(theta):
-        r, n_failed = residuals(theta)
-        return 0.5 * jnp.dot(r, r), n_failed
-
     def check(n_failed, theta, where):
         n_failed = int(n_failed)
         if n_failed > 0:
@@ -215,16 +219,109 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
                 f"y0 away from the failing region may help too.",
                 retried=retry_substeps is not None))
 
+    def residuals_aux(theta):
+        r, n_failed = residuals(theta)
+        return r, (r, n_failed)
+
     theta = theta_all[free]
-    # one program for the Jacobian at init and at the fitted parameters (eagerly, its
-    # operations would compile one by one)
-    jacobian = jax.jit(jax.jacfwd(residuals, has_aux=True))
-    jac, n_failed = jacobian(theta)
+    # One program for the residuals and their Jacobian: at init (the identifiability check),
+    # at every Levenberg-Marquardt trial point, and at the fitted parameters (the standard
+    # errors). Eagerly, its operations would compile one by one.
+    jacobian = jax.jit(jax.jacfwd(residuals_aux, has_aux=True))
+    jac, (r, n_failed) = jacobian(theta)
     check(n_failed, theta, "at init")
     sv = _check_identifiable(jac, names, np.asarray(init.inertia))
 
-    opt = optax.with_extra_args_support(optax.lbfgs() if optimizer is None else optimizer)
-    loss_aux = jax.jit(loss_aux)
+    def report(i, theta, value):
+        if progress:
+            print(f"calibrate: step {i + 1:3d}  loss {value:.6e}  "
+                  f"{params.describe(full(theta))}", file=sys.stderr)
+
+    if optimizer is None:
+        dtype = theta.dtype
+        theta, history, jac = _levenberg_marquardt(
+            lambda t: jacobian(jnp.asarray(t, dtype)), theta, jac, r, steps=steps, rtol=rtol,
+            eps=float(jnp.finfo(dtype).eps),
+            accept=lambda n, t, i: check(n, t, f"after optimiser step {i}"), report=report)
+        theta = jnp.asarray(theta, dtype)
+    else:
+        theta, history, jac = _optax_fit(optimizer, residuals, jacobian, theta, steps=steps,
+                                         rtol=rtol, check=check, report=report)
+
+    model = params.model(full(theta))
+    stderr = None
+    if observed_stderr is not None:
+        # Delta method: Cov(theta) = (J^T J)^{-1} with the weighted Jacobian; then the chain
+        # rule d exp(theta) = exp(theta) d theta for the logarithms.
+        jac = np.asarray(jac)
+        cov = np.linalg.pinv(jac.T @ jac)
+        stderr = np.zeros(len(all_names))
+        scale = np.where(params.log[free], np.exp(np.asarray(theta)), 1.0)
+        stderr[free] = np.sqrt(np.diag(cov)) * scale
+        if observed_n_samples is not None:
+            stderr *= math.sqrt(1.0 + observed_n_samples / n_samples)
+    return CalibrationResult(model, np.asarray(history), stderr, sv, tuple(all_names))
+
+
+def _levenberg_marquardt(evaluate, theta, jac, r, *, steps, rtol, eps, accept, report):
+    r"""Minimise $\tfrac12 |r(\theta)|^2$ by Levenberg-Marquardt from `theta`, where `jac`,
+    `r` are the Jacobian and residuals there and `evaluate(theta)` gives
+    `(jac, (r, n_failed))`. Marquardt's scaling (the damping term $\mu\,\mathrm{diag}(J^TJ)$,
+    so the parameters' units do not matter) and Nielsen's update of $\mu$ (Madsen, Nielsen
+    and Tingleff, *Methods for non-linear least squares problems*, 2004, section 3.2).
+    `accept(n_failed, theta, i)` is called at each accepted iterate, `report(i, theta, loss)`
+    after it; `eps` is the machine epsilon of the evaluations (loss changes and steps below
+    its round-off end the fit). **Returns** the last accepted `theta`, the loss at the start
+    and at each accepted iterate, and the Jacobian at the last."""
+    rtol, step_tol = max(rtol, 4 * eps), max(1e-12, 8 * eps)
+    theta, jac, r = (np.asarray(x, np.float64) for x in (theta, jac, r))
+    loss = 0.5 * float(r @ r)
+    history = [loss]
+    mu, nu = 1e-3, 2.0
+    for i in range(steps):
+        a, g = jac.T @ jac, jac.T @ r
+        d = np.maximum(np.diag(a), 1e-12 * max(np.max(np.diag(a)), 1e-300))
+        if not np.all(np.isfinite(g)):
+            raise FloatingPointError("calibrate: the Jacobian of the statistics is not finite "
+                                     "at an accepted iterate (try a smaller dt).")
+        if not np.max(np.abs(g)) > 0:
+            break  # a stationary point
+        while True:
+            step = np.linalg.solve(a + mu * np.diag(d), -g)
+            if np.linalg.norm(step) <= step_tol * (np.linalg.norm(theta) + step_tol):
+                return theta, np.asarray(history), jac  # no step left to take
+            new_jac, (new_r, n_failed) = evaluate(theta + step)
+            new_r = np.asarray(new_r, np.float64)
+            new_loss = 0.5 * float(new_r @ new_r)
+            predicted = 0.5 * float(step @ (mu * d * step - g))
+            gain = (loss - new_loss) / predicted if predicted > 0 else -1.0
+            if np.isfinite(new_loss) and gain > 0:
+                break
+            mu, nu = mu * nu, 2.0 * nu
+            if nu > 2.0 ** 40:  # every shorter step fails to decrease the loss: converged
+                return theta, np.asarray(history), jac
+        theta, jac, r = theta + step, np.asarray(new_jac, np.float64), new_r
+        accept(n_failed, theta, i)
+        mu, nu = mu * max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3), 2.0
+        history.append(new_loss)
+        report(i, theta, new_loss)
+        if loss - new_loss <= rtol * max(loss, 1e-300):
+            break
+        loss = new_loss
+    return theta, np.asarray(history), jac
+
+
+def _optax_fit(optimizer, residuals, evaluate, theta, *, steps, rtol, check, report):
+    r"""Minimise $\tfrac12 |r(\theta)|^2$ with an optax `optimizer` from `theta`; failed
+    samples are refused (`check`) at each accepted iterate; `evaluate` is `calibrate`'s
+    Jacobian program. **Returns** the last `theta`, the loss at the start and at each accepted
+    iterate, and the Jacobian at the last."""
+    opt = optax.with_extra_args_support(optimizer)
+
+    def loss_aux(theta):
+        r, n_failed = residuals(theta)
+        return 0.5 * jnp.dot(r, r), n_failed
+
     value_and_grad = jax.value_and_grad(loss_aux, has_aux=True)
 
     def loss(theta):
@@ -233,9 +330,9 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
 
     @jax.jit
     def opt_step(theta, state):
-        # One compiled step: the line search of L-BFGS evaluates `loss` inside it. The failure
-        # count returned is that at `theta`, the accepted point of the previous step; trial
-        # points the line search rejects are not checked (they are not used as data).
+        # One compiled step (a line search evaluates `loss` inside it). The failure count
+        # returned is that at `theta`, the accepted point of the previous step; trial points a
+        # line search rejects are not checked (they are not used as data).
         (value, n_failed), grad = value_and_grad(theta)
         updates, state = opt.update(grad, state, theta, value=value, grad=grad, value_fn=loss)
         return optax.apply_updates(theta, updates), state, value, n_failed
@@ -244,39 +341,22 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
     # first update makes strong, which would compile `opt_step` a second time.
     state = jax.tree_util.tree_map(lambda x: jnp.array(x, dtype=jnp.result_type(x)),
                                    opt.init(theta))
-    history = []
-    checked = True  # whether the failure count at `theta` has been checked
+    history, converged = [], False
     for i in range(steps):
         new_theta, state, value, n_failed = opt_step(theta, state)
         check(n_failed, theta, f"after optimiser step {i}" if i else "at init")
-        checked = True
         history.append(float(value))  # the loss at theta, before this step
         if i > 0 and abs(history[-2] - history[-1]) <= rtol * max(history[-2], 1e-300):
+            converged = True
             break
-        theta, checked = new_theta, False
-        if progress:
-            print(f"calibrate: step {i + 1:3d}  loss {history[-1]:.6e}  "
-                  f"{params.describe(full(theta))}", file=sys.stderr)
-
-    model = params.model(full(theta))
-    stderr = None
-    if observed_stderr is not None:
-        # Delta method: Cov(theta) = (J^T J)^{-1} with the weighted Jacobian; then the chain
-        # rule d exp(theta) = exp(theta) d theta for the logarithms.
-        jac, n_failed = jacobian(theta)
-        check(n_failed, theta, "at the fitted parameters")
-        checked = True
-        jac = np.asarray(jac)
-        cov = np.linalg.pinv(jac.T @ jac)
-        stderr = np.zeros(len(all_names))
-        scale = np.where(params.log[free], np.exp(np.asarray(theta)), 1.0)
-        stderr[free] = np.sqrt(np.diag(cov)) * scale
-        if observed_n_samples is not None:
-            stderr *= math.sqrt(1.0 + observed_n_samples / n_samples)
-    if not checked:
-        # the last step's result (steps ran out): evaluated only inside its line search
-        check(loss_aux(theta)[1], theta, "at the fitted parameters")
-    return CalibrationResult(model, np.asarray(history), stderr, sv, tuple(all_names))
+        theta = new_theta
+        report(i, theta, history[-1])
+    # the Jacobian at the fit, for the standard errors (the Jacobian program, compiled already)
+    jac, (r, n_failed) = evaluate(theta)
+    check(n_failed, theta, "at the fitted parameters")
+    if not converged:  # the last step's result, evaluated before only inside its line search
+        history.append(0.5 * float(jnp.dot(r, r)))
+    return theta, np.asarray(history), jac
 
 
 def _check_identifiable(jac, names, inertia):
