@@ -4,6 +4,7 @@ statistics, with pathwise gradients."""
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import sys
 
@@ -17,6 +18,7 @@ from ._failures import message
 from ._integrate import simulate_unreported
 from ._model import RigidBody
 from ._noise_hamiltonians import _ParameterNoise
+from ._plan import check_levy_option, check_method
 from ._methods.lie_poisson import LiePoisson
 
 
@@ -62,7 +64,8 @@ class _Parameters:
     names: tuple
     theta: jax.Array
     log: np.ndarray  # which entries are logarithms
-    init: RigidBody
+    family: type | None  # the noise family's type (None: one noise, c)
+    shape: tuple  # the shape of its parameter
 
     @classmethod
     def of(cls, init):
@@ -70,19 +73,15 @@ class _Parameters:
         if init.noise is None:
             return cls((*inertia, "c"), jnp.concatenate([jnp.log(init.inertia),
                                                           jnp.log(init.c)[None]]),
-                       np.ones(4, bool), init)
+                       np.ones(4, bool), None, ())
         param, name = init.noise.parameter, init.noise.parameter_name
         entries = [f"{name}[{', '.join(map(str, i))}]" for i in np.ndindex(param.shape)]
         return cls((*inertia, *entries),
                    jnp.concatenate([jnp.log(init.inertia), jnp.ravel(param)]),
-                   np.arange(3 + len(entries)) < 3, init)
+                   np.arange(3 + len(entries)) < 3, type(init.noise), tuple(param.shape))
 
     def model(self, theta):
-        inertia = jnp.exp(theta[:3])
-        if self.init.noise is None:
-            return RigidBody(inertia, jnp.exp(theta[3]))
-        family = self.init.noise
-        return RigidBody(inertia, noise=type(family)(theta[3:].reshape(family.parameter.shape)))
+        return _model(theta, self.family, self.shape)
 
     def values(self, theta):
         """The parameters themselves (not their logarithms), as a NumPy array."""
@@ -91,6 +90,59 @@ class _Parameters:
 
     def describe(self, theta):
         return ", ".join(f"{n} {v:.6g}" for n, v in zip(self.names, self.values(theta)))
+
+
+def _model(theta, family, shape):
+    """The `RigidBody` at `theta` (`log I`, then `log c` or the family's parameter)."""
+    inertia = jnp.exp(theta[:3])
+    if family is None:
+        return RigidBody(inertia, jnp.exp(theta[3]))
+    return RigidBody(inertia, noise=family(theta[3:].reshape(shape)))
+
+
+@dataclasses.dataclass(frozen=True)
+class _Fit:
+    """What the residuals depend on besides their array arguments; hashable, so that fits
+    with the same settings and shapes share one compiled program."""
+
+    family: type | None
+    shape: tuple
+    free: tuple  # the indices of the fitted entries of theta
+    y0: tuple
+    t1: float
+    dt: float
+    n_samples: int
+    every: int
+    saved: tuple  # the indices of the observation times among the saved states
+    method: object
+    truncate_k: int
+    retry_substeps: int | None
+    levy_area: object
+    statistic: object
+
+    def residuals(self, theta, theta_all, observed, weight, key):
+        """The weighted residuals of the statistics at the free parameters `theta`, and (aux)
+        the number of failed samples (raised by `calibrate`, with its own advice)."""
+        model = _model(theta_all.at[np.asarray(self.free)].set(theta), self.family, self.shape)
+        sol = simulate_unreported(model, self.y0, t1=self.t1, dt=self.dt,
+                                  n_samples=self.n_samples, key=key, method=self.method,
+                                  save_every=self.every, truncate_k=self.truncate_k,
+                                  newton_stats=False, retry_substeps=self.retry_substeps,
+                                  sharding=None, levy_area=self.levy_area)
+        stats = jax.vmap(self.statistic, in_axes=1)(sol.ys[:, np.asarray(self.saved)])
+        return ((stats - observed) * weight).ravel(), jnp.sum(sol.fail_step >= 0)
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _residuals_and_jacobian(fit, theta, theta_all, observed, weight, key):
+    """`(J, (r, n_failed))`: the residuals' Jacobian (forward mode), the residuals and the
+    number of failed samples, in one program (compiled once for a fit's settings and shapes,
+    where eagerly its operations would compile one by one)."""
+    def residuals_aux(theta):
+        r, n_failed = fit.residuals(theta, theta_all, observed, weight, key)
+        return r, (r, n_failed)
+
+    return jax.jacfwd(residuals_aux, has_aux=True)(theta)
 
 
 def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
@@ -190,24 +242,20 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
     free = np.array([n not in fixed for n in all_names])
     names = [n for n in all_names if n not in fixed]
     theta_all = params.theta
+    check_method(method)
+    fit = _Fit(params.family, params.shape, tuple(np.flatnonzero(free).tolist()),
+               _as_tuple(y0), float(ts[-1]), dt, n_samples, every,
+               tuple((idx // every).tolist()), method, truncate_k, retry_substeps,
+               check_levy_option(levy_area, method, init), statistic)
 
     def full(theta):
         return theta_all.at[np.flatnonzero(free)].set(theta)
 
-    def statistics(theta):
-        """The statistics at `theta`, and (aux) the number of failed samples."""
-        # failures are counted here and raised by `check` with calibrate's own advice
-        sol = simulate_unreported(params.model(full(theta)), y0, t1=float(ts[-1]), dt=dt,
-                                  n_samples=n_samples, key=key, method=method,
-                                  save_every=every, truncate_k=truncate_k, newton_stats=False,
-                                  retry_substeps=retry_substeps, sharding=None,
-                                  levy_area=levy_area)
-        ys = sol.ys[:, idx // every]  # (n_samples, len(ts), 3)
-        return jax.vmap(statistic, in_axes=1)(ys), jnp.sum(sol.fail_step >= 0)
-
     def residuals(theta):
-        stats, n_failed = statistics(theta)
-        return ((stats - observed) * weight).ravel(), n_failed
+        return fit.residuals(theta, theta_all, observed, weight, key)
+
+    def jacobian(theta):
+        return _residuals_and_jacobian(fit, theta, theta_all, observed, weight, key)
 
     def check(n_failed, theta, where):
         n_failed = int(n_failed)
@@ -219,15 +267,10 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
                 f"y0 away from the failing region may help too.",
                 retried=retry_substeps is not None))
 
-    def residuals_aux(theta):
-        r, n_failed = residuals(theta)
-        return r, (r, n_failed)
-
     theta = theta_all[free]
     # One program for the residuals and their Jacobian: at init (the identifiability check),
     # at every Levenberg-Marquardt trial point, and at the fitted parameters (the standard
-    # errors). Eagerly, its operations would compile one by one.
-    jacobian = jax.jit(jax.jacfwd(residuals_aux, has_aux=True))
+    # errors).
     jac, (r, n_failed) = jacobian(theta)
     check(n_failed, theta, "at init")
     sv = _check_identifiable(jac, names, np.asarray(init.inertia))
@@ -261,6 +304,11 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
         if observed_n_samples is not None:
             stderr *= math.sqrt(1.0 + observed_n_samples / n_samples)
     return CalibrationResult(model, np.asarray(history), stderr, sv, tuple(all_names))
+
+
+def _as_tuple(y0):
+    """`y0` as nested tuples of floats (hashable, for `_Fit`); `simulate` checks its shape."""
+    return tuple(_as_tuple(v) for v in y0) if np.ndim(y0) else float(y0)
 
 
 def _levenberg_marquardt(evaluate, theta, jac, r, *, steps, rtol, eps, accept, report):

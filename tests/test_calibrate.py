@@ -71,6 +71,26 @@ def test_failed_samples_during_the_fit_are_refused(optimizer):
         fit(moments(target), 0.1, steps=10, optimizer=optimizer)
 
 
+def test_a_second_fit_with_the_same_settings_compiles_nothing():
+    """Two fits with the same settings and shapes (other data, another start) share the
+    compiled program: the second one traces and compiles nothing."""
+    events = []
+    counting = [False]
+
+    def listener(name, seconds, **kwargs):
+        if counting[0] and ("compile" in name or "trace" in name):
+            events.append(name)
+
+    jax.monitoring.register_event_duration_secs_listener(listener)
+    first = fit(moments(simulate(0.12)), 0.1, steps=3)
+    counting[0] = True
+    second = fit(moments(simulate(0.13)), 0.11, steps=3)
+    counting[0] = False
+    assert events == []
+    assert len(first.loss) > 1 and len(second.loss) > 1
+    assert abs(float(second.model.c) - 0.13) < abs(0.11 - 0.13)
+
+
 # --------------------------------------------------------------------------------------
 # The default optimiser, Levenberg-Marquardt, on problems with known minimisers (NumPy only).
 
