@@ -193,7 +193,8 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
       loss is a deterministic, smooth sum of squares, and each step evaluates the residuals
       and their Jacobian (forward mode) with the one compiled program that also checks the
       identifiability at `init` and gives the standard errors, so the fit compiles nothing
-      more. Or an optax optimiser, minimising the loss with its reverse-mode gradient in a
+      more (and a later fit with the same settings and shapes, other data or another start,
+      nothing at all). Or an optax optimiser, minimising the loss with its reverse-mode gradient in a
       compiled step of its own (a line search, as in `optax.lbfgs()`, holds the simulation
       in that step once per place it evaluates the loss); optimisers that need the loss
       value get it.
