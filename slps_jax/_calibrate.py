@@ -120,10 +120,14 @@ class _Fit:
     levy_area: object
     statistic: object
 
+    def full(self, theta, theta_all):
+        """All the parameters: `theta_all` with the free ones set to `theta`."""
+        return theta_all.at[np.asarray(self.free)].set(theta)
+
     def residuals(self, theta, theta_all, observed, weight, key):
         """The weighted residuals of the statistics at the free parameters `theta`, and (aux)
         the number of failed samples (raised by `calibrate`, with its own advice)."""
-        model = _model(theta_all.at[np.asarray(self.free)].set(theta), self.family, self.shape)
+        model = _model(self.full(theta, theta_all), self.family, self.shape)
         sol = simulate_unreported(model, self.y0, t1=self.t1, dt=self.dt,
                                   n_samples=self.n_samples, key=key, method=self.method,
                                   save_every=self.every, truncate_k=self.truncate_k,
@@ -194,10 +198,10 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
       and their Jacobian (forward mode) with the one compiled program that also checks the
       identifiability at `init` and gives the standard errors, so the fit compiles nothing
       more (and a later fit with the same settings and shapes, other data or another start,
-      nothing at all). Or an optax optimiser, minimising the loss with its reverse-mode gradient in a
-      compiled step of its own (a line search, as in `optax.lbfgs()`, holds the simulation
-      in that step once per place it evaluates the loss); optimisers that need the loss
-      value get it.
+      nothing at all). Or an optax optimiser, minimising the loss with its reverse-mode
+      gradient in a compiled step of its own (a line search, as in `optax.lbfgs()`, holds
+      the simulation in that step once per place it evaluates the loss); optimisers that
+      need the loss value get it.
     - `steps`: at most this many optimiser steps; stops earlier when the loss changes by
       less than `rtol` relative.
     - `progress`: print the loss and parameters as it goes (to stderr).
@@ -250,7 +254,7 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
                check_levy_option(levy_area, method, init), statistic)
 
     def full(theta):
-        return theta_all.at[np.flatnonzero(free)].set(theta)
+        return fit.full(theta, theta_all)
 
     def residuals(theta):
         return fit.residuals(theta, theta_all, observed, weight, key)
@@ -329,12 +333,12 @@ def _levenberg_marquardt(evaluate, theta, jac, r, *, steps, rtol, eps, accept, r
     mu, nu = 1e-3, 2.0
     for i in range(steps):
         a, g = jac.T @ jac, jac.T @ r
-        d = np.maximum(np.diag(a), 1e-12 * max(np.max(np.diag(a)), 1e-300))
         if not np.all(np.isfinite(g)):
             raise FloatingPointError("calibrate: the Jacobian of the statistics is not finite "
                                      "at an accepted iterate (try a smaller dt).")
         if not np.max(np.abs(g)) > 0:
             break  # a stationary point
+        d = np.maximum(np.diag(a), 1e-12 * max(np.max(np.diag(a)), 1e-300))
         while True:
             step = np.linalg.solve(a + mu * np.diag(d), -g)
             if np.linalg.norm(step) <= step_tol * (np.linalg.norm(theta) + step_tol):
