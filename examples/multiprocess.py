@@ -1,8 +1,10 @@
 """An ensemble over several processes, on JAX's own multi-process runtime.
 
-Every process runs this same script. `jax.distributed.initialize` connects them; the mesh
-spans the devices of all processes; `simulate` and `ensemble_statistics` split the samples
-over them, each process drawing and integrating only its own devices' samples.
+Every process runs this same script. `jax.distributed.initialize` connects them; the mesh,
+built by `jax.make_mesh` (explicit axes, as JAX recommends; `--axis-types auto` for
+automatic ones), spans the devices of all processes; `simulate` and `ensemble_statistics`
+split the samples over them, each process drawing and integrating only its own devices'
+samples.
 
 Two processes on one machine, by hand (each with two CPU devices here):
 
@@ -53,7 +55,12 @@ def main():
     parser.add_argument("--process-id", type=int)
     parser.add_argument("--cpu-devices", type=int,
                         help="CPU devices per process (to try it out on one machine)")
-    parser.add_argument("--out", type=pathlib.Path, help="write process-<id>.npz here")
+    parser.add_argument("--out", type=pathlib.Path,
+                        help="write process-<id>-<axis type>.npz here")
+    parser.add_argument("--axis-types", nargs="+", choices=("explicit", "auto"),
+                        default=["explicit"],
+                        help="the mesh's axis type, each in turn (default: explicit, what "
+                             "jax.make_mesh gives)")
     args = parser.parse_args()
     if args.cpu_devices:
         os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "")
@@ -62,26 +69,30 @@ def main():
     import jax
     import numpy as np
     from jax.experimental import multihost_utils
-    from jax.sharding import Mesh, NamedSharding, PartitionSpec
+    from jax.sharding import AxisType, NamedSharding, PartitionSpec
 
     jax.config.update("jax_enable_x64", True)
     jax.distributed.initialize(coordinator_address=args.coordinator,
                                num_processes=args.num_processes, process_id=args.process_id)
-    mesh = Mesh(jax.devices(), ("samples",))
-    sol, stats = run(NamedSharding(mesh, PartitionSpec("samples")))
-
     me = jax.process_index()
-    mine = sorted(s.index[0].start for s in sol.ys.addressable_shards)
-    ys = multihost_utils.process_allgather(sol.ys, tiled=True)
-    print(f"process {me} of {jax.process_count()}: {len(jax.local_devices())} of "
-          f"{len(jax.devices())} devices, samples from {mine} in {sol.ys.shape[0]}; "
-          f"{stats.n} samples' mean final state {stats.mean[-1]}", flush=True)
-    if args.out is not None:
-        args.out.mkdir(parents=True, exist_ok=True)
-        np.savez(args.out / f"process-{me}.npz", ys=ys,
-                 fail_step=multihost_utils.process_allgather(sol.fail_step, tiled=True),
-                 n_failed=int(sol.stats["n_failed"]), n=stats.n, mean=stats.mean,
-                 var=stats.var, n_local=sum(s.data.shape[0] for s in sol.ys.addressable_shards))
+    for kind in args.axis_types:
+        axis_type = AxisType.Explicit if kind == "explicit" else AxisType.Auto
+        mesh = jax.make_mesh((jax.device_count(),), ("samples",), axis_types=(axis_type,))
+        sol, stats = run(NamedSharding(mesh, PartitionSpec("samples")))
+
+        mine = sorted(s.index[0].start for s in sol.ys.addressable_shards)
+        ys = multihost_utils.process_allgather(sol.ys, tiled=True)
+        print(f"process {me} of {jax.process_count()}: {len(jax.local_devices())} of "
+              f"{len(jax.devices())} devices, {kind} mesh axes, samples from {mine} in "
+              f"{sol.ys.shape[0]}; {stats.n} samples' mean final state {stats.mean[-1]}",
+              flush=True)
+        if args.out is not None:
+            args.out.mkdir(parents=True, exist_ok=True)
+            np.savez(args.out / f"process-{me}-{kind}.npz", ys=ys,
+                     fail_step=multihost_utils.process_allgather(sol.fail_step, tiled=True),
+                     n_failed=int(sol.stats["n_failed"]), n=stats.n, mean=stats.mean,
+                     var=stats.var,
+                     n_local=sum(s.data.shape[0] for s in sol.ys.addressable_shards))
     jax.distributed.shutdown()
 
 

@@ -15,7 +15,7 @@ from ._checks import (check_positive, check_retry, check_save_every, check_throw
                       real_array, real_dtype)
 from ._failures import report
 from ._plan import check_levy_area, check_method, check_model, check_y0, plan_ensemble
-from ._sharding import sharded_keys
+from ._sharding import as_given, automatic, sharded_keys
 from ._solution import RESULTS, Solution
 from ._methods.base import finite_result
 from ._methods.lie_poisson import LiePoisson
@@ -328,12 +328,15 @@ def simulate(model, y0, *, t1, dt, n_samples, key, method=LiePoisson(), save_eve
       `k^2`, then `k^3` equal substeps before the sample is given up; `stats` then has
       `n_retried_steps`. `None`: not redone. Steps that succeed are untouched, and the
       retry is differentiable.
-    - `sharding`: `None` (default), `"auto"` (all local devices, when there are several),
-      or a `jax.sharding.Sharding` of the sample axis, such as
-      `NamedSharding(Mesh(jax.devices(), ("samples",)), PartitionSpec("samples"))`. The
-      samples are split over the devices by JAX's SPMD partitioner and the arrays of the
-      `Solution` come back sharded along their first axis; the paths are the same as
-      without. `n_samples` must be a multiple of the number of shards.
+    - `sharding`: `None` (default), `"auto"` (the context mesh of `jax.set_mesh` when one
+      is set, else all local devices, when there are several), or a
+      `jax.sharding.Sharding` of the sample axis, such as
+      `NamedSharding(jax.make_mesh((jax.device_count(),), ("samples",)),
+      PartitionSpec("samples"))`; the mesh's axes may be explicit (`jax.make_mesh`'s
+      default) or automatic. The samples are split over the devices by JAX's SPMD
+      partitioner and the arrays of the `Solution` come back sharded along their first
+      axis, on the given mesh; the paths are the same as without. `n_samples` must be a
+      multiple of the number of shards.
     - `levy_area`: `"auto"` (default: drawn for a method that `uses_levy_area` when the
       system has several noises), `True` or `False`. Each step's areas are sampled given its
       increments (`brownian_increments(..., levy_area=True)` gives the same), which makes
@@ -359,15 +362,17 @@ def simulate_unreported(model, y0, *, t1, dt, n_samples, key, method, save_every
                       method=method, save_every=save_every, truncate_k=truncate_k,
                       retry_substeps=retry_substeps, sharding=sharding, levy_area=levy_area)
     y0, dt, n_steps, k, dtype = p.y0, p.dt, p.n_steps, p.save_every, p.dtype
-    keys = (_noise.sample_keys(p.key, p.n_samples) if p.sharding is None
-            else sharded_keys(p.key, p.n_samples, p.sharding))
-    ys, fail_step, result, n_retried, acc = ensemble_jit(
-        method, model, y0, keys, jnp.asarray(dt, dtype), jnp.asarray(p.bound, dtype),
-        n_steps // k, k, bool(newton_stats), retry=p.retry, terms=p.terms)
-    return _solution(y0, ys, fail_step, result, n_retried, acc, jnp.asarray(dt, dtype),
-                     jnp.asarray([n_steps * dt], dtype), n_steps=n_steps,
-                     save_every=None if save_every is None else k, retried=p.retry is not None,
-                     newton_stats=bool(newton_stats))
+    with automatic(p.sharding, (model, y0, p.key)) as (sharding, (model, y0, key)):
+        keys = (_noise.sample_keys(key, p.n_samples) if sharding is None
+                else sharded_keys(key, p.n_samples, sharding))
+        ys, fail_step, result, n_retried, acc = ensemble_jit(
+            method, model, y0, keys, jnp.asarray(dt, dtype), jnp.asarray(p.bound, dtype),
+            n_steps // k, k, bool(newton_stats), retry=p.retry, terms=p.terms)
+        sol = _solution(y0, ys, fail_step, result, n_retried, acc, jnp.asarray(dt, dtype),
+                        jnp.asarray([n_steps * dt], dtype), n_steps=n_steps,
+                        save_every=None if save_every is None else k,
+                        retried=p.retry is not None, newton_stats=bool(newton_stats))
+    return as_given(sol, p.sharding)
 
 
 @functools.partial(jax.jit, static_argnames=("n_steps", "save_every", "retried", "newton_stats"))

@@ -6,6 +6,10 @@ device integrates its own samples and nothing is communicated until the statisti
 end. Sample `i` still uses `fold_in(key, i)`, so a sharded run gives the very same paths as
 an unsharded one.
 
+Meshes of explicit axes (`jax.make_mesh`'s default) and of automatic ones are both taken:
+the loops run over an auto-axis copy of the caller's mesh, with the caller's context mesh
+set aside, and the results come back on the caller's mesh.
+
 The same code runs on JAX's multi-process runtime (`jax.distributed.initialize()`, a mesh
 over `jax.devices()` of all processes): each process builds the keys of its own devices'
 samples only, integrates them, and the arrays that come back are global `jax.Array`s of
@@ -15,6 +19,7 @@ report) it gathers across processes.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 
 import jax
@@ -22,11 +27,21 @@ import numpy as np
 from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+try:
+    from jax.sharding import AxisType
+except ImportError:  # JAX before mesh axis types: every axis is automatic
+    AxisType = None
+
 from ._noise import sample_keys
 
 
 def auto_sharding():
-    """All local devices along one mesh axis `'samples'`, or `None` with a single device."""
+    """The samples split over every axis of the caller's context mesh (`jax.set_mesh`)
+    when one is set, else over all local devices along one mesh axis `'samples'`; `None`
+    with a single device."""
+    context = getattr(jax.sharding, "get_mesh", lambda: None)()
+    if isinstance(context, Mesh) and not context.empty and context.size > 1:
+        return NamedSharding(context, PartitionSpec(tuple(context.axis_names)))
     devices = jax.local_devices()
     if len(devices) < 2:
         return None
@@ -48,7 +63,8 @@ def check_sharding(sharding, n_samples, name="n_samples"):
     if not isinstance(sharding, jax.sharding.Sharding):
         raise TypeError(
             f"sharding must be None, 'auto' or a jax.sharding.Sharding such as "
-            f"NamedSharding(Mesh(jax.devices(), ('samples',)), PartitionSpec('samples')), "
+            f"NamedSharding(jax.make_mesh((jax.device_count(),), ('samples',)), "
+            f"PartitionSpec('samples')), "
             f"got {type(sharding).__name__}.")
     try:
         shard = sharding.shard_shape((n_samples,))
@@ -63,6 +79,60 @@ def check_sharding(sharding, n_samples, name="n_samples"):
         raise ValueError(f"sharding must describe a 1-D sample axis, got one for "
                          f"{sharding.ndim if hasattr(sharding, 'ndim') else '?'} dimensions.")
     return sharding
+
+
+@contextlib.contextmanager
+def automatic(sharding, inputs):
+    """The ensemble's sharding for JAX's automatic partitioner (`auto_axes`) and `inputs`
+    (a pytree: the system, `y0`, the key) laid out over its mesh where they were on the
+    caller's; the mesh is JAX's context mesh while the block runs, since a caller's own
+    context mesh (`jax.set_mesh` of a mesh with explicit axes) would otherwise clash with
+    the samples' sharding. `None` stays `None` and changes nothing."""
+    auto = auto_axes(sharding)
+    if not isinstance(getattr(auto, "mesh", None), Mesh) or not hasattr(jax, "set_mesh"):
+        yield auto, inputs
+        return
+    with jax.set_mesh(auto.mesh):
+        yield auto, _relabel(inputs, auto.mesh)
+
+
+def as_given(tree, sharding):
+    """`tree`'s arrays over `sharding`'s own mesh again where `automatic` ran them over an
+    auto-axis copy of it, so that they combine with the caller's arrays."""
+    return tree if auto_axes(sharding) is sharding else _relabel(tree, sharding.mesh)
+
+
+def _relabel(tree, mesh):
+    """`tree`'s arrays sharded over a mesh of the same devices and axis names as `mesh` but
+    other axis types, as the same shards over `mesh`: relabelled, not copied (on every
+    process its own shards). Other leaves are returned as they are."""
+
+    def relabel(x):
+        if not isinstance(x, jax.Array) or isinstance(x, jax.core.Tracer):
+            return x
+        s = x.sharding
+        if (not isinstance(s, NamedSharding) or s.mesh == mesh
+                or s.mesh.axis_names != mesh.axis_names
+                or not np.array_equal(s.mesh.device_ids, mesh.device_ids)):
+            return x
+        return jax.make_array_from_single_device_arrays(
+            x.shape, NamedSharding(mesh, s.spec), [a.data for a in x.addressable_shards])
+
+    return jax.tree_util.tree_map(relabel, tree)
+
+
+def auto_axes(sharding):
+    """`sharding` over a mesh whose axes are all `AxisType.Auto`: the same devices, axis
+    names and layout. `jax.make_mesh` gives explicit axes by default, with which a sharding
+    is part of each array's type; the ensemble's loops are written for JAX's automatic
+    partitioner, and a sharding over auto axes lays the samples out the same way."""
+    mesh = getattr(sharding, "mesh", None)
+    axis_types = getattr(mesh, "axis_types", None)
+    if (not isinstance(sharding, NamedSharding) or not isinstance(mesh, Mesh)
+            or axis_types is None or all(t == AxisType.Auto for t in axis_types)):
+        return sharding
+    auto = Mesh(mesh.devices, mesh.axis_names, axis_types=(AxisType.Auto,) * len(axis_types))
+    return NamedSharding(auto, sharding.spec)
 
 
 def sharded_keys(key, n_samples, sharding):

@@ -22,6 +22,7 @@ from ._failures import message
 from ._integrate import ensemble
 from ._plan import plan_ensemble
 from ._progress import advance, progress_bar
+from ._sharding import automatic
 from ._methods.lie_poisson import LiePoisson
 
 STATISTICS = ("mean", "var", "cov", "skewness", "kurtosis")
@@ -166,8 +167,6 @@ def ensemble_statistics(model, y0, *, t1, dt, n_samples, key, chunk_size, method
     ts = np.arange(0, n_steps + 1, k, dtype=np.float64) * dt
     if save_every is None:
         ts = np.array([0.0, n_steps * dt])
-    args = (method, model, y0, p.key, jnp.asarray(dt, dtype), jnp.asarray(p.bound, dtype),
-            n_blocks, k, chunk_size, observable, want_cov, p.retry, p.sharding, p.terms)
     # The zero state: its shapes from an abstract evaluation of one chunk's moments.
     observed = jax.eval_shape(
         lambda: _observe(observable, jnp.zeros((chunk_size, n_blocks + 1, *y0.shape), y0.dtype)))
@@ -182,18 +181,21 @@ def ensemble_statistics(model, y0, *, t1, dt, n_samples, key, chunk_size, method
     shapes = jax.eval_shape(
         lambda: _chunk_moments(jnp.zeros(observed.shape, observed.dtype),
                                jnp.ones(chunk_size, bool), want_cov))
-    zero = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
-    state = (jnp.zeros((), jnp.int32), zero)
     n_chunks = -(-n_samples // chunk_size)
     bar = progress_bar(n_chunks, "ensemble_statistics", unit="chunk") if progress else None
-    for c in range(n_chunks):
-        state = _chunk(state, jnp.asarray(c * chunk_size, jnp.uint32),
-                       jnp.asarray(n_samples, jnp.uint32), *args)
-        # One chunk in flight at a time: asynchronous dispatch would otherwise let the next
-        # chunk's buffers be allocated before this one's are freed.
-        jax.block_until_ready(state)
-        if bar is not None:
-            advance(bar, f"{min((c + 1) * chunk_size, n_samples)}/{n_samples} samples")
+    with automatic(p.sharding, (model, y0, p.key)) as (sharding, (model, y0, key)):
+        zero = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
+        state = (jnp.zeros((), jnp.int32), zero)
+        args = (method, model, y0, key, jnp.asarray(dt, dtype), jnp.asarray(p.bound, dtype),
+                n_blocks, k, chunk_size, observable, want_cov, p.retry, sharding, p.terms)
+        for c in range(n_chunks):
+            state = _chunk(state, jnp.asarray(c * chunk_size, jnp.uint32),
+                           jnp.asarray(n_samples, jnp.uint32), *args)
+            # One chunk in flight at a time: asynchronous dispatch would otherwise let the
+            # next chunk's buffers be allocated before this one's are freed.
+            jax.block_until_ready(state)
+            if bar is not None:
+                advance(bar, f"{min((c + 1) * chunk_size, n_samples)}/{n_samples} samples")
     if bar is not None:
         bar.close()
     n_failed = int(state[0])

@@ -1,8 +1,9 @@
 """Two processes on JAX's multi-process runtime (localhost, gloo): the README's commands.
 
 `examples/multiprocess.py` is started twice, as the README says, each process with two CPU
-devices, the mesh over all four. Its sharded `simulate` must equal the one-process run sample
-for sample, and its `ensemble_statistics` the one-process moments, on both processes.
+devices, the mesh over all four: `jax.make_mesh`'s explicit axes, then automatic ones. With
+either, its sharded `simulate` must equal the one-process run sample for sample, and its
+`ensemble_statistics` the one-process moments, on both processes.
 """
 
 import importlib.util
@@ -38,7 +39,7 @@ def test_two_processes_equal_one(tmp_path):
     procs = [subprocess.Popen(
         [sys.executable, str(SCRIPT), "--coordinator", f"localhost:{port}",
          "--num-processes", "2", "--process-id", str(i), "--cpu-devices", "2",
-         "--out", str(tmp_path)],
+         "--out", str(tmp_path), "--axis-types", "explicit", "auto"],
         env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
         start_new_session=True) for i in range(2)]
     outputs = []
@@ -52,13 +53,14 @@ def test_two_processes_equal_one(tmp_path):
                 p.communicate()
     for i, (p, out) in enumerate(zip(procs, outputs)):
         assert p.returncode == 0, f"process {i} exited with {p.returncode}:\n{out[-3000:]}"
-        assert f"process {i} of 2: 2 of 4 devices" in out, out[-3000:]
+        for kind in ("explicit", "auto"):
+            assert f"process {i} of 2: 2 of 4 devices, {kind} mesh axes" in out, out[-3000:]
 
     sol, stats = _example().run(sharding=None)
     ys, fail_step = np.asarray(sol.ys), np.asarray(sol.fail_step)
     assert ys.shape == (16, 5, 3) and np.all(fail_step < 0)
-    for i in range(2):
-        got = np.load(tmp_path / f"process-{i}.npz")
+    for i, kind in ((0, "explicit"), (1, "explicit"), (0, "auto"), (1, "auto")):
+        got = np.load(tmp_path / f"process-{i}-{kind}.npz")
         assert int(got["n_local"]) == 8  # each process held its own half of the samples
         assert np.array_equal(got["ys"], ys), np.max(np.abs(got["ys"] - ys))
         assert np.array_equal(got["fail_step"], fail_step)

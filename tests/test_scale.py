@@ -24,52 +24,81 @@ ALL = ("mean", "var", "cov", "skewness", "kurtosis")
 SHARDED = textwrap.dedent("""
     import jax, jax.numpy as jnp, numpy as np
     jax.config.update("jax_enable_x64", True)
-    from jax.sharding import Mesh, NamedSharding, PartitionSpec
+    from jax.sharding import AxisType, Mesh, NamedSharding, PartitionSpec
     import slps_jax as sj
     assert sj.__file__.startswith(ROOT), sj.__file__
     assert len(jax.devices()) == 4
     model, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
-    kw = dict(t1=0.25, dt=2.0 ** -5, n_samples=16, key=jax.random.key(5), save_every=4)
-    sh = NamedSharding(Mesh(jax.devices(), ("samples",)), PartitionSpec("samples"))
+    kw = dict(t1=0.25, dt=2.0 ** -5, n_samples=16, key=jax.random.key(5), save_every=4,
+              method=sj.LiePoisson())  # (closed-form Newton steps: the same bits sharded)
     ref = sj.simulate(model, y0, **kw)
     assert len(ref.ys.sharding.device_set) == 1
-    out = sj.simulate(model, y0, sharding=sh, **kw)
-    auto = sj.simulate(model, y0, sharding="auto", **kw)
-    for sol in (out, auto):
-        assert np.array_equal(np.asarray(sol.ys), np.asarray(ref.ys))
-        assert np.array_equal(np.asarray(sol.fail_step), np.asarray(ref.fail_step))
-        assert len(sol.ys.sharding.device_set) == 4
-        shards = sol.ys.addressable_shards
-        assert sorted(s.device.id for s in shards) == [0, 1, 2, 3]
-        assert all(s.data.shape == (4, 3, 3) for s in shards), [s.data.shape for s in shards]
-    try:
-        sj.simulate(model, y0, **{**kw, "n_samples": 10}, sharding=sh)
-    except ValueError as err:
-        assert "multiple" in str(err) and "8 or 12" in str(err), err
-    else:
-        raise AssertionError("n_samples=10 over 4 devices was accepted")
-    st = sj.ensemble_statistics(model, y0, t1=0.25, dt=2.0 ** -5, n_samples=16, chunk_size=8,
-                                key=jax.random.key(5), save_every=4, sharding=sh,
-                                progress=False)
-    ys = np.asarray(ref.ys)
-    assert np.allclose(st.mean, ys.mean(0), rtol=0, atol=1e-14)
-    assert np.allclose(st.var, ys.var(0, ddof=1), rtol=1e-10, atol=1e-18)
-    # complex states (Euler-Zeitlin on su(4), two transport noises, Lévy areas) alike
+    # a mesh of automatic axes, and jax.make_mesh's of explicit ones (its default)
+    explicit = jax.make_mesh((4,), ("samples",), axis_types=(AxisType.Explicit,))
+    meshes = (Mesh(jax.devices(), ("samples",)), explicit)
     X = 0.3 * sj.zeitlin.shr2mat(np.eye(16)[[1, 6]], 4)
     body = sj.EulerZeitlin(4, noise=sj.salt_noise(X))
     w0 = sj.zeitlin.shr2mat(0.3 * np.arange(16) / 16, 4)
     zk = dict(t1=0.25, dt=2.0 ** -5, n_samples=8, key=jax.random.key(6),
               method=sj.IsospectralMidpoint())
-    ref = sj.simulate(body, w0, **zk)
-    out = sj.simulate(body, w0, sharding=sh, **zk)
-    assert out.ys.dtype == jnp.complex128 and len(out.ys.sharding.device_set) == 4
-    # (the same arithmetic up to the order XLA's batched matrix products take: round-off)
-    diff = np.max(np.abs(np.asarray(out.ys) - np.asarray(ref.ys)))
-    assert diff < 1e-13, diff
-    st = sj.ensemble_statistics(body, w0, chunk_size=4, sharding=sh, progress=False,
-                                observable=lambda ws: body.energy(ws), **zk)
-    e = np.asarray(body.energy(ref.ys))
-    assert np.allclose(st.mean[-1], e[:, -1].mean(), rtol=1e-13)
+    zref = sj.simulate(body, w0, **zk)
+    e = np.asarray(body.energy(zref.ys))
+    for mesh in meshes:
+        sh = NamedSharding(mesh, PartitionSpec("samples"))
+        out = sj.simulate(model, y0, sharding=sh, **kw)
+        assert out.ys.sharding == sh, out.ys.sharding  # on the caller's mesh
+        auto = sj.simulate(model, y0, sharding="auto", **kw)
+        for sol in (out, auto):
+            assert np.array_equal(np.asarray(sol.ys), np.asarray(ref.ys))
+            assert np.array_equal(np.asarray(sol.fail_step), np.asarray(ref.fail_step))
+            assert len(sol.ys.sharding.device_set) == 4
+            shards = sol.ys.addressable_shards
+            assert sorted(s.device.id for s in shards) == [0, 1, 2, 3]
+            assert all(s.data.shape == (4, 3, 3) for s in shards), [s.data.shape for s in shards]
+        # the results combine with the caller's arrays on the same mesh
+        ones = jax.device_put(jnp.ones((16, 3)), sh)
+        both = jax.jit(lambda a, b: a[:, -1] + b)(out.ys, ones)
+        assert np.array_equal(np.asarray(both), np.asarray(ref.ys)[:, -1] + 1)
+        try:
+            sj.simulate(model, y0, **{**kw, "n_samples": 10}, sharding=sh)
+        except ValueError as err:
+            assert "multiple" in str(err) and "8 or 12" in str(err), err
+        else:
+            raise AssertionError("n_samples=10 over 4 devices was accepted")
+        st = sj.ensemble_statistics(model, y0, t1=0.25, dt=2.0 ** -5, n_samples=16,
+                                    chunk_size=8, key=jax.random.key(5), save_every=4,
+                                    sharding=sh, progress=False, method=sj.LiePoisson())
+        ys = np.asarray(ref.ys)
+        assert np.allclose(st.mean, ys.mean(0), rtol=0, atol=1e-14)
+        assert np.allclose(st.var, ys.var(0, ddof=1), rtol=1e-10, atol=1e-18)
+        # complex states (Euler-Zeitlin on su(4), two transport noises, Lévy areas) alike
+        out = sj.simulate(body, w0, sharding=sh, **zk)
+        assert out.ys.dtype == jnp.complex128 and len(out.ys.sharding.device_set) == 4
+        # (the same arithmetic up to the order XLA's batched matrix products take: round-off)
+        diff = np.max(np.abs(np.asarray(out.ys) - np.asarray(zref.ys)))
+        assert diff < 1e-13, diff
+        st = sj.ensemble_statistics(body, w0, chunk_size=4, sharding=sh, progress=False,
+                                    observable=lambda ws: body.energy(ws), **zk)
+        assert np.allclose(st.mean[-1], e[:, -1].mean(), rtol=1e-13)
+    # Under the caller's context mesh of explicit axes (jax.set_mesh), with the system, y0
+    # and key made there, with and without a sharding, and a study.
+    study = dict(t1=0.25, dts=[2.0 ** -3, 2.0 ** -4], n_samples=4, key=jax.random.key(1),
+                 methods={"Strang": sj.Strang()})
+    errors = sj.strong_convergence(model, y0, **study).errors["Strang"]
+    sh = NamedSharding(explicit, PartitionSpec("samples"))
+    with jax.set_mesh(explicit):
+        model, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
+        kw["key"] = jax.random.key(5)
+        for sharding in (sh, "auto", None):
+            sol = sj.simulate(model, y0, sharding=sharding, **kw)
+            assert np.array_equal(np.asarray(sol.ys), np.asarray(ref.ys)), sharding
+            assert float(jnp.mean(sol.ys[:, -1, 0]) - ref.ys[:, -1, 0].mean()) == 0.0
+            st = sj.ensemble_statistics(model, y0, chunk_size=8, sharding=sharding,
+                                        progress=False, **kw)
+            assert np.allclose(st.mean, ys.mean(0), rtol=0, atol=1e-14), sharding
+        study["key"] = jax.random.key(1)
+        got = sj.strong_convergence(model, y0, **study).errors["Strang"]
+        assert np.array_equal(np.asarray(got), np.asarray(errors)), (got, errors)
     print("SHARDED OK")
 """)
 
