@@ -36,6 +36,9 @@ def run_script(name, out, *extra):
     try:
         spec = importlib.util.spec_from_file_location(f"benchmark_{Path(name).stem}", BENCH / name)
         script = importlib.util.module_from_spec(spec)
+        # Registered while it runs, as an imported module is: dataclasses (equinox's
+        # modules, diffrax's paths) look their module up there to resolve annotations.
+        sys.modules[spec.name] = script
         spec.loader.exec_module(script)
         import _common
 
@@ -47,6 +50,7 @@ def run_script(name, out, *extra):
         assert not isinstance(status, int) or status == 0, f"{name} exited with {status}"
         return printed.getvalue()
     finally:
+        sys.modules.pop(f"benchmark_{Path(name).stem}", None)
         sys.path[:] = saved_path
         if saved_pythonpath is None:
             os.environ.pop("PYTHONPATH", None)
