@@ -74,7 +74,7 @@ def summary(n_samples=500, fast=False, seed=0):
         "|---|---|---|---|---|")
     for dt in dts:
         sol = sj.simulate(model, y0, t1=1.0, dt=dt, n_samples=n_samples, key=key,
-                          newton_stats=True, throw=False)
+                          method=sj.LiePoisson(), newton_stats=True, throw=False)
         s = sol.stats
         say(f"| 2^{np.log2(dt):.0f} | {float(s['newton_iterations_mean']):.2f} | "
             f"{int(s['newton_iterations_max'])} | {float(s['residual_max']):.1e} | "
@@ -114,9 +114,20 @@ slps-jax: structure-preserving integrators for stochastic Lie-Poisson systems.
                      solution, invariant drift over 10^4 steps, Newton statistics
 
 Everything runs in float64. Compiled programs are kept in JAX's persistent compilation
-cache in the user's cache folder (~/.cache/slps-jax, or $JAX_COMPILATION_CACHE_DIR), so a
-second run skips compilation; --no-cache turns it off. Add --help after a command for its
-options."""
+cache: $JAX_COMPILATION_CACHE_DIR if set, else slps-jax/ in the user's cache folder
+($XDG_CACHE_HOME, default ~/.cache), so a second run skips compilation; --no-cache turns
+it off. Add --help after a command for its options."""
+
+
+def _unwritable(folder):
+    """Why `folder` cannot be made or written to, or `None` (it exists afterwards)."""
+    try:
+        os.makedirs(folder, exist_ok=True)
+    except OSError as err:
+        return f"cannot create the folder ({err.strerror or err})"
+    if not os.access(folder, os.W_OK):
+        return "the folder is not writable"
+    return None
 
 
 def main(argv=None):
@@ -142,6 +153,13 @@ def main(argv=None):
         p.add_argument("--no-cache", action="store_true",
                        help="compile everything anew: no persistent compilation cache")
     args = parser.parse_args(argv)
+    if args.command == "paper":
+        out = args.out if args.out is not None else (
+            "paper-output-fast" if args.fast else "paper-output")
+        problem = _unwritable(out)  # before any work: one line, as for a bad option
+        if problem:
+            print(f"slps-jax paper: error: --out {out}: {problem}", file=sys.stderr)
+            return 2
 
     import jax
 
@@ -151,8 +169,6 @@ def main(argv=None):
     if args.command == "paper":
         from ._paper import run
 
-        out = args.out if args.out is not None else (
-            "paper-output-fast" if args.fast else "paper-output")
         run(out_dir=out, fast=args.fast, seed=args.seed)
         return 0
     n = args.samples if args.samples is not None else (100 if args.fast else 500)
