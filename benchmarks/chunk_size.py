@@ -47,7 +47,7 @@ def main(argv=None):
                 warnings.simplefilter("ignore", RuntimeWarning)
                 sj.ensemble_statistics(model, y0, t1=1.0, dt=dt, n_samples=args.samples,
                                        chunk_size=chunk, key=jax.random.key(0),
-                                       progress=False)
+                                       method=sj.LiePoisson(), progress=False)
             seconds = time.perf_counter() - start
         us = 1e6 * seconds / (args.samples * 32)
         rows.append({"chunk_size": chunk, "seconds": seconds, "us_per_sample_step": us})

@@ -33,7 +33,8 @@ def run(n_samples, chunk_size, dt, retry):
         warnings.simplefilter("ignore", RuntimeWarning)  # the failures are the measurement
         st = sj.ensemble_statistics(model, y0, t1=1.0, dt=dt, n_samples=n_samples,
                                     chunk_size=chunk_size, key=jax.random.key(0),
-                                    retry_substeps=retry, progress=False)
+                                    retry_substeps=retry, method=sj.LiePoisson(),
+                                    progress=False)
     return st.n_failed, time.perf_counter() - start
 
 

@@ -48,7 +48,8 @@ def child(n_samples, chunk_size):
     start = time.perf_counter()
     st = sj.ensemble_statistics(model, y0, t1=T1, dt=DT, n_samples=n_samples,
                                 chunk_size=chunk_size, key=jax.random.key(0),
-                                statistics=("mean", "var", "cov"), progress=False)
+                                statistics=("mean", "var", "cov"), method=sj.LiePoisson(),
+                                progress=False)
     seconds = time.perf_counter() - start
     hwm = scaling._status_kb("VmHWM")
     print(json.dumps({

@@ -42,6 +42,7 @@ from ._methods.strang import SaltSplitting as SaltSplitting, Strang as Strang, S
 
 # Driver
 from ._integrate import integrate as integrate, simulate as simulate
+from ._plan import default_method as default_method
 from ._noise import BrownianStep as BrownianStep, brownian_increments as brownian_increments
 from ._solution import RESULTS as RESULTS, Solution as Solution
 from ._stream import EnsembleStatistics as EnsembleStatistics, ensemble_statistics as ensemble_statistics

@@ -19,7 +19,6 @@ from ._integrate import simulate_unreported
 from ._model import RigidBody
 from ._noise_hamiltonians import _ParameterNoise
 from ._plan import check_levy_option, check_method
-from ._methods.lie_poisson import LiePoisson
 
 
 def moments(ys):
@@ -150,7 +149,7 @@ def _residuals_and_jacobian(fit, theta, theta_all, observed, weight, key):
 
 
 def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
-              observed_stderr=None, observed_n_samples=None, fixed=(), method=LiePoisson(),
+              observed_stderr=None, observed_n_samples=None, fixed=(), method="auto",
               optimizer=None, steps=50, truncate_k=4, retry_substeps=4, rtol=1e-10,
               progress=True, levy_area="auto"):
     r"""Fit `inertia` and the noise (`c`, or a noise family's parameters) of a `RigidBody` to
@@ -247,7 +246,7 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
     free = np.array([n not in fixed for n in all_names])
     names = [n for n in all_names if n not in fixed]
     theta_all = params.theta
-    check_method(method)
+    method = check_method(method, init)
     fit = _Fit(params.family, params.shape, tuple(np.flatnonzero(free).tolist()),
                _as_tuple(y0), float(ts[-1]), dt, n_samples, every,
                tuple((idx // every).tolist()), method, truncate_k, retry_substeps,

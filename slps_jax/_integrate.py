@@ -18,7 +18,6 @@ from ._plan import check_levy_area, check_method, check_model, check_y0, plan_en
 from ._sharding import as_given, automatic, sharded_keys
 from ._solution import RESULTS, Solution
 from ._methods.base import finite_result
-from ._methods.lie_poisson import LiePoisson
 from ._retry import robust_step
 
 
@@ -231,7 +230,7 @@ ensemble_dynamic_jit = jax.jit(ensemble, static_argnames=("method", "n_blocks", 
 # Public API.
 
 
-def integrate(model, y0, dW, dt, *, levy_area=None, method=LiePoisson(), save_every=None,
+def integrate(model, y0, dW, dt, *, levy_area=None, method="auto", save_every=None,
               throw=True, retry_substeps=4):
     r"""Integrate one path of $dy = f(y)(dt + c \circ dW)$ with the given increments.
 
@@ -252,7 +251,9 @@ def integrate(model, y0, dW, dt, *, levy_area=None, method=LiePoisson(), save_ev
       (`brownian_increments(..., levy_area=True)` draws them). With them a method that
       `uses_levy_area` has strong order 1 for several non-commuting noises; refused for
       one that does not.
-    - `method`: a method instance (default `LiePoisson()`).
+    - `method`: a method instance, or `"auto"` (default): `Midpoint()` on so(3)*,
+      `IsospectralMidpoint()` on so(n)* and su(N)* (`default_method`; `LiePoisson()` is
+      the paper's scheme (42)).
     - `save_every`: `None` for the final state only; `k` for the states at steps
       `0, k, 2k, ..., n_steps` (`k` must divide `n_steps`).
     - `throw`: raise `RuntimeError` if a step cannot be solved, quoting the reason (a
@@ -265,7 +266,7 @@ def integrate(model, y0, dW, dt, *, levy_area=None, method=LiePoisson(), save_ev
     **Returns:** the final state (the shape of `y0`), or `(n_steps // save_every + 1, *y0.shape)`.
     """
     check_model(model)
-    check_method(method)
+    method = check_method(method, model)
     check_throw(throw)
     y0 = check_y0(y0, method, model)
     dW = real_array("dW", dW)
@@ -297,7 +298,7 @@ def integrate(model, y0, dW, dt, *, levy_area=None, method=LiePoisson(), save_ev
     return jnp.concatenate([y0[None], ys], axis=0)
 
 
-def simulate(model, y0, *, t1, dt, n_samples, key, method=LiePoisson(), save_every=None,
+def simulate(model, y0, *, t1, dt, n_samples, key, method="auto", save_every=None,
              truncate_k=4, newton_stats=False, throw=False, retry_substeps=4, sharding=None,
              levy_area="auto"):
     r"""Simulate an ensemble of paths of $dy = f(y)(dt + c \circ dW)$ on $[0, t_1]$.
@@ -315,7 +316,7 @@ def simulate(model, y0, *, t1, dt, n_samples, key, method=LiePoisson(), save_eve
     - `t1`: final time, a multiple of `dt`; `dt`: step size.
     - `n_samples`: number of Brownian samples; `key`: a `jax.random.key` (a legacy
       `jax.random.PRNGKey`, `uint32[2]`, is accepted too; a plain integer is not).
-    - `method`: default `LiePoisson()`.
+    - `method`: as for `integrate` (default `"auto"`).
     - `save_every`: `None` (final state only) or `k` (states at steps `0, k, ..., n`).
     - `truncate_k`: the `k` of the truncation (default 4, the paper's), `None` for none.
     - `newton_stats`: also report Newton iteration counts and residuals in `stats`.
@@ -361,7 +362,7 @@ def simulate_unreported(model, y0, *, t1, dt, n_samples, key, method, save_every
     p = plan_ensemble("simulate", model, y0, t1=t1, dt=dt, n_samples=n_samples, key=key,
                       method=method, save_every=save_every, truncate_k=truncate_k,
                       retry_substeps=retry_substeps, sharding=sharding, levy_area=levy_area)
-    y0, dt, n_steps, k, dtype = p.y0, p.dt, p.n_steps, p.save_every, p.dtype
+    method, y0, dt, n_steps, k, dtype = p.method, p.y0, p.dt, p.n_steps, p.save_every, p.dtype
     with automatic(p.sharding, (model, y0, p.key)) as (sharding, (model, y0, key)):
         keys = (_noise.sample_keys(key, p.n_samples) if sharding is None
                 else sharded_keys(key, p.n_samples, sharding))

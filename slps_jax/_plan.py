@@ -16,7 +16,8 @@ import numpy as np
 from . import _noise
 from ._checks import (check_count, check_grid, check_retry, check_save_every, concrete,
                       numeric_array, real_array, real_dtype, check_options)
-from ._methods import METHODS
+from ._algebra import SO3_VECTORS
+from ._methods import METHODS, IsospectralMidpoint, Midpoint
 from ._methods.base import AbstractMethod
 from ._sharding import check_sharding
 from ._system import RIGID_BODY, LiePoissonSystem, check_model
@@ -35,13 +36,26 @@ def check_pair(method, model):
             f"it. Methods for this system: {', '.join(works)}.")
 
 
-def check_method(method):
+def default_method(model):
+    """The method `method="auto"` picks for `model`, by the measurements in
+    `benchmarks/README.md` ("Which method"): `IsospectralMidpoint` on so(n)* and su(N)*
+    (every Casimir kept, the cheapest Poisson method there), `Midpoint` on so(3)* (the
+    smallest error at a given cost among the methods that keep the Casimir, for one noise
+    and with Lévy areas for several; it never failed in the stress matrix)."""
+    return Midpoint() if SO3_VECTORS in model.structure else IsospectralMidpoint()
+
+
+def check_method(method, model=None):
+    """`method` checked, or for `"auto"` (with the `model` it runs on) `default_method`."""
+    if isinstance(method, str) and method == "auto" and model is not None:
+        return default_method(model)
     if not isinstance(method, AbstractMethod):
         raise TypeError(
-            f"method must be an instance such as LiePoisson(), got {method!r}"
+            f"method must be 'auto' or an instance such as Midpoint(), got {method!r}"
             + (" (a class: call it)" if isinstance(method, type) else "") + "."
         )
     check_options(method)  # again here: a dataclass can be built around its constructor
+    return method
 
 
 def _area_methods():
@@ -139,7 +153,7 @@ def plan_ensemble(caller, model, y0, *, t1, dt, n_samples, key, method, save_eve
     """Check an ensemble's arguments (the sharding against `chunk_size` when it is run in
     chunks) and return its `EnsemblePlan`."""
     check_model(model)
-    check_method(method)
+    method = check_method(method, model)
     y0 = check_y0(y0, method, model)
     dt, n_steps = check_grid(caller, t1, dt)
     n_samples = check_count("n_samples", n_samples)

@@ -23,7 +23,6 @@ from ._integrate import ensemble
 from ._plan import plan_ensemble
 from ._progress import advance, progress_bar
 from ._sharding import automatic
-from ._methods.lie_poisson import LiePoisson
 
 STATISTICS = ("mean", "var", "cov", "skewness", "kurtosis")
 
@@ -111,7 +110,7 @@ def _chunk(state, offset, n_samples, method, model, y0, key, dt, bound, n_blocks
     return n_failed, _merge(state[1], _chunk_moments(obs, ok, want_cov))
 
 
-def ensemble_statistics(model, y0, *, t1, dt, n_samples, key, chunk_size, method=LiePoisson(),
+def ensemble_statistics(model, y0, *, t1, dt, n_samples, key, chunk_size, method="auto",
                         save_every=None, statistics=("mean", "var"), observable=None,
                         truncate_k=4, retry_substeps=4, sharding=None, progress=True,
                         levy_area="auto"):
@@ -152,7 +151,8 @@ def ensemble_statistics(model, y0, *, t1, dt, n_samples, key, chunk_size, method
                       key=key, method=method, save_every=save_every, truncate_k=truncate_k,
                       retry_substeps=retry_substeps, sharding=sharding, levy_area=levy_area,
                       chunk_size=chunk_size)
-    y0, dt, n_steps, k, n_samples = p.y0, p.dt, p.n_steps, p.save_every, p.n_samples
+    method, y0, dt, n_steps, k = p.method, p.y0, p.dt, p.n_steps, p.save_every
+    n_samples = p.n_samples
     chunk_size, dtype = p.chunk_size, p.dtype
     if isinstance(statistics, str):
         statistics = (statistics,)

@@ -30,7 +30,7 @@ def simulate(c):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # simulate warns about the failures
         return sj.simulate(sj.RigidBody(INERTIA, c), Y0, t1=TS[-1], dt=DT, n_samples=N,
-                           key=jax.random.key(KEY), retry_substeps=None)
+                           key=jax.random.key(KEY), retry_substeps=None, method=sj.LiePoisson())
 
 
 def moments(sol):
@@ -41,7 +41,7 @@ def moments(sol):
 def fit(observed, c0, **kwargs):
     return sj.calibrate(observed, Y0, ts=TS, dt=DT, n_samples=N, key=jax.random.key(KEY),
                         init=sj.RigidBody(INERTIA, c0), fixed=FIXED, progress=False,
-                        retry_substeps=None, **kwargs)
+                        retry_substeps=None, **{"method": sj.LiePoisson(), **kwargs})
 
 
 def test_failed_samples_at_init_are_refused():

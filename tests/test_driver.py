@@ -9,11 +9,13 @@ import pytest
 
 import slps_jax as sj
 
+LP = sj.LiePoisson()  # these tests' claims (retry, failures, Newton statistics) are of (42)
+
 
 def test_casimir_preserved_over_ten_thousand_steps(paper):
     model, y0 = paper
     dW = sj.brownian_increments(jax.random.key(3), 10_000, 0.01)
-    ys_lp = sj.integrate(model, y0, dW, 0.01, save_every=100)
+    ys_lp = sj.integrate(model, y0, dW, 0.01, save_every=100, method=LP)
     ys_em = sj.integrate(model, y0, dW, 0.01, method=sj.EulerMaruyama(), save_every=100)
     r0 = float(jnp.linalg.norm(y0))
     drift_lp = np.abs(np.linalg.norm(ys_lp, axis=-1) / r0 - 1.0)
@@ -35,10 +37,10 @@ def test_midpoint_preserves_both_quadratic_invariants(paper):
 def test_simulate_matches_integrate_on_the_same_increments(paper):
     model, y0 = paper
     key = jax.random.key(5)
-    sol = sj.simulate(model, y0, t1=0.5, dt=0.01, n_samples=4, key=key, save_every=10)
+    sol = sj.simulate(model, y0, t1=0.5, dt=0.01, n_samples=4, key=key, save_every=10, method=LP)
     dW = sj.brownian_increments(key, 50, 0.01, n_samples=4)
     for i in range(4):
-        ys = sj.integrate(model, y0, dW[i], 0.01, save_every=10)
+        ys = sj.integrate(model, y0, dW[i], 0.01, save_every=10, method=LP)
         np.testing.assert_allclose(sol.ys[i], ys, atol=1e-14)
     assert sol.ys.shape == (4, 6, 3)
     np.testing.assert_allclose(sol.ts, np.arange(6) * 0.1, atol=1e-15)
@@ -48,20 +50,20 @@ def test_simulate_matches_integrate_on_the_same_increments(paper):
     dW1 = sj.brownian_increments(key, 50, 0.01, n_samples=4, n_noises=1)
     assert dW1.shape == (4, 50, 1)
     np.testing.assert_array_equal(dW1[..., 0], dW)
-    np.testing.assert_allclose(sj.integrate(model, y0, dW1[0], 0.01),
-                               sj.integrate(model, y0, dW[0], 0.01), atol=0)
+    np.testing.assert_allclose(sj.integrate(model, y0, dW1[0], 0.01, method=LP),
+                               sj.integrate(model, y0, dW[0], 0.01, method=LP), atol=0)
     dW3 = sj.brownian_increments(key, 50, 0.01, n_samples=4, n_noises=3)
     assert dW3.shape == (4, 50, 3)
     np.testing.assert_array_equal(dW3[..., 0], dW)
     with pytest.raises(ValueError, match=r"shape \(n_steps, 1\)"):
-        sj.integrate(model, y0, dW3[0], 0.01)
+        sj.integrate(model, y0, dW3[0], 0.01, method=LP)
 
 
 def test_final_state_only_by_default(paper):
     model, y0 = paper
     key = jax.random.key(6)
-    sol = sj.simulate(model, y0, t1=0.5, dt=0.01, n_samples=3, key=key)
-    full = sj.simulate(model, y0, t1=0.5, dt=0.01, n_samples=3, key=key, save_every=25)
+    sol = sj.simulate(model, y0, t1=0.5, dt=0.01, n_samples=3, key=key, method=LP)
+    full = sj.simulate(model, y0, t1=0.5, dt=0.01, n_samples=3, key=key, save_every=25, method=LP)
     assert sol.ys.shape == (3, 1, 3) and sol.ts.shape == (1,)
     np.testing.assert_allclose(sol.ys[:, 0], full.ys[:, -1], atol=0)
     assert set(sol.stats) == {"n_failed", "n_retried_steps"}
@@ -71,29 +73,29 @@ def test_final_state_only_by_default(paper):
 def test_determinism_and_batch_independence(paper):
     model, y0 = paper
     key = jax.random.key(7)
-    a = sj.simulate(model, y0, t1=0.25, dt=2 ** -6, n_samples=10, key=key)
-    b = sj.simulate(model, y0, t1=0.25, dt=2 ** -6, n_samples=10, key=key)
-    big = sj.simulate(model, y0, t1=0.25, dt=2 ** -6, n_samples=1000, key=key)
+    a = sj.simulate(model, y0, t1=0.25, dt=2 ** -6, n_samples=10, key=key, method=LP)
+    b = sj.simulate(model, y0, t1=0.25, dt=2 ** -6, n_samples=10, key=key, method=LP)
+    big = sj.simulate(model, y0, t1=0.25, dt=2 ** -6, n_samples=1000, key=key, method=LP)
     np.testing.assert_array_equal(a.ys, b.ys)
     np.testing.assert_allclose(big.ys[:10], a.ys, atol=1e-15)
-    other = sj.simulate(model, y0, t1=0.25, dt=2 ** -6, n_samples=10, key=jax.random.key(8))
+    other = sj.simulate(model, y0, t1=0.25, dt=2 ** -6, n_samples=10, key=jax.random.key(8), method=LP)
     assert not np.allclose(other.ys, a.ys)
 
 
 def test_legacy_keys_accepted_and_integers_rejected(paper):
     model, y0 = paper
-    a = sj.simulate(model, y0, t1=0.1, dt=0.05, n_samples=2, key=jax.random.PRNGKey(1))
+    a = sj.simulate(model, y0, t1=0.1, dt=0.05, n_samples=2, key=jax.random.PRNGKey(1), method=LP)
     b = sj.simulate(model, y0, t1=0.1, dt=0.05, n_samples=2,
-                    key=jax.random.wrap_key_data(jax.random.PRNGKey(1)))
+                    key=jax.random.wrap_key_data(jax.random.PRNGKey(1)), method=LP)
     np.testing.assert_array_equal(a.ys, b.ys)
     with pytest.raises(TypeError, match="jax.random.key"):
-        sj.simulate(model, y0, t1=0.1, dt=0.05, n_samples=2, key=1)
+        sj.simulate(model, y0, t1=0.1, dt=0.05, n_samples=2, key=1, method=LP)
 
 
 def test_newton_stats_only_when_asked(paper):
     model, y0 = paper
     sol = sj.simulate(model, y0, t1=1.0, dt=2 ** -5, n_samples=100, key=jax.random.key(9),
-                      newton_stats=True)
+                      newton_stats=True, method=LP)
     s = sol.stats
     assert 1 <= float(s["newton_iterations_mean"]) <= int(s["newton_iterations_max"]) <= 12
     assert 0 < float(s["residual_max"]) <= 64 * np.finfo(np.float64).eps
@@ -117,17 +119,19 @@ def test_failed_sample_is_flagged_frozen_and_does_not_poison_others(paper):
     dW = sj.brownian_increments(jax.random.key(11), 40, 0.01, n_samples=3)
     dW = dW.at[1, 20].set(400.0)  # tau = 80 at step 20: no root on the branch theta < pi/2
     run = jax.jit(jax.vmap(lambda w: sj.integrate(model, y0, w, 0.01, throw=False,
-                                                  retry_substeps=None)))
+                                                  retry_substeps=None, method=LP)))
     out = np.asarray(run(dW))
     assert np.all(np.isfinite(out))
     for i in (0, 2):
-        np.testing.assert_allclose(out[i], sj.integrate(model, y0, dW[i], 0.01), atol=1e-15)
+        np.testing.assert_allclose(out[i], sj.integrate(model, y0, dW[i], 0.01, method=LP),
+                                   atol=1e-15)
     # Sample 1 keeps its last good state: the state after steps 0..19.
-    np.testing.assert_allclose(out[1], sj.integrate(model, y0, dW[1, :20], 0.01), atol=1e-15)
+    np.testing.assert_allclose(out[1], sj.integrate(model, y0, dW[1, :20], 0.01, method=LP),
+                               atol=1e-15)
     with pytest.raises(RuntimeError, match="step 20"):
-        sj.integrate(model, y0, dW[1], 0.01, retry_substeps=None)
+        sj.integrate(model, y0, dW[1], 0.01, retry_substeps=None, method=LP)
     # By default that step is redone as 4, 16, 64 substeps: tau/64 = 1.25 has a root.
-    y1 = sj.integrate(model, y0, dW[1], 0.01)
+    y1 = sj.integrate(model, y0, dW[1], 0.01, method=LP)
     np.testing.assert_allclose(np.linalg.norm(y1), np.linalg.norm(y0), rtol=1e-13)
 
 
@@ -137,14 +141,14 @@ def test_vmapped_integrate_raises_once_for_the_batch(paper):
     model, y0 = paper
     dW = sj.brownian_increments(jax.random.key(11), 40, 0.01, n_samples=6)
     run = jax.jit(jax.vmap(lambda w: sj.integrate(model, y0 * 0.99, w, 0.01,
-                                                  retry_substeps=None)))
+                                                  retry_substeps=None, method=LP)))
     assert run.lower(dW).as_text().count("callback") <= 2  # (the call and its declaration)
     assert np.all(np.isfinite(np.asarray(run(dW))))
     bad = dW.at[1, 20].set(400.0).at[4, 30].set(400.0)
     with pytest.raises(Exception, match=r"step 20 could not be solved \(first failure; 2 of 6"):
         jax.block_until_ready(run(bad))
     nested = jax.jit(jax.vmap(jax.vmap(lambda w: sj.integrate(model, y0 * 0.99, w, 0.01,
-                                                              retry_substeps=None))))
+                                                              retry_substeps=None, method=LP))))
     with pytest.raises(Exception, match="2 of 6 paths failed"):
         jax.block_until_ready(nested(bad.reshape(2, 3, 40)))
 
@@ -156,12 +160,13 @@ def test_loop_layout_takes_exactly_n_steps(paper, n):
     # step: no padding at all), and a failure must be reported at its own step.
     model, y0 = paper
     dW = sj.brownian_increments(jax.random.key(n), n, 1.0 / n)
-    final = sj.integrate(model, y0, dW, 1.0 / n)
-    every = sj.integrate(model, y0, dW, 1.0 / n, save_every=1)
+    final = sj.integrate(model, y0, dW, 1.0 / n, method=LP)
+    every = sj.integrate(model, y0, dW, 1.0 / n, save_every=1, method=LP)
     assert every.shape == (n + 1, 3)
     np.testing.assert_array_equal(final, every[-1])
     with pytest.raises(RuntimeError, match=f"step {n - 1} could not"):
-        sj.integrate(model, y0 * 0.99, dW.at[n - 1].set(400.0), 1.0 / n, retry_substeps=None)
+        sj.integrate(model, y0 * 0.99, dW.at[n - 1].set(400.0), 1.0 / n, retry_substeps=None,
+                     method=LP)
 
 
 def test_the_step_is_compiled_once_whatever_the_step_count(paper):
@@ -194,7 +199,7 @@ def test_simulate_reports_failures(paper):
     assert np.all(np.isfinite(sol.ys))
     assert np.all(np.asarray(sol.fail_step)[failed] >= 0)
     assert np.all(np.asarray(sol.fail_step)[~failed] == -1)
-    good = sj.simulate(model, y0, t1=1.0, dt=0.05, n_samples=50, key=jax.random.key(12))
+    good = sj.simulate(model, y0, t1=1.0, dt=0.05, n_samples=50, key=jax.random.key(12), method=LP)
     np.testing.assert_allclose(sol.ys[~failed], good.ys[~failed], atol=1e-14)
     # The reason is kept per sample: with max_iter=3 every attempt runs out of updates.
     codes = set(np.asarray(sol.result)[failed].tolist())
@@ -212,27 +217,27 @@ def test_scaling_option_handles_norm_above_one():
     model = sj.RigidBody.paper()
     y0 = jnp.array([1.4, 1.4, 0.0])
     with pytest.raises(ValueError, match="scale"):
-        sj.simulate(model, y0, t1=0.1, dt=0.01, n_samples=2, key=jax.random.key(0))
+        sj.simulate(model, y0, t1=0.1, dt=0.01, n_samples=2, key=jax.random.key(0), method=LP)
     dW = sj.brownian_increments(jax.random.key(13), 100, 0.01)
     y1 = sj.integrate(model, y0, dW, 0.01, method=sj.LiePoisson(scale=3.0))
     np.testing.assert_allclose(np.linalg.norm(y1), np.linalg.norm(y0), rtol=1e-14)
     # z = y / lambda solves the same SDE with time scaled by lambda.
-    z1 = sj.integrate(model, y0 / 3.0, 3.0 * dW, 0.03)
+    z1 = sj.integrate(model, y0 / 3.0, 3.0 * dW, 0.03, method=LP)
     np.testing.assert_allclose(y1, 3.0 * z1, atol=1e-14)
 
 
 def test_float32(paper):
     model32 = sj.RigidBody(np.asarray(sj.RigidBody.paper().inertia, np.float32), 0.2)
     sol = sj.simulate(model32, sj.PAPER_Y0, t1=1.0, dt=2 ** -5, n_samples=64,
-                      key=jax.random.key(14), newton_stats=True)
+                      key=jax.random.key(14), newton_stats=True, method=LP)
     assert sol.ys.dtype == jnp.float32
     r = np.linalg.norm(np.asarray(sol.ys[:, -1], np.float64), axis=-1)
     np.testing.assert_allclose(r, np.linalg.norm(sj.PAPER_Y0), rtol=1e-5)
     assert int(sol.stats["n_failed"]) == 0
     # Same increments in both precisions: float32 stays within its round-off of float64.
     dW = sj.brownian_increments(jax.random.key(14), 32, 2 ** -5, n_samples=8)
-    y32 = jax.vmap(lambda w: sj.integrate(model32, sj.PAPER_Y0, w.astype(jnp.float32), 2 ** -5))(dW)
-    y64 = jax.vmap(lambda w: sj.integrate(sj.RigidBody.paper(), sj.PAPER_Y0, w, 2 ** -5))(dW)
+    y32 = jax.vmap(lambda w: sj.integrate(model32, sj.PAPER_Y0, w.astype(jnp.float32), 2 ** -5, method=LP))(dW)
+    y64 = jax.vmap(lambda w: sj.integrate(sj.RigidBody.paper(), sj.PAPER_Y0, w, 2 ** -5, method=LP))(dW)
     assert y32.dtype == jnp.float32
     assert np.max(np.abs(np.asarray(y32, np.float64) - y64)) < 1e-5
 
@@ -257,7 +262,7 @@ BAD_SIMULATE = [
 @pytest.mark.parametrize("bad,match", BAD_SIMULATE)
 def test_simulate_rejects_bad_input(paper, bad, match):
     model, y0 = paper
-    kwargs = dict(t1=1.0, dt=0.1, n_samples=4, key=jax.random.key(0), y0=y0)
+    kwargs = dict(t1=1.0, dt=0.1, n_samples=4, key=jax.random.key(0), y0=y0, method=LP)
     kwargs.update(bad)
     y0 = kwargs.pop("y0")
     with pytest.raises(ValueError, match=match):
@@ -281,11 +286,11 @@ def test_integrate_rejects_bad_input(paper):
     model, y0 = paper
     dW = jnp.zeros(10)
     with pytest.raises(ValueError, match="dt"):
-        sj.integrate(model, y0, dW, 0.0)
+        sj.integrate(model, y0, dW, 0.0, method=LP)
     with pytest.raises(ValueError, match="dW"):
-        sj.integrate(model, y0, jnp.zeros((2, 5)), 0.1)
+        sj.integrate(model, y0, jnp.zeros((2, 5)), 0.1, method=LP)
     with pytest.raises(ValueError, match="save_every"):
-        sj.integrate(model, y0, dW, 0.1, save_every=3)
+        sj.integrate(model, y0, dW, 0.1, save_every=3, method=LP)
     with pytest.raises(TypeError, match="call it"):
         sj.integrate(model, y0, dW, 0.1, method=sj.LiePoisson)
     with pytest.raises(ValueError, match="max_iter"):

@@ -103,7 +103,7 @@ def test_gradient_approaches_exact_solution_gradient_as_h_shrinks():
 
     def lp_estimate(p, dt):
         model = sj.RigidBody(p[:3], p[3])
-        sol = sj.simulate(model, Y0, t1=1.0, dt=dt, n_samples=n, key=key)
+        sol = sj.simulate(model, Y0, t1=1.0, dt=dt, n_samples=n, key=key, method=sj.LiePoisson())
         return jnp.mean(sol.ys[:, -1], axis=0)
 
     # Forward mode (4 tangents): the claim is the limit, not the mode, and forward mode
@@ -128,7 +128,8 @@ def test_gradient_of_failed_sample_is_finite():
     def loss(c):
         m = sj.RigidBody(model.inertia, c)
         dW = jnp.array([[0.01, 0.02], [60.0, 0.01]])  # the second path fails at step 0
-        ys = jax.vmap(lambda w: sj.integrate(m, y, w, 0.1, throw=False))(dW)
+        ys = jax.vmap(lambda w: sj.integrate(m, y, w, 0.1, throw=False,
+                                             method=sj.LiePoisson()))(dW)
         return jnp.mean(ys)
 
     assert np.isfinite(float(jax.grad(loss)(0.2)))

@@ -120,3 +120,32 @@ def test_the_retry_wraps_only_steps_that_can_fail(cls):
             model, y0, d, DT, method=cls(), throw=False, retry_substeps=retry))(dW))
 
     assert (traced(4) == traced(None)) == (not cls.can_fail)
+
+
+def test_auto_is_midpoint_on_so3_and_isospectral_midpoint_on_matrix_algebras():
+    """`method="auto"`, the default of every entry point, is `default_method`: `Midpoint`
+    on so(3)* (any system, one or several noises), `IsospectralMidpoint` on so(n)*, su(N)*;
+    the same paths as naming the method. Anything else is refused, naming the choices."""
+    picks = {"paper rigid body": sj.Midpoint, "rigid body, 3 SALT noises": sj.Midpoint,
+             "quartic H": sj.Midpoint}
+    for name, cls in picks.items():
+        model, y0 = SYSTEMS[name]
+        assert type(sj.default_method(model)) is cls, name
+    so4 = sj.GeneralisedRigidBody([0.6, 1.1, 1.7, 2.3], c=0.4)
+    assert type(sj.default_method(so4)) is sj.IsospectralMidpoint
+    assert type(sj.default_method(sj.EulerZeitlin(4))) is sj.IsospectralMidpoint
+    model, y0 = SYSTEMS["rigid body, 3 SALT noises"]
+    kw = dict(t1=0.25, dt=2.0 ** -4, n_samples=4, key=jax.random.key(0))
+    np.testing.assert_array_equal(sj.simulate(model, y0, **kw).ys,
+                                  sj.simulate(model, y0, method=sj.Midpoint(), **kw).ys)
+    Y0 = _skew(4, 0.8)
+    np.testing.assert_array_equal(
+        sj.simulate(so4, Y0, **kw).ys,
+        sj.simulate(so4, Y0, method=sj.IsospectralMidpoint(), **kw).ys)
+    dW = sj.brownian_increments(jax.random.key(1), 4, 2.0 ** -4)
+    paper, y0 = SYSTEMS["paper rigid body"]
+    np.testing.assert_array_equal(sj.integrate(paper, y0, dW, 2.0 ** -4),
+                                  sj.integrate(paper, y0, dW, 2.0 ** -4, method=sj.Midpoint()))
+    for bad in ("fast", None):
+        with pytest.raises(TypeError, match="'auto' or an instance"):
+            sj.simulate(paper, y0, method=bad, **kw)

@@ -29,7 +29,7 @@ PAPER_DIR = np.array([0.7, 0.7, 0.0]) / math.hypot(0.7, 0.7)
 def quiet_simulate(*args, **kwargs):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        return sj.simulate(*args, throw=False, **kwargs)
+        return sj.simulate(*args, throw=False, **{"method": sj.LiePoisson(), **kwargs})
 
 
 # --------------------------------------------------------------------------------------
@@ -96,8 +96,8 @@ def test_the_streaming_example_s_hard_sample_succeeds_with_default_arguments(pap
     key = jax.random.key(0)
     dW = np.asarray(sj.brownian_increments(key, 32, 2 ** -5, n_samples=42822)[42821])
     with pytest.raises(RuntimeError, match="step 1 could not be solved"):
-        sj.integrate(model, y0, dW, 2 ** -5, retry_substeps=None)
-    y1 = np.asarray(sj.integrate(model, y0, dW, 2 ** -5))
+        sj.integrate(model, y0, dW, 2 ** -5, retry_substeps=None, method=sj.LiePoisson())
+    y1 = np.asarray(sj.integrate(model, y0, dW, 2 ** -5, method=sj.LiePoisson()))
     ref = exact_sde_solution(model.inertia, model.c, y0, [dW.sum()], 1.0)[0]
     assert np.linalg.norm(y1 - ref) < 1e-2
     np.testing.assert_allclose(np.linalg.norm(y1), np.linalg.norm(y0), rtol=1e-13)
@@ -109,7 +109,7 @@ def test_gradient_through_retried_steps_matches_finite_differences():
     # differences (which do not cross a change of the substeps taken: h = 1e-6).
     inertia = sj.RigidBody.paper().inertia
     y0 = 0.99 * PAPER_DIR
-    run = dict(t1=1.0, dt=0.1, n_samples=24, key=jax.random.key(23))
+    run = dict(t1=1.0, dt=0.1, n_samples=24, key=jax.random.key(23), method=sj.LiePoisson())
     sol = sj.simulate(sj.RigidBody(inertia, 1.0), y0, **run)
     assert int(sol.stats["n_retried_steps"]) > 30 and int(sol.stats["n_failed"]) == 0
 
@@ -133,7 +133,8 @@ def test_simulate_returns_failures_flagged_and_warns():
     # test_retry_keeps_strong_order_one.)
     model = sj.RigidBody(sj.RigidBody.paper().inertia, 1.0)
     y0 = 0.99 * PAPER_DIR
-    run = dict(t1=1.0, dt=2 ** -3, n_samples=24, key=jax.random.key(20), retry_substeps=None)
+    run = dict(t1=1.0, dt=2 ** -3, n_samples=24, key=jax.random.key(20), retry_substeps=None,
+               method=sj.LiePoisson())
     with pytest.warns(RuntimeWarning, match=r"samples failed.*Solution.ok"):
         sol = sj.simulate(model, y0, **run)
     n_failed = int(sol.stats["n_failed"])
@@ -146,7 +147,8 @@ def test_simulate_returns_failures_flagged_and_warns():
 
 
 
-RETRY_RUN = dict(t1=1.0, dt=0.1, n_samples=24, key=jax.random.key(23))  # shared compilations
+RETRY_RUN = dict(t1=1.0, dt=0.1, n_samples=24, key=jax.random.key(23),  # shared compilations
+                 method=sj.LiePoisson())
 
 
 def test_retry_changes_nothing_when_no_step_fails(paper):
@@ -253,7 +255,8 @@ BAD_SIMULATE = [
 @pytest.mark.parametrize("bad,exc,match", BAD_SIMULATE)
 def test_simulate_rejects_bad_input_before_compiling(paper, no_compile, bad, exc, match):
     model, y0 = paper
-    kwargs = dict(model=model, y0=y0, t1=1.0, dt=0.1, n_samples=4, key=KEY)
+    kwargs = dict(model=model, y0=y0, t1=1.0, dt=0.1, n_samples=4, key=KEY,
+                  method=sj.LiePoisson())
     kwargs.update(bad)
     with pytest.raises(exc, match=match):
         sj.simulate(kwargs.pop("model"), kwargs.pop("y0"), **kwargs)
@@ -276,7 +279,7 @@ BAD_INTEGRATE = [
 @pytest.mark.parametrize("bad,exc,match", BAD_INTEGRATE)
 def test_integrate_rejects_bad_input_before_compiling(paper, no_compile, bad, exc, match):
     model, y0 = paper
-    kwargs = dict(y0=y0, dW=np.zeros(10), dt=0.1)
+    kwargs = dict(y0=y0, dW=np.zeros(10), dt=0.1, method=sj.LiePoisson())
     kwargs.update(bad)
     with pytest.raises(exc, match=match):
         sj.integrate(model, kwargs.pop("y0"), kwargs.pop("dW"), kwargs.pop("dt"), **kwargs)

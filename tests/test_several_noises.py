@@ -65,11 +65,11 @@ def test_paper_case_through_noise_equals_rigid_body():
     y0 = jnp.asarray(sj.PAPER_Y0)
     dt = 2.0 ** -6
     dW = sj.brownian_increments(jax.random.key(1), 1000, dt, n_noises=1)
-    expected = sj.integrate(paper, y0, dW, dt, save_every=1)
+    expected = sj.integrate(paper, y0, dW, dt, save_every=1, method=sj.LiePoisson())
     for model in (sj.LiePoissonSystem(rigid_body_h, paper.inertia, noise=paper_noise),
                   sj.RigidBody(paper.inertia, noise=paper_noise)):
         assert model.n_noises == 1
-        got = sj.integrate(model, y0, dW, dt, save_every=1)
+        got = sj.integrate(model, y0, dW, dt, save_every=1, method=sj.LiePoisson())
         assert np.abs(got - expected).max() < 1e-13
 
 
@@ -269,9 +269,9 @@ def test_bad_input_refused():
     with pytest.raises(ValueError, match="sigma must be finite"):
         sj.random_inertia_noise([[1.0, np.nan, 0.0]])
     with pytest.raises(ValueError, match=r"dW must have shape \(n_steps, 3\)"):
-        sj.integrate(salt(), Y0, jnp.zeros((10, 2)), 0.1)
+        sj.integrate(salt(), Y0, jnp.zeros((10, 2)), 0.1, method=sj.LiePoisson())
     with pytest.raises(ValueError, match=r"dW must have shape \(n_steps, 3\)"):
-        sj.integrate(salt(), Y0, jnp.zeros(10), 0.1)
+        sj.integrate(salt(), Y0, jnp.zeros(10), 0.1, method=sj.LiePoisson())
     for method in (sj.Strang(), sj.Strang4(), sj.Exact()):
         with pytest.raises(TypeError, match="Methods for this system: LiePoisson"):
             sj.integrate(salt(), Y0, jnp.zeros((10, 3)), 0.1, method=method)
@@ -286,11 +286,11 @@ def test_simulate_draws_one_increment_per_noise():
     """simulate's sample i equals integrate on row i of brownian_increments(n_noises=3), and
     the noise families equal the same Hamiltonians given as functions."""
     key = jax.random.key(5)
-    sol = sj.simulate(salt(), Y0, t1=0.25, dt=2.0 ** -5, n_samples=3, key=key, levy_area=False)
+    sol = sj.simulate(salt(), Y0, t1=0.25, dt=2.0 ** -5, n_samples=3, key=key, levy_area=False, method=sj.LiePoisson())
     dWs = sj.brownian_increments(key, 8, 2.0 ** -5, n_samples=3, n_noises=3)
     assert dWs.shape == (3, 8, 3)
     for i in range(3):
-        np.testing.assert_allclose(sol.ys[i, -1], sj.integrate(salt(), Y0, dWs[i], 2.0 ** -5),
+        np.testing.assert_allclose(sol.ys[i, -1], sj.integrate(salt(), Y0, dWs[i], 2.0 ** -5, method=sj.LiePoisson()),
                                    atol=1e-15)
     dW, A = sj.brownian_increments(key, 8, 2.0 ** -5, n_noises=3, levy_area=True)
     sigma = 0.3 * np.eye(3) + 0.1

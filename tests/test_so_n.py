@@ -166,13 +166,13 @@ def test_bad_input_refused_by_name():
     y0 = skew_state(4)
     dW = jnp.zeros((4, 1))
     with pytest.raises(ValueError, match="skew-symmetric"):
-        sj.integrate(model, y0 + jnp.eye(4), dW, 0.1)
+        sj.integrate(model, y0 + jnp.eye(4), dW, 0.1, method=sj.LiePoisson())
     with pytest.raises(ValueError, match=r"shape \(4, 4\)"):
-        sj.integrate(model, skew_state(5), dW, 0.1)
+        sj.integrate(model, skew_state(5), dW, 0.1, method=sj.LiePoisson())
     with pytest.raises(ValueError, match=r"shape \(4, 4\)"):
-        sj.integrate(model, jnp.ones(3), dW, 0.1)
+        sj.integrate(model, jnp.ones(3), dW, 0.1, method=sj.LiePoisson())
     with pytest.raises(ValueError, match=r"spectral norm.*scale="):
-        sj.integrate(model, skew_state(4, 1.2), dW, 0.1)
+        sj.integrate(model, skew_state(4, 1.2), dW, 0.1, method=sj.LiePoisson())
     # the scale option works where it is offered: a time change for a quadratic body
     y_big = skew_state(4, 1.2)
     out = sj.integrate(model, y_big, 0.1 * jnp.ones((4, 1)), 0.1, method=sj.LiePoisson(scale=2))
