@@ -5,8 +5,9 @@ For `n_samples` in a sweep (CPU: 10^3 ... 10^5; GPU: 10^3 ... 10^7) at a fixed 6
 (h = 2^-6, T = 1, the paper's body and y0, float64), each method integrates the ensemble
 and keeps the final state only:
 
-- `LiePoisson`, `Strang`: the public `slps_jax.simulate(..., throw=False)`, increments drawn
-  inside the time loop from `fold_in(key, i)`;
+- `Midpoint` (the default on so(3)*), `LiePoisson`, `Strang`, `Strang4` (or any of
+  `SIMULATED` named by `--methods`): the public `slps_jax.simulate(..., throw=False)`,
+  increments drawn inside the time loop from `fold_in(key, i)`;
 - `lax.scan Heun`: Stratonovich Heun as a bare `lax.scan` (a floor for any explicit
   method), increments drawn from the same keys inside the jitted function;
 - `diffrax Heun (shared dW)` (only with diffrax, the `bench` extra): `diffeqsolve` with
@@ -56,9 +57,14 @@ def _increments(key, h):
                                                   jnp.float64))(steps)
 
 
+# the library's methods for the paper's rigid body, run through `simulate`
+SIMULATED = ("Midpoint", "LiePoisson", "LiePoissonSym2", "LiePoissonSym4", "Strang",
+             "Strang4", "Heun", "Milstein", "EulerMaruyama")
+
+
 def runner(name, model, y0):
     """`run(key, n_samples)`: the final states `(n_samples, 3)`, blocked."""
-    if name in ("LiePoisson", "Strang"):
+    if name in SIMULATED:
         method = getattr(sj, name)()
 
         def run(key, n_samples):
@@ -109,9 +115,14 @@ def main(argv=None):
     backend = jax.default_backend()
     top = args.max_samples or (10 ** 7 if backend == "gpu" else 10 ** 5)
     sizes = [100, 1000] if args.fast else [n for n in (10 ** k for k in range(3, 8)) if n <= top]
-    methods = ["LiePoisson", "Strang", SCAN_HEUN] + ([DIFFRAX_HEUN] if wp.dfx else [])
+    methods = ["Midpoint", "LiePoisson", "Strang", "Strang4", SCAN_HEUN] + (
+        [DIFFRAX_HEUN] if wp.dfx else [])
     if args.methods:
         methods = args.methods.split(",")
+    unknown = [m for m in methods if m not in SIMULATED + (SCAN_HEUN, DIFFRAX_HEUN)]
+    if unknown:
+        raise SystemExit(f"unknown methods {unknown}: choose among "
+                         f"{', '.join(SIMULATED + (SCAN_HEUN, DIFFRAX_HEUN))}")
     os.makedirs(args.out, exist_ok=True)
     info = _common.machine_info()
     info["device"] = device_name(info["cpu_model"])
