@@ -40,7 +40,8 @@ def test_errors_match_an_independent_computation(study):
     fine = sj.brownian_increments(jax.random.key(20), 256, DTS[-1], n_samples=200)
     exact = exact_sde_solution(model.inertia, 0.2, y0, np.asarray(fine.sum(1)), 1.0)
     coarse = fine.reshape(200, -1, 2).sum(-1)  # h = 2^-7
-    y = jax.jit(jax.vmap(lambda w: sj.integrate(model, y0, w, DTS[2])))(coarse)
+    y = jax.jit(jax.vmap(lambda w: sj.integrate(model, y0, w, DTS[2],
+                                                method=sj.LiePoisson())))(coarse)
     rms = np.sqrt(np.mean(np.sum((np.asarray(y) - exact) ** 2, -1)))
     np.testing.assert_allclose(study.errors["LiePoisson"][2], rms, rtol=1e-8)
 
@@ -95,9 +96,10 @@ def test_paper_command_fast(tmp_path):
     assert "| LiePoisson |" in (out / "results.md").read_text()
 
 
-def test_paper_command_output_folders(monkeypatch, capsys):
+def test_paper_command_output_folders(monkeypatch, capsys, tmp_path):
     """`--fast` writes to its own default folder, so it never overwrites a full run; `--out`
-    wins; `--help` describes the commands and every option."""
+    wins; a folder that cannot be made is a one-line error (exit 2) before any work;
+    `--help` describes the commands and every option."""
     import slps_jax.__main__ as cli
     import slps_jax._paper as paper_module
     from slps_jax.__main__ import main
@@ -105,12 +107,20 @@ def test_paper_command_output_folders(monkeypatch, capsys):
     seen, cached = [], []
     monkeypatch.setattr(paper_module, "run", lambda out_dir, fast, seed: seen.append(out_dir))
     monkeypatch.setattr(cli, "use_compilation_cache", lambda jax: cached.append(True))
+    monkeypatch.chdir(tmp_path)  # (the folders are made before the run)
     main(["paper"])
     main(["paper", "--fast"])
     main(["paper", "--fast", "--out", "mine"])
     main(["paper", "--no-cache"])
     assert seen == ["paper-output", "paper-output-fast", "mine", "paper-output"]
     assert cached == [True, True, True]  # the cache is on unless --no-cache
+    assert all((tmp_path / name).is_dir() for name in seen)
+    (tmp_path / "a-file").write_text("")
+    capsys.readouterr()
+    assert main(["paper", "--fast", "--out", str(tmp_path / "a-file" / "x")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--out" in err and "Not a directory" in err, err
+    assert len(seen) == 4 and len(cached) == 3  # nothing ran
     for args in (["--help"], ["paper", "--help"], ["summary", "--help"]):
         with pytest.raises(SystemExit):
             main(args)
@@ -118,6 +128,7 @@ def test_paper_command_output_folders(monkeypatch, capsys):
     assert "reproduce Figures 4.1-4.4" in text and "seed of the Brownian samples" in text
     assert "paper-output-fast" in text and "Command line:" not in text
     assert "--no-cache" in text
+    assert "$JAX_COMPILATION_CACHE_DIR" in text and "$XDG_CACHE_HOME" in text
 
 
 def test_the_command_line_keeps_compiled_programs_in_the_user_cache(tmp_path):
@@ -160,14 +171,6 @@ def test_summary_writes_each_line_as_it_is_produced():
         proc.wait()
     assert lines[0].startswith("slps-jax ") and lines[3].startswith("Strong errors:")
     assert still_running  # the study had not finished when its announcement arrived
-
-
-def test_plus_minus_gives_the_error_one_significant_digit():
-    from slps_jax._paper import plus_minus
-
-    assert plus_minus(1.0551, 0.0012) == "1.055 ± 0.001"
-    assert plus_minus(1.05, 0.0004) == "1.0500 ± 0.0004"
-    assert plus_minus(1.2, 0.096) == "1.2 ± 0.1"
 
 
 def test_a_float32_study_warns_once_and_a_float64_study_does_not():
