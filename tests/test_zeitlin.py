@@ -46,14 +46,37 @@ def test_laplacian_spectrum_and_spin_casimir(N):
     np.testing.assert_allclose(z.laplacian(P), ref, atol=1e-11)
 
 
+@pytest.mark.parametrize("route", z.ROUTES)
 @pytest.mark.parametrize("N", [5, 16, 33])
-def test_solve_poisson_inverts_the_laplacian_on_traceless_matrices(N):
+def test_solve_poisson_inverts_the_laplacian_on_traceless_matrices(N, route):
     alg = sj.su(N)
     W = jnp.stack([alg.random_state(k) for k in jax.random.split(jax.random.PRNGKey(N), 3)])
-    P = z.solve_poisson(W)  # batched
+    P = z.solve_poisson(W, route=route)  # batched
     np.testing.assert_allclose(z.laplacian(P), W, atol=1e-12 * N)
     for p in P:
         alg.validate("P", np.asarray(p))
+
+
+def test_poisson_routes_agree_to_round_off_at_research_size():
+    """N = 256: both routes solve Delta_N P = W to 1e-12 N (the residual through `laplacian`,
+    an independent O(N^2) stencil) and agree to round-off; in complex64 to its precision."""
+    N = 256
+    W = sj.su(N).random_state(jax.random.key(0))
+    P = {r: z.solve_poisson(W, route=r) for r in z.ROUTES}
+    for p in P.values():
+        assert float(jnp.max(jnp.abs(z.laplacian(p) - W))) < 1e-12 * N
+    scale = float(jnp.max(jnp.abs(P["tridiagonal"])))
+    assert float(jnp.max(jnp.abs(P["scan"] - P["tridiagonal"]))) < 1e-13 * scale
+    # complex64: the scan's coefficients are computed in float64 (7e-7 measured), LAPACK's
+    # elimination runs in float32 (1e-4 on the nearly singular m = 0 block): "auto" is scan
+    W32 = W.astype(jnp.complex64)
+    bound = {"scan": 1e-5, "tridiagonal": 1e-3, "auto": 1e-5}
+    for route, rel in bound.items():
+        p = z.solve_poisson(W32, route=route)
+        assert p.dtype == jnp.complex64
+        assert float(jnp.max(jnp.abs(p - P["tridiagonal"]))) < rel * scale, route
+    with pytest.raises(ValueError, match="route"):
+        z.solve_poisson(W, route="fft")
 
 
 def test_quantised_harmonics_are_orthonormal_eigenvectors_and_invert():

@@ -41,6 +41,26 @@ def adjoint(m):
     return jnp.conj(jnp.swapaxes(m, -1, -2))
 
 
+def skew_from_upper(u, n):
+    """The `(n, n)` matrix with the entries `u` (`(..., n(n-1)/2)`, in `np.triu_indices(n, 1)`
+    order) above the diagonal, their negated conjugates below it and zeros on it. A gather
+    with fixed indices: a scatter into a zero matrix runs element by element on a GPU (0.65 s
+    at n = 256 on an H200, where the gather takes microseconds)."""
+    i, j = np.indices((n, n))
+    g = u[..., _upper_position(n)]
+    return jnp.where(i < j, g, jnp.where(i > j, -jnp.conj(g), jnp.zeros((), g.dtype)))
+
+
+@functools.cache
+def _upper_position(n):
+    """`p[i, j]`: the position of `(min(i, j), max(i, j))` in `np.triu_indices(n, 1)` (0 on
+    the diagonal)."""
+    rows, cols = np.triu_indices(n, 1)
+    p = np.zeros((n, n), dtype=np.int64)
+    p[rows, cols] = np.arange(rows.size)
+    return p + p.T
+
+
 class AbstractAlgebra:
     name: str
     shape: tuple

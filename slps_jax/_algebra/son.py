@@ -7,7 +7,7 @@ import functools
 import jax.numpy as jnp
 import numpy as np
 
-from .base import AbstractAlgebra, adjoint
+from .base import AbstractAlgebra, adjoint, skew_from_upper
 
 
 class SOnAlgebra(AbstractAlgebra):
@@ -58,9 +58,7 @@ class SOnAlgebra(AbstractAlgebra):
         return y[..., self._rows, self._cols]
 
     def from_coordinates(self, x):
-        m = jnp.zeros(x.shape[:-1] + self.shape, x.dtype)
-        m = m.at[..., self._rows, self._cols].set(x)
-        return m - jnp.swapaxes(m, -1, -2)
+        return skew_from_upper(x, self.n)
 
 
 @functools.cache

@@ -7,7 +7,7 @@ import functools
 import jax.numpy as jnp
 import numpy as np
 
-from .base import AbstractAlgebra, adjoint
+from .base import AbstractAlgebra, adjoint, skew_from_upper
 
 
 class SUnAlgebra(AbstractAlgebra):
@@ -94,9 +94,7 @@ class SUnAlgebra(AbstractAlgebra):
         k = len(self._rows)
         dtype = jnp.result_type(x.dtype, jnp.complex64)
         upper = (x[..., :k] + 1j * x[..., k:2 * k]).astype(dtype)
-        m = jnp.zeros(x.shape[:-1] + self.shape, dtype)
-        m = m.at[..., self._rows, self._cols].set(upper)
-        m = m - adjoint(m)
+        m = skew_from_upper(upper, self.n)
         d = x[..., 2 * k:] @ jnp.asarray(self._diag, x.dtype)
         return m + 1j * d[..., None, :] * jnp.eye(self.n, dtype=x.dtype)
 
