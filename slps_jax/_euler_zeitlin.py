@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from . import zeitlin
@@ -36,15 +37,31 @@ class EulerZeitlin(LiePoissonSystem):
 
     - `N`: the matrix size, an integer $\ge 2$ (the field is resolved up to degree $N - 1$).
     - `c`, `noise`: as for `LiePoissonSystem` (default: deterministic).
+    - `dtype`: the states' dtype, `complex128` or `complex64` (default: that of `c` or of the
+      noise's matrices, complex128 with float64 enabled). `complex64` runs the model in
+      single precision while float64 stays enabled for everything else: `c` and the noise
+      are cast to it, and so are the states and increments given to it.
 
     `model.stream(W)` ($P = \Delta_N^{-1}W$), `model.energy(W)`, `model.enstrophy(W)`
     (quflow's normalisation), `model.algebra.casimirs(W)` ($\operatorname{tr}W^k$). All
     computations are $O(N^2)$ except the methods' matrix products.
     """
 
-    def __init__(self, N, *, c=None, noise=None):
+    def __init__(self, N, *, c=None, noise=None, dtype=None):
         if isinstance(N, (bool, np.bool_)) or not isinstance(N, (int, np.integer)) or N < 2:
             raise ValueError(f"EulerZeitlin needs an integer N >= 2, got {N!r}.")
+        if dtype is not None:
+            if jnp.dtype(dtype) not in (jnp.dtype(jnp.complex64), jnp.dtype(jnp.complex128)):
+                raise ValueError(f"EulerZeitlin: dtype must be complex64 or complex128, got "
+                                 f"{dtype!r}.")
+            real = jnp.finfo(dtype).dtype
+            if noise is None:
+                c = jnp.asarray(0.0 if c is None else c).astype(real)
+            else:
+                noise = jax.tree_util.tree_map(
+                    lambda x: x.astype(dtype if jnp.iscomplexobj(x) else real)
+                    if hasattr(x, "dtype") and jnp.issubdtype(x.dtype, jnp.inexact) else x,
+                    noise)
         super().__init__(_euler_hamiltonian, None, c=c, noise=noise, algebra=su(int(N)))
 
     @property
