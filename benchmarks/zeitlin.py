@@ -145,23 +145,86 @@ def cost(ns):
     return rows
 
 
+def _products(a, b):
+    """Two dependent complex N x N products, `(a b) b`: the floor's unit (an update of the
+    isospectral fixed point needs two, `Ŵ X` and `(Ŵ X) Ŵ`)."""
+    return (a @ b) @ b
+
+
+def scale(ns, dtypes, budget_s):
+    """Per N and dtype, one state: `solve_poisson` by each route, two N x N products (the
+    floor's unit), and one `IsospectralMidpoint` step at h = 0.64/N s (a step its fixed
+    point solves: h = 0.01 s at N = 64) with its updates and matrix products
+    (2 per update, 2 and an LU for the final Cayley rotation). A part whose last point took
+    longer than `budget_s` is not run at larger N. Matrix products at
+    `precision="highest"` (on a GPU the default is TF32 for complex64)."""
+    rows, over = [], set()
+    for N in ns:
+        for dtype in dtypes:
+            w0 = initial(N).astype(dtype)
+            real = jnp.finfo(dtype).dtype
+            row = dict(N=N, dtype=jnp.dtype(dtype).name, h=0.64 / N)
+            parts = {f"poisson_{r}_ms": (jax.jit(lambda w, r=r: z.solve_poisson(w, route=r)), (w0,))
+                     for r in z.ROUTES}
+            rng = np.random.default_rng(N)
+            a, b = (jnp.asarray(rng.normal(size=(N, N)) + 1j * rng.normal(size=(N, N)), dtype)
+                    for _ in range(2))
+            parts["two_products_ms"] = (jax.jit(_products), (a, b))
+            model = sj.EulerZeitlin(N, dtype=dtype)
+            step = jax.jit(lambda w, d: sj.integrate(model, w, d, 0.64 / N, throw=False,
+                                                     method=sj.IsospectralMidpoint()))
+            parts["step_ms"] = (step, (w0, jnp.zeros((1, 1), real)))
+            for name, (fn, args) in parts.items():
+                if (name, dtype) in over:
+                    row[name] = None
+                    continue
+                start = time.perf_counter()
+                jax.block_until_ready(fn(*args))
+                first = time.perf_counter() - start
+                med, _, _, _ = _common.time_call(fn, *args, repeats=3, min_total=0.3,
+                                                 warmup=False)
+                row[name] = 1e3 * med
+                if first + 3 * med > budget_s:
+                    over.add((name, dtype))
+            if row["step_ms"] is not None:
+                sol = sj.simulate(model, w0, t1=0.64 / N, dt=0.64 / N, n_samples=1,
+                                  key=jax.random.key(0), method=sj.IsospectralMidpoint(),
+                                  newton_stats=True, throw=False)
+                row["updates"] = float(sol.stats["newton_iterations_mean"])
+                row["products"] = 2 * row["updates"] + 2
+                row["floor_ms"] = row["products"] / 2 * row["two_products_ms"]
+                row["step_vs_floor"] = row["step_ms"] / row["floor_ms"]
+            rows.append(row)
+            print("  ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
+                            for k, v in row.items()), flush=True)
+    return rows
+
+
 def conservation(N, n_steps):
-    model, w0 = sj.EulerZeitlin(N), initial(N)
-    c0, e0 = np.asarray(model.algebra.casimirs(w0)), float(model.energy(w0))
+    """The largest relative drift of tr W^2, |tr W^3|, tr W^4 and of the energy along one
+    deterministic path, each method in complex128 and `IsospectralMidpoint` in complex64
+    (`EulerZeitlin(N, dtype=complex64)`, the same initial state cast)."""
     rows = []
-    for name, method in METHODS.items():
+    runs = [(name, method, jnp.complex128) for name, method in METHODS.items()]
+    runs.append(("IsospectralMidpoint", METHODS["IsospectralMidpoint"], jnp.complex64))
+    w0 = initial(N)
+    c0 = np.asarray(sj.su(N).casimirs(w0))
+    e0 = float(z.energy(w0))
+    for name, method, dtype in runs:
+        model = sj.EulerZeitlin(N, dtype=dtype)
         sol = sj.simulate(model, w0, t1=n_steps * H, dt=H, n_samples=1, key=jax.random.key(0),
                           method=method, save_every=n_steps // 10)
         if int(sol.stats["n_failed"]):
             raise RuntimeError(f"{name}: the path failed; its frozen state is not data.")
-        ws = sol.ys[0]
+        ws = sol.ys[0].astype(jnp.complex128)
         c = np.asarray(model.algebra.casimirs(ws))
         rel = np.max(np.abs(c - c0), axis=0) / np.abs(c0)
-        rows.append(dict(method=name, N=N, steps=n_steps, tr_w2=rel[0], tr_w3=rel[1],
-                         tr_w4=rel[2],
-                         energy=float(np.max(np.abs(np.asarray(model.energy(ws)) - e0))) / e0))
-        print(f"conservation {name:20s}: tr W^2 {rel[0]:.1e}, tr W^3 {rel[1]:.1e}, "
-              f"tr W^4 {rel[2]:.1e}, energy {rows[-1]['energy']:.1e}", flush=True)
+        rows.append(dict(method=name, dtype=jnp.dtype(dtype).name, N=N, steps=n_steps,
+                         tr_w2=rel[0], tr_w3=rel[1], tr_w4=rel[2],
+                         energy=float(np.max(np.abs(np.asarray(z.energy(ws)) - e0))) / e0))
+        print(f"conservation {name:20s} {jnp.dtype(dtype).name:10s}: tr W^2 {rel[0]:.1e}, "
+              f"tr W^3 {rel[1]:.1e}, tr W^4 {rel[2]:.1e}, energy {rows[-1]['energy']:.1e}",
+              flush=True)
     return rows
 
 
@@ -230,12 +293,35 @@ def main(argv=None):
     p.add_argument("--check-quflow", action="store_true",
                    help="compare conventions and dynamics with quflow (needs quflow)")
     p.add_argument("--out", default=_common.DEFAULT_OUT, help="output folder (default: %(default)s)")
+    p.add_argument("--scale", action="store_true",
+                   help="only the Poisson solve's routes, the step and its matrix-product "
+                        "floor against N (64 ... 256; with --gpu 64 ... 2048), complex128 "
+                        "and complex64, into zeitlin_scale.*")
+    p.add_argument("--gpu", action="store_true",
+                   help="with --scale: the sizes for one GPU, about 3 minutes")
     args = p.parse_args(argv)
     os.makedirs(args.out, exist_ok=True)
     info = _common.machine_info()
     info["quflow"] = None if qf is None else getattr(qf, "__version__", "?")
     print(f"# Euler-Zeitlin: {info['cpu_model']}, {info['cpu_count']} cores, jax {info['jax']}, "
           f"quflow {info['quflow']}, {info['date']}", flush=True)
+    if args.scale:
+        ns = (8,) if args.fast else (64, 128, 256, 512, 1024, 2048) if args.gpu else (64, 128, 256)
+        with jax.default_matmul_precision("highest"):
+            rows = scale(ns, (jnp.complex128, jnp.complex64), budget_s=60.0)
+        _common.write_csv(os.path.join(args.out, "zeitlin_scale.csv"), rows)
+        _common.write_json(os.path.join(args.out, "zeitlin_scale.json"),
+                           dict(machine=info, rows=rows))
+        with open(os.path.join(args.out, "zeitlin_scale.md"), "w") as fh:
+            device = (info["cpu_model"] if jax.default_backend() == "cpu"
+                      else jax.devices()[0].device_kind)
+            fh.write(f"Measured on {device}, jax {info['jax']}, "
+                     f"{info['date'][:10]}; one state, ms.\n\n")
+            cols = ["N", "dtype", "h", "poisson_tridiagonal_ms", "poisson_scan_ms",
+                    "two_products_ms", "step_ms", "updates", "floor_ms", "step_vs_floor"]
+            fh.write(_common.markdown_table([{k: r.get(k) for k in cols} for r in rows], cols,
+                                            {k: ".3g" for k in cols[2:]}))
+        return
     if args.check_quflow and qf is None:
         raise SystemExit("--check-quflow needs quflow (install it from its sources).")
     checked = check_quflow() if args.check_quflow else None
@@ -254,8 +340,8 @@ def main(argv=None):
              "iterations": ".1f", "tol": ".1e", "maxit_reached": ".2f",
              "diff_vs_quflow": ".1e"}))
         fh.write("\nRelative drift over the path\n\n")
-        fh.write(_common.markdown_table(cons, ["method", "N", "steps", "tr_w2", "tr_w3", "tr_w4",
-                                               "energy"],
+        fh.write(_common.markdown_table(cons, ["method", "dtype", "N", "steps", "tr_w2", "tr_w3",
+                                               "tr_w4", "energy"],
                                         {k: ".1e" for k in ("tr_w2", "tr_w3", "tr_w4", "energy")}))
     figure(os.path.join(args.out, "zeitlin.png"), rows)
 
