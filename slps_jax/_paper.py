@@ -14,6 +14,8 @@ import os
 import sys
 import time
 
+from ._convergence import order_text
+
 
 def _settings(fast):
     if fast:
@@ -43,12 +45,6 @@ def _exact_paths(model, y0, *parts):
     ys = jax.vmap(lambda ti, wi: sj.exact_solution(model, y0, ti, wi))(jnp.concatenate(ts),
                                                                       jnp.concatenate(ws))
     return jnp.split(ys, np.cumsum([w.shape[0] for w in ws])[:-1])
-
-
-def _order_text(order, stderr):
-    """A fitted order with its standard error as the results table writes it (`1.130 ± 0.025`);
-    Figure 4.4's legend uses it too, so the two agree digit for digit."""
-    return f"{order:.3f} ± {stderr:.3f}"
 
 
 def run(out_dir="paper-output", fast=False, seed=0, stream=None):
@@ -230,7 +226,7 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
         for name, res in conv.items():
             e, se = res.errors[name], res.stderr[name]
             ax.errorbar(hs, e, yerr=2 * se, marker="o", ms=4, capsize=2, color=colors[name],
-                        label=f"{name}: slope {_order_text(res.order[name], res.order_stderr[name])}")
+                        label=f"{name}: slope {order_text(res.order[name], res.order_stderr[name])}")
         # the largest bar relative to its error, for the title: at 500 samples most bars are
         # shorter than the markers' radius and cannot be seen (15% at --fast's 100 samples)
         bar = max(float(np.max(2 * res.stderr[n] / res.errors[n])) for n, res in conv.items())
@@ -290,7 +286,7 @@ def _table(results, names):
     for n in names:
         m = f44["methods"][n]
         d = f42["drift"][n]
-        lines.append(f"| {n} | {_order_text(m['order'], m['order_stderr'])} | "
+        lines.append(f"| {n} | {order_text(m['order'], m['order_stderr'])} | "
                      f"{m['rms_error'][-1]:.3e} | {d['casimir_max']:.1e} | {d['energy_max']:.1e} | "
                      f"{m['seconds']:.1f} |")
     lines += ["", f"Exact sampler (`Exact`): largest RMS error {f44['exact_method_max_rms_error']:.1e} "

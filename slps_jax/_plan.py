@@ -50,8 +50,9 @@ def check_method(method, model=None):
     if isinstance(method, str) and method == "auto" and model is not None:
         return default_method(model)
     if not isinstance(method, AbstractMethod):
+        accepted = "an instance" if model is None else "'auto' or an instance"
         raise TypeError(
-            f"method must be 'auto' or an instance such as Midpoint(), got {method!r}"
+            f"method must be {accepted} such as Midpoint(), got {method!r}"
             + (" (a class: call it)" if isinstance(method, type) else "") + "."
         )
     check_options(method)  # again here: a dataclass can be built around its constructor

@@ -98,8 +98,10 @@ def automatic(sharding, inputs):
 
 def as_given(tree, sharding):
     """`tree`'s arrays over `sharding`'s own mesh again where `automatic` ran them over an
-    auto-axis copy of it, so that they combine with the caller's arrays."""
-    return tree if auto_axes(sharding) is sharding else _relabel(tree, sharding.mesh)
+    auto-axis copy of it, so that they combine with the caller's arrays (`_relabel` leaves
+    arrays already on it alone)."""
+    mesh = getattr(sharding, "mesh", None)
+    return _relabel(tree, mesh) if isinstance(mesh, Mesh) else tree
 
 
 def _relabel(tree, mesh):
