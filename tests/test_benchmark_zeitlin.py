@@ -32,3 +32,16 @@ def test_zeitlin(tmp_path):
     if "quflow isomp" in methods:
         diffs = [r["diff_vs_quflow"] for r in out["cost"] if r["method"] == "IsospectralMidpoint"]
         assert max(diffs) < 1e-10
+
+
+def test_zeitlin_scale(tmp_path):
+    """`--scale` (the GPU mode's sizes cut to N = 8): both Poisson routes, the products, the
+    step and its floor are measured in both dtypes."""
+    run_script("zeitlin.py", tmp_path, "--scale")
+    rows = json.loads((tmp_path / "zeitlin_scale.json").read_text())["rows"]
+    assert [r["dtype"] for r in rows] == ["complex128", "complex64"]
+    for r in rows:
+        for k in ("poisson_tridiagonal_ms", "poisson_scan_ms", "two_products_ms", "step_ms"):
+            assert r[k] > 0, (k, r)
+        assert r["updates"] >= 1 and r["floor_ms"] > 0
+    assert (tmp_path / "zeitlin_scale.md").read_text().count("| 8 |") == 2
