@@ -7,7 +7,8 @@ the quantised harmonics of Hoppe & Yau. The conventions (basis, signs, normalisa
 those of quflow (Modin & Viviani), so that coefficients, matrices, energies and times can be
 moved between the two:
 
-- `shr2mat(omega, N)` / `mat2shr(W)`: coefficients to matrix and back;
+- `shr2mat(omega, N)` / `mat2shr(W, L)`: coefficients to matrix and back (degrees
+  below `L`);
 - `laplacian(P)` ($\Delta_N$, eigenvalues $-\ell(\ell+1)$ on $T_{\ell m}$) and
   `solve_poisson(W)` ($\Delta_N^{-1}$ on traceless matrices), both $O(N^2)$: $\Delta_N$ maps
   each diagonal of a matrix to itself and is tridiagonal there;
@@ -100,17 +101,15 @@ def _from_lower_diagonals(D, N):
     return jnp.where(jnp.asarray(i >= j), low, -jnp.conj(low))
 
 
-ROUTES = ("tridiagonal", "scan")
+ROUTES = ("sweep", "scan")
 
 
-def _route(route, dtype):
-    """`"auto"`: `"tridiagonal"` (LAPACK's solver, O(N^2)) on the CPU in double precision,
-    `"scan"` elsewhere: on accelerators (on an H200 the tridiagonal solver took 55 ms for
-    the N systems at N = 512, the scans 0.37 ms, two products 0.14 ms) and in single precision (its coefficients,
-    computed once in float64, gave 7e-7 relative error at N = 256 against LAPACK's 1e-4)."""
+def _route(route):
+    """`"auto"`: `"sweep"` on the CPU, `"scan"` elsewhere (on an H200 a sequential loop of
+    N steps costs N kernel launches; the scans take 0.37 ms at N = 512, two products
+    0.14 ms)."""
     if route == "auto":
-        double = jnp.finfo(dtype).bits == 64
-        return "tridiagonal" if jax.default_backend() == "cpu" and double else "scan"
+        return "sweep" if jax.default_backend() == "cpu" else "scan"
     if route not in ROUTES:
         raise ValueError(f"route must be 'auto' or one of {ROUTES}, got {route!r}.")
     return route
@@ -130,9 +129,10 @@ def _poisson_blocks(N):
 def _elimination(N):
     r"""The Thomas algorithm's coefficients for the `N` blocks, computed once per `N` in
     float64: the forward sweep $y_t = a_t y_{t-1} + b_t r_t$, the back substitution
-    $x_t = y_t - c_t x_{t+1}$. The blocks are symmetric and definite (the trace-fixed
-    $m = 0$ one too), so elimination without pivoting is stable ($|c_t| < 1$); the scans
-    agree with LAPACK's solver to 2e-15 relative at N = 64 ... 1024."""
+    $x_t = y_t - c_t x_{t+1}$, each `(m, t)`. The blocks are symmetric and definite (the
+    trace-fixed $m = 0$ one too), so elimination without pivoting is stable ($|c_t| < 1$);
+    both routes agree with LAPACK's tridiagonal solver to 2e-15 relative at N = 64 ... 1024,
+    and in single precision err by 7e-7 (LAPACK's float32 elimination: 1e-4)."""
     d, e = _poisson_blocks(N)
     den = np.empty_like(d)
     c = np.zeros_like(d)
@@ -144,6 +144,16 @@ def _elimination(N):
     return a, 1.0 / den, c
 
 
+@functools.cache
+def _elimination_by_entry(N):
+    """`_elimination`'s coefficients at each entry `(i, j)` of a matrix: those of the
+    position `min(i, j)` on the diagonal `|i - j|` (the block of the upper diagonal `-m` is
+    that of the lower diagonal `m`)."""
+    i, j = np.indices((N, N))
+    m, t = np.abs(i - j), np.minimum(i, j)
+    return tuple(x[m, t] for x in _elimination(N))
+
+
 def _linear_recurrence(a, b):
     """`x_t = a_t x_{t-1} + b_t` (`x_{-1} = 0`) along the last axis, by an associative scan:
     O(log N) steps of elementwise work, no sequential loop."""
@@ -153,43 +163,58 @@ def _linear_recurrence(a, b):
     return jax.lax.associative_scan(combine, (jnp.broadcast_to(a, b.shape), b), axis=-1)[1]
 
 
-def _solve_blocks(D, route):
-    """The `N` tridiagonal systems of the lower diagonals `D` (`(..., m, t)`), complex."""
-    N = D.shape[-1]
-    real = jnp.finfo(D.dtype).dtype
-    if route == "scan":
-        a, inv, c = (jnp.asarray(x, real) for x in _elimination(N))
-        y = _linear_recurrence(a, inv * D)
-        return _linear_recurrence(-c[..., ::-1], y[..., ::-1])[..., ::-1]
-    d, e = _poisson_blocks(N)
-    rhs = jnp.stack([jnp.real(D), jnp.imag(D)], axis=-1)  # (..., N, N, 2)
-    batch = rhs.shape[:-3]
-    dl = jnp.broadcast_to(jnp.asarray(np.concatenate([np.zeros((N, 1)), e[:, :-1]], 1), real),
-                          batch + (N, N))
-    du = jnp.broadcast_to(jnp.asarray(e, real), batch + (N, N))
-    dd = jnp.broadcast_to(jnp.asarray(d, real), batch + (N, N))
-    x = jax.lax.linalg.tridiagonal_solve(dl, dd, du, rhs)
-    return (x[..., 0] + 1j * x[..., 1]).astype(D.dtype)
+def _solve_by_scans(W):
+    """Route `"scan"`: the lower diagonals' systems, both sweeps by associative scans."""
+    N = W.shape[-1]
+    real = jnp.finfo(W.dtype).dtype
+    a, inv, c = (jnp.asarray(x, real) for x in _elimination(N))
+    y = _linear_recurrence(a, inv * _lower_diagonals(W))
+    x = _linear_recurrence(-c[..., ::-1], y[..., ::-1])[..., ::-1]
+    return _from_lower_diagonals(x, N)
+
+
+def _solve_by_sweeps(W):
+    """Route `"sweep"`: every diagonal's system at once, row by row in the matrix's own
+    layout (entry `(i, j)` follows `(i - 1, j - 1)`: the previous row shifted by one), as
+    two sequential `lax.scan`s over the `N` rows; no gather, no per-system solver call."""
+    N = W.shape[-1]
+    real = jnp.finfo(W.dtype).dtype
+    a, inv, c = (jnp.asarray(x, real) for x in _elimination_by_entry(N))
+    rows = jnp.moveaxis(W, -2, 0)
+    zero = jnp.zeros_like(rows[0, ..., :1])
+
+    def forward(y, coefficients):
+        at, it, rt = coefficients
+        y = at * jnp.concatenate([zero, y[..., :-1]], -1) + it * rt
+        return y, y
+
+    def back(x, coefficients):
+        ct, yt = coefficients
+        x = yt - ct * jnp.concatenate([x[..., 1:], zero], -1)
+        return x, x
+
+    _, y = jax.lax.scan(forward, jnp.zeros_like(rows[0]), (a, inv, rows))
+    _, x = jax.lax.scan(back, jnp.zeros_like(rows[0]), (c, y), reverse=True)
+    return jnp.moveaxis(x, 0, -2)
 
 
 @functools.partial(jax.jit, static_argnames="route")
 def solve_poisson(W, route="auto"):
     r"""$P = \Delta_N^{-1}W$ for traceless `(..., N, N)` matrices $W$ (skew-Hermitian: the
-    stream matrix of the vorticity $W$), the traceless solution. Tridiagonal solves on the
-    `N` lower diagonals (the upper ones follow from $P^H = -P$), $O(N^2)$. On the main
-    diagonal $\Delta_N$ is singular (the identity); there the first diagonal entry is lowered
-    by $\tfrac12$, which leaves the solution exact for a traceless right-hand side, and the
+    stream matrix of the vorticity $W$), the traceless solution, in $O(N^2)$. $\Delta_N$
+    maps each diagonal to itself tridiagonally; its $N$ blocks are solved by the Thomas
+    algorithm, with coefficients computed once per `N` in float64. On the main diagonal
+    $\Delta_N$ is singular (the identity); there the first diagonal entry is lowered by
+    $\tfrac12$, which leaves the solution exact for a traceless right-hand side, and the
     trace is removed afterwards.
 
-    `route`: `"auto"` (default: `"tridiagonal"` on the CPU in double precision, `"scan"`
-    on accelerators and in single precision),
-    `"tridiagonal"` (`lax.linalg.tridiagonal_solve`, LAPACK on the CPU) or `"scan"` (the
-    Thomas algorithm with coefficients computed once per `N`, its two sweeps as associative
-    scans: elementwise work in $O(\log N)$ steps). The two agree to round-off."""
+    `route`: `"auto"` (default: `"sweep"` on the CPU, `"scan"` elsewhere), `"sweep"` (the
+    two sweeps as sequential loops over the rows, every diagonal at once) or `"scan"` (the
+    sweeps as associative scans on the lower diagonals: elementwise work in $O(\log N)$
+    steps). The two agree to round-off."""
     W = jnp.asarray(W)
     N = W.shape[-1]
-    X = _solve_blocks(_lower_diagonals(W), _route(route, W.dtype))
-    P = _from_lower_diagonals(X, N)
+    P = _solve_by_sweeps(W) if _route(route) == "sweep" else _solve_by_scans(W)
     tr = jnp.trace(P, axis1=-2, axis2=-1)[..., None, None] / N
     return P - tr * jnp.eye(N, dtype=P.dtype)
 
@@ -221,20 +246,22 @@ def enstrophy(W):
 
 
 @functools.cache
-def _basis(N):
-    r"""For each $m$, the `(N - m, N - m)` matrix whose column $\ell - m$ is the lower
-    diagonal $m$ of $T_{\ell m}$ (before quflow's phase), orthogonal with norm $\sqrt N$:
-    the eigenvectors of the Laplacian's tridiagonal block, ordered by $\ell$, signed so that
-    the last entry has the sign $(-1)^m$ (the orientation of the spherical harmonics)."""
+def _basis(N, L):
+    r"""For each $m < L$, the `(N - m, L - m)` matrix whose column $\ell - m$ is the lower
+    diagonal $m$ of $T_{\ell m}$, $\ell < L$ (before quflow's phase), orthonormal columns
+    times $\sqrt N$: eigenvectors of the Laplacian's tridiagonal block for its $L - m$
+    eigenvalues nearest zero, $-\ell(\ell+1)$, ordered by $\ell$, signed so that the last
+    entry has the sign $(-1)^m$ (the orientation of the spherical harmonics)."""
     d, e = _tridiagonal(N)
     out = []
-    for m in range(N):
+    for m in range(L):
         n = N - m
         if n == 1:
             w = np.ones((1, 1))
-        else:
-            _, w = scipy.linalg.eigh_tridiagonal(d[m, :n], e[m, :n - 1])
-            w = w[:, ::-1]  # eigenvalues -l(l+1) descending: l = m, m+1, ...
+        else:  # (the top L - m eigenvalues, ascending: l = L - 1, ..., m)
+            _, w = scipy.linalg.eigh_tridiagonal(d[m, :n], e[m, :n - 1], select="i",
+                                                 select_range=(n - (L - m), n - 1))
+            w = w[:, ::-1]
         w = w * np.sign(w[-1]) * (-1.0) ** m * math.sqrt(N)
         out.append(w)
     return out
@@ -250,34 +277,48 @@ def _harmonic_indices(L):
 
 
 @functools.cache
-def _index_tables(N):
-    basis = _basis(N)
-    table = np.zeros((N, N, N))  # table[m, t, l]: lower diagonal m of T_lm (zero-padded)
-    for m in range(N):
-        table[m, :N - m, m:] = basis[m]
-    return (table, *_harmonic_indices(N))
+def _table(N, L):
+    """`table[m, t, l]`: the lower diagonal `m` of $T_{\ell m}$ (zero-padded), `(L, N, L)`:
+    `N L^2` numbers (8.6 GB in float64 at N = L = 1024)."""
+    table = np.zeros((L, N, L))
+    for m, w in enumerate(_basis(N, L)):
+        table[m, :N - m, m:] = w
+    return table
+
+
+def _degrees(n, N):
+    """The number of degrees `L` (`L^2 >= n` coefficients), at most `N`."""
+    L = math.isqrt(n - 1) + 1 if n else 1
+    if L > N:
+        raise ValueError(f"{n} coefficients need degrees up to {L - 1}; su({N}) resolves "
+                         f"degrees below {N} ({N * N} coefficients).")
+    return L
 
 
 @functools.partial(jax.jit, static_argnames="N")
 def shr2mat(omega, N):
     r"""The matrix $W = \sum_{\ell m}\omega_{\ell m}T_{\ell m}$ of real spherical-harmonic
-    coefficients `omega` (shape `(..., L^2)`, $L \le N$, index $\ell^2 + \ell + m$), complex
-    `(..., N, N)`, skew-Hermitian; traceless when $\omega_{00} = 0$. quflow's `shr2mat`."""
+    coefficients `omega` (shape `(..., n)`, $n \le N^2$, index $\ell^2 + \ell + m$), complex
+    `(..., N, N)`, skew-Hermitian; traceless when $\omega_{00} = 0$. quflow's `shr2mat`.
+    Only the degrees given are used: with $L^2 \ge n$, the tables hold $NL^2$ numbers
+    (the full $N^3$ at $n = N^2$), so a smooth state of a large model is cheap to build."""
     omega = jnp.asarray(omega)
-    if omega.shape[-1] < N * N:
-        omega = jnp.pad(omega, [(0, 0)] * (omega.ndim - 1) + [(0, N * N - omega.shape[-1])])
-    table, plus, minus, valid = _index_tables(N)
+    L = _degrees(omega.shape[-1], N)
+    if omega.shape[-1] < L * L:
+        omega = jnp.pad(omega, [(0, 0)] * (omega.ndim - 1) + [(0, L * L - omega.shape[-1])])
+    plus, minus, valid = _harmonic_indices(L)
     real = jnp.result_type(omega.dtype, float)
     cdtype = jnp.result_type(real, jnp.complex64)
-    sgn = np.where(np.arange(N) % 2 == 0, 1.0, -1.0)[:, None]
+    sgn = np.where(np.arange(L) % 2 == 0, 1.0, -1.0)[:, None]
     wp = jnp.where(valid, omega[..., plus], 0.0)
     wm = jnp.where(valid, omega[..., minus], 0.0)
     # m = 0: the coefficients themselves; m > 0: (w_{l,m} - i w_{l,-m}) / sqrt 2
-    zero_m = np.arange(N)[:, None] == 0
+    zero_m = np.arange(L)[:, None] == 0
     c = jnp.where(zero_m, wp, (wp - 1j * wm) / math.sqrt(2.0)) * sgn  # (..., m, l)
-    diag = jnp.einsum("mtl,...ml->...mt", jnp.asarray(table, real), c.astype(cdtype))
-    # upper diagonal m: 1j * diag; lower: 1j * conj(diag)
+    diag = jnp.einsum("mtl,...ml->...mt", jnp.asarray(_table(N, L), real), c.astype(cdtype))
+    # upper diagonal m: 1j * diag; lower: 1j * conj(diag); zero for m >= L
     D = 1j * jnp.conj(diag)
+    D = jnp.pad(D, [(0, 0)] * (D.ndim - 2) + [(0, N - L), (0, 0)])
     W = _from_lower_diagonals(D.astype(cdtype), N)
     # the trace is 1j N omega_00 (T_00 = 1j I): exact, not left to rounding
     eye = jnp.eye(N, dtype=cdtype)
@@ -285,34 +326,37 @@ def shr2mat(omega, N):
     return W - tr * eye + 1j * omega[..., :1, None].astype(cdtype) * eye
 
 
-@jax.jit
-def mat2shr(W):
-    r"""The real spherical-harmonic coefficients `(..., N^2)` of a skew-Hermitian matrix
-    (`shr2mat`'s inverse). quflow's `mat2shr`."""
+@functools.partial(jax.jit, static_argnames="L")
+def mat2shr(W, L=None):
+    r"""The real spherical-harmonic coefficients `(..., L^2)` of a skew-Hermitian matrix,
+    degrees $\ell < L$ (default: all, $L = N$; `shr2mat`'s inverse). quflow's `mat2shr`.
+    The tables hold $NL^2$ numbers."""
     W = jnp.asarray(W)
     N = W.shape[-1]
-    table, plus, minus, valid = _index_tables(N)
+    L = N if L is None else L
+    if not 1 <= L <= N:
+        raise ValueError(f"mat2shr: L must be 1 ... N = {N}, got {L}.")
+    plus, minus, valid = _harmonic_indices(L)
     real = jnp.finfo(W.dtype).dtype
-    D = _lower_diagonals(W)  # D[m, t] = W[t + m, t] = 1j conj(diag)
-    proj = jnp.einsum("...mt,mtl->...ml", D, jnp.asarray(table, real)) / N  # (..., m, l)
-    sgn = np.where(np.arange(N) % 2 == 0, 1.0, -1.0)[:, None]
+    D = _lower_diagonals(W)[..., :L, :]  # D[m, t] = W[t + m, t] = 1j conj(diag)
+    proj = jnp.einsum("...mt,mtl->...ml", D, jnp.asarray(_table(N, L), real)) / N  # (m, l)
+    sgn = np.where(np.arange(L) % 2 == 0, 1.0, -1.0)[:, None]
     # m = 0: omega = proj / 1j; m > 0: omega_{l,m} = sqrt2 sgn Im(proj),
     # omega_{l,-m} = -sqrt2 sgn Re(proj)
-    zero_m = np.arange(N)[:, None] == 0
+    zero_m = np.arange(L)[:, None] == 0
     wp = jnp.where(zero_m, jnp.imag(proj), math.sqrt(2.0) * sgn * jnp.imag(proj))
     wm = -math.sqrt(2.0) * sgn * jnp.real(proj)
     # every index l^2 + l + m once: a gather in the coefficients' order, no scatter
     neg = valid & ~zero_m
-    order = _coefficient_order(N)
-    return jnp.concatenate([wp[..., valid], wm[..., neg]], axis=-1)[..., order]
+    return jnp.concatenate([wp[..., valid], wm[..., neg]], axis=-1)[..., _coefficient_order(L)]
 
 
 @functools.cache
-def _coefficient_order(N):
+def _coefficient_order(L):
     """The permutation taking `mat2shr`'s values, those of `m >= 0` then of `m < 0` in the
     `(m, l)` order of `_harmonic_indices`, to the coefficient order `l^2 + l + m`."""
-    _, plus, minus, valid = _index_tables(N)
-    neg = valid & (np.arange(N)[:, None] > 0)
+    plus, minus, valid = _harmonic_indices(L)
+    neg = valid & (np.arange(L)[:, None] > 0)
     return np.argsort(np.concatenate([plus[valid], minus[neg]]))
 
 

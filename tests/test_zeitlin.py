@@ -59,22 +59,24 @@ def test_solve_poisson_inverts_the_laplacian_on_traceless_matrices(N, route):
 
 def test_poisson_routes_agree_to_round_off_at_research_size():
     """N = 256: both routes solve Delta_N P = W to 1e-12 N (the residual through `laplacian`,
-    an independent O(N^2) stencil) and agree to round-off; in complex64 to its precision."""
+    an independent O(N^2) stencil) and agree to round-off, one state and a batch; in
+    complex64 (coefficients computed in float64) to its precision."""
     N = 256
     W = sj.su(N).random_state(jax.random.key(0))
     P = {r: z.solve_poisson(W, route=r) for r in z.ROUTES}
     for p in P.values():
         assert float(jnp.max(jnp.abs(z.laplacian(p) - W))) < 1e-12 * N
-    scale = float(jnp.max(jnp.abs(P["tridiagonal"])))
-    assert float(jnp.max(jnp.abs(P["scan"] - P["tridiagonal"]))) < 1e-13 * scale
-    # complex64: the scan's coefficients are computed in float64 (7e-7 measured), LAPACK's
-    # elimination runs in float32 (1e-4 on the nearly singular m = 0 block): "auto" is scan
+    scale = float(jnp.max(jnp.abs(P["scan"])))
+    assert float(jnp.max(jnp.abs(P["sweep"] - P["scan"]))) < 1e-13 * scale
+    batch = jnp.stack([W, 2 * W])
+    for r in z.ROUTES:
+        np.testing.assert_allclose(z.solve_poisson(batch, route=r)[1], 2 * P[r],
+                                   atol=1e-13 * scale)
     W32 = W.astype(jnp.complex64)
-    bound = {"scan": 1e-5, "tridiagonal": 1e-3, "auto": 1e-5}
-    for route, rel in bound.items():
+    for route in (*z.ROUTES, "auto"):
         p = z.solve_poisson(W32, route=route)
         assert p.dtype == jnp.complex64
-        assert float(jnp.max(jnp.abs(p - P["tridiagonal"]))) < rel * scale, route
+        assert float(jnp.max(jnp.abs(p - P["scan"]))) < 1e-5 * scale, route
     with pytest.raises(ValueError, match="route"):
         z.solve_poisson(W, route="fft")
 
@@ -311,3 +313,22 @@ def test_gradients_through_complex_states_and_retried_steps_match_finite_differe
         g = jax.grad(value)(0.3)
         fd = (value(0.3 + 1e-5) - value(0.3 - 1e-5)) / 2e-5
         np.testing.assert_allclose(float(g), float(fd), rtol=1e-6)
+
+
+def test_conversions_of_the_low_degrees_alone_agree_with_the_full_ones():
+    """`shr2mat` of L^2 coefficients and `mat2shr(W, L)` build tables of N L^2 numbers
+    (selected eigenvectors of each block) and agree with the full N^3 conversion; too many
+    coefficients or a bad L are refused."""
+    N, L = 33, 6
+    om = np.random.default_rng(5).normal(size=N * N)
+    W = z.shr2mat(om, N)
+    np.testing.assert_allclose(z.mat2shr(W, L=L), z.mat2shr(W)[:L * L], atol=1e-12)
+    low = np.where(np.arange(N * N) < L * L, om, 0.0)
+    np.testing.assert_allclose(z.shr2mat(om[:L * L], N), z.shr2mat(low, N), atol=1e-12)
+    np.testing.assert_allclose(z.shr2mat(om[:L * L - 3], N),
+                               z.shr2mat(np.where(np.arange(N * N) < L * L - 3, om, 0.0), N),
+                               atol=1e-12)
+    with pytest.raises(ValueError, match="degrees"):
+        z.shr2mat(np.zeros(N * N + 1), N)
+    with pytest.raises(ValueError, match="L must be"):
+        z.mat2shr(W, L=N + 1)
