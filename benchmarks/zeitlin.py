@@ -46,6 +46,7 @@ import _common  # noqa: E402
 
 import slps_jax as sj  # noqa: E402
 from slps_jax import zeitlin as z  # noqa: E402
+from slps_jax._algebra import matmul  # noqa: E402
 
 try:  # quflow is measured beside us where it is installed; never a dependency
     import quflow as qf
@@ -146,18 +147,39 @@ def cost(ns):
 
 
 def _products(a, b):
-    """Two dependent complex N x N products, `(a b) b`: the floor's unit (an update of the
-    isospectral fixed point needs two, `Ŵ X` and `(Ŵ X) Ŵ`)."""
+    """Two dependent N x N products, `(a b) b`, as the isospectral step makes them
+    (`matmul`: three real products for a complex one): the floor's unit (an update of the
+    fixed point needs two, `A X` and `(A X) A`)."""
+    return matmul(matmul(a, b), b)
+
+
+def _complex_products(a, b):
+    """The same with XLA's complex product."""
     return (a @ b) @ b
 
 
-def scale(ns, dtypes, budget_s):
+def _quflow_step_ms(w0, h, n_steps=8):
+    """quflow's `isomp` on one state, solved to 1e-13 (at most 100 updates), ms per step:
+    the median of 3 runs of `n_steps` steps after one that compiles Numba's kernels."""
+    qf.isomp(np.array(w0), h, steps=1, tol=1e-13, maxit=100)
+    times = []
+    for _ in range(3):
+        w = np.array(w0)
+        start = time.perf_counter()
+        qf.isomp(w, h, steps=n_steps, tol=1e-13, maxit=100)
+        times.append(time.perf_counter() - start)
+    return 1e3 * float(np.median(times)) / n_steps
+
+
+def scale(ns, dtypes, budget_s, members, max_members_n):
     """Per N and dtype, one state: `solve_poisson` by each route, two N x N products (the
-    floor's unit), and one `IsospectralMidpoint` step at h = 0.64/N s (a step its fixed
-    point solves: h = 0.01 s at N = 64) with its updates and matrix products
-    (2 per update, 2 and an LU for the final Cayley rotation). A part whose last point took
-    longer than `budget_s` is not run at larger N. Matrix products at
-    `precision="highest"` (on a GPU the default is TF32 for complex64)."""
+    floor's unit, by `matmul` and by XLA's complex product), and one `IsospectralMidpoint`
+    step at h = 0.64/N s (a step its fixed point solves: h = 0.01 s at N = 64,
+    0.0025 s at N = 256) with its updates and matrix products (2 per update, 1 for the
+    final update). The floor is the products alone, the faster kind.
+    quflow's `isomp` at the same h, solved to 1e-13, where it is installed (complex128). A
+    part whose last point took longer than `budget_s` is not run at larger N. Matrix
+    products at `precision="highest"` (on a GPU the default is TF32 for complex64)."""
     rows, over = [], set()
     for N in ns:
         for dtype in dtypes:
@@ -170,10 +192,17 @@ def scale(ns, dtypes, budget_s):
             a, b = (jnp.asarray(rng.normal(size=(N, N)) + 1j * rng.normal(size=(N, N)), dtype)
                     for _ in range(2))
             parts["two_products_ms"] = (_products, (a, b))
+            parts["two_complex_products_ms"] = (_complex_products, (a, b))
             model = sj.EulerZeitlin(N, dtype=dtype)
             step = lambda w, d: sj.integrate(model, w, d, 0.64 / N, throw=False,  # noqa: E731
                                              method=sj.IsospectralMidpoint())
             parts["step_ms"] = (step, (w0, jnp.zeros((1, 1), real)))
+            ensemble = jax.vmap(lambda w, d: sj.integrate(  # noqa: E731
+                model, w, d, 0.64 / N, throw=False, method=sj.IsospectralMidpoint()))
+            scales = jnp.asarray(1.0 + 0.01 * np.arange(members), real)[:, None, None]
+            if N <= max_members_n:
+                parts["ensemble_ms"] = (ensemble, (scales * w0,
+                                                   jnp.zeros((members, 4, 1), real)))
             for name, (fn, args) in parts.items():
                 if (name, dtype) in over:
                     row[name] = None
@@ -183,14 +212,21 @@ def scale(ns, dtypes, budget_s):
                 row[name] = 1e3 * med
                 if compile_s + 4 * med > budget_s:
                     over.add((name, dtype))
+            ensemble_ms = row.pop("ensemble_ms", None)  # (4 steps of each member)
+            row["ms_per_member_step"] = (None if ensemble_ms is None
+                                         else ensemble_ms / (4 * members))
             if row["step_ms"] is not None:
                 sol = sj.simulate(model, w0, t1=0.64 / N, dt=0.64 / N, n_samples=1,
                                   key=jax.random.key(0), method=sj.IsospectralMidpoint(),
                                   newton_stats=True, throw=False)
                 row["updates"] = float(sol.stats["newton_iterations_mean"])
-                row["products"] = 2 * row["updates"] + 2
-                row["floor_ms"] = row["products"] / 2 * row["two_products_ms"]
+                row["products"] = 2 * row["updates"] + 1
+                unit = min(row["two_products_ms"], row["two_complex_products_ms"])
+                row["floor_ms"] = row["products"] / 2 * unit
                 row["step_vs_floor"] = row["step_ms"] / row["floor_ms"]
+            if qf is not None and dtype == jnp.complex128 and jax.default_backend() == "cpu":
+                row["quflow_ms"] = _quflow_step_ms(w0, 0.64 / N)
+                row["step_vs_quflow"] = row["step_ms"] / row["quflow_ms"]
             rows.append(row)
             print("  ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
                             for k, v in row.items()), flush=True)
@@ -295,7 +331,8 @@ def main(argv=None):
                         "floor against N (64 ... 256; with --gpu 64 ... 2048), complex128 "
                         "and complex64, into zeitlin_scale.*")
     p.add_argument("--gpu", action="store_true",
-                   help="with --scale: the sizes for one GPU, about 5 minutes")
+                   help="with --scale: the sizes for one GPU and ensembles of 64, about 5 "
+                        "minutes")
     args = p.parse_args(argv)
     os.makedirs(args.out, exist_ok=True)
     info = _common.machine_info()
@@ -305,7 +342,8 @@ def main(argv=None):
     if args.scale:
         ns = (8,) if args.fast else (64, 128, 256, 512, 1024, 2048) if args.gpu else (64, 128, 256)
         with jax.default_matmul_precision("highest"):
-            rows = scale(ns, (jnp.complex128, jnp.complex64), budget_s=60.0)
+            rows = scale(ns, (jnp.complex128, jnp.complex64), budget_s=60.0,
+                         members=64 if args.gpu else 4, max_members_n=512)
         _common.write_csv(os.path.join(args.out, "zeitlin_scale.csv"), rows)
         _common.write_json(os.path.join(args.out, "zeitlin_scale.json"),
                            dict(machine=info, rows=rows))
@@ -314,8 +352,10 @@ def main(argv=None):
                       else jax.devices()[0].device_kind)
             fh.write(f"Measured on {device}, jax {info['jax']}, "
                      f"{info['date'][:10]}; one state, ms.\n\n")
-            cols = ["N", "dtype", "h", "poisson_tridiagonal_ms", "poisson_scan_ms",
-                    "two_products_ms", "step_ms", "updates", "floor_ms", "step_vs_floor"]
+            cols = ["N", "dtype", "h", "poisson_sweep_ms", "poisson_scan_ms",
+                    "two_products_ms", "two_complex_products_ms", "step_ms", "updates",
+                    "floor_ms", "step_vs_floor", "quflow_ms", "step_vs_quflow",
+                    "ms_per_member_step"]
             fh.write(_common.markdown_table([{k: r.get(k) for k in cols} for r in rows], cols,
                                             {k: ".3g" for k in cols[2:]}))
         return

@@ -36,12 +36,13 @@ def test_zeitlin(tmp_path):
 
 def test_zeitlin_scale(tmp_path):
     """`--scale` (the GPU mode's sizes cut to N = 8): both Poisson routes, the products, the
-    step and its floor are measured in both dtypes."""
+    step, its floor and an ensemble are measured in both dtypes."""
     run_script("zeitlin.py", tmp_path, "--scale")
     rows = json.loads((tmp_path / "zeitlin_scale.json").read_text())["rows"]
     assert [r["dtype"] for r in rows] == ["complex128", "complex64"]
     for r in rows:
-        for k in ("poisson_tridiagonal_ms", "poisson_scan_ms", "two_products_ms", "step_ms"):
+        for k in ("poisson_sweep_ms", "poisson_scan_ms", "two_products_ms",
+                  "two_complex_products_ms", "step_ms", "ms_per_member_step"):
             assert r[k] > 0, (k, r)
         assert r["updates"] >= 1 and r["floor_ms"] > 0
     assert (tmp_path / "zeitlin_scale.md").read_text().count("| 8 |") == 2
