@@ -278,7 +278,7 @@ def _harmonic_indices(L):
 
 @functools.cache
 def _table(N, L):
-    """`table[m, t, l]`: the lower diagonal `m` of $T_{\ell m}$ (zero-padded), `(L, N, L)`:
+    r"""`table[m, t, l]`: the lower diagonal `m` of $T_{\ell m}$ (zero-padded), `(L, N, L)`:
     `N L^2` numbers (8.6 GB in float64 at N = L = 1024)."""
     table = np.zeros((L, N, L))
     for m, w in enumerate(_basis(N, L)):

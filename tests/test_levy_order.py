@@ -21,6 +21,7 @@ import pytest
 
 import slps_jax as sj
 from slps_jax._methods import METHODS
+from slps_jax._noise_hamiltonians import AbstractNoise
 from levy_reference import (coarsen, fine_path, fitted_order, salt_rigid_body_fields,
                             salt_so_n_fields, wong_zakai_solution)
 
@@ -216,3 +217,24 @@ def test_sampled_areas_in_a_study_give_order_one():
         sj.strong_convergence(model, Y0, t1=1.0, dts=HS, n_samples=4, key=jax.random.key(1),
                               methods={"s": sj.SaltSplitting()}, levy_area={"t": False},
                               reference=sj.SaltSplitting())
+
+
+@pytest.mark.parametrize("algebra", [sj.so(6), sj.su(8)], ids=str)
+def test_area_term_of_many_noises_equals_the_double_sum(algebra):
+    """The SALT area term (1/2) sum_{q,r} A_qr [X_q, X_r], written out in NumPy over every
+    pair, equals `area_gradient`'s O(r) form (one product of inner size r n) to round-off,
+    and so does the generic noise's area Hamiltonian (through JAX's gradient)."""
+    r = 5
+    keys = jax.random.split(jax.random.key(11), r + 1)
+    X = np.stack([np.asarray(algebra.random_state(k)) for k in keys[:r]])
+    a = np.asarray(jax.random.normal(keys[r], (r, r)))
+    A = a - a.T
+    ref = 0.5 * sum(A[q, s] * (X[q] @ X[s] - X[s] @ X[q]) for q in range(r) for s in range(r))
+    model = sj.LiePoissonSystem(lambda y, p: algebra.norm_sq(y), None, algebra=algebra,
+                                noise=sj.salt_noise(X))
+    y = algebra.random_state(jax.random.key(12))
+    np.testing.assert_allclose(model.area_gradient(y, jnp.asarray(A)), ref,
+                               atol=1e-12 * np.max(np.abs(ref)))
+    generic = AbstractNoise.area_gradient(model.noise, y, jnp.asarray(A), model.params,
+                                             algebra)
+    np.testing.assert_allclose(generic, ref, atol=1e-12 * np.max(np.abs(ref)))

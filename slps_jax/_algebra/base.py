@@ -11,7 +11,7 @@ What a method may use, and nothing else:
   `from_coordinates` (real coordinates, orthonormal for the pairing), `pairing`, `norm_sq`;
 - the Lie–Poisson structure: `gradient` (the gradient for the pairing from JAX's gradient of
   a real function of the state), `bracket(y, x)` (the field $[y, x]$ of a gradient `x`:
-  $dy = [y, \\nabla H]$), `casimirs`;
+  $dy = [y, \\nabla H]$), `bracket_sum` (of stacks, for the Lévy-area term), `casimirs`;
 - the group: `to_matrix`, `from_matrix`, `project` (the state nearest to a matrix),
   `adjoint` ($M^H$), `cayley` ($(I - X)^{-1}(I + X)$), `act(a, y)` ($a\\,y\\,a^{-1}$ for a
   unitary `a`), and real coordinates of the group's Lie algebra (`group_dim`,
@@ -51,6 +51,15 @@ def matmul(a, b):
     ar, ai, br, bi = jnp.real(a), jnp.imag(a), jnp.real(b), jnp.imag(b)
     t1, t2, t3 = ar @ br, ai @ bi, (ar + ai) @ (br + bi)
     return jax.lax.complex(t1 - t2, t3 - t1 - t2)
+
+
+def skew_bracket_sum(x, y):
+    r"""$\sum_q [X_q, Y_q]$ for stacks `(q, n, n)` of skew-adjoint matrices: $M - M^H$,
+    $M = \sum_q X_qY_q$ one product of inner size $qn$ (`matmul`), since
+    $Y_qX_q = (X_qY_q)^H$: the work of $q$ products, not of $2q$."""
+    q, n = x.shape[0], x.shape[-1]
+    m = matmul(jnp.swapaxes(x, 0, 1).reshape(n, q * n), y.reshape(q * n, n))
+    return m - adjoint(m)
 
 
 def skew_from_upper(u, n):
@@ -112,6 +121,10 @@ class AbstractAlgebra:
     def bracket(self, y, x):
         """$[y, x]$: the Lie–Poisson field of a gradient `x` at `y`."""
         return self.from_matrix(_commutator(self.to_matrix(y), self.to_matrix(x)))
+
+    def bracket_sum(self, x, y):
+        r"""$\sum_q [x_q, y_q]$ over the leading axis of two stacks of elements."""
+        return jnp.sum(self.bracket(x, y), axis=0)
 
     def casimirs(self, y):
         """The Casimir functions (real), shape `(..., k)`."""
