@@ -15,7 +15,7 @@ What a method may use, and nothing else:
 - the group: `to_matrix`, `from_matrix`, `project` (the state nearest to a matrix),
   `adjoint` ($M^H$), `cayley` ($(I - X)^{-1}(I + X)$), `act(a, y)` ($a\\,y\\,a^{-1}$ for a
   unitary `a`), and real coordinates of the group's Lie algebra (`group_dim`,
-  `group_coordinates`, `from_group_coordinates`: u(N) for su(N));
+  `group_coordinates`, `from_group_coordinates`: u(N) for su(N)) and `project_group`;
 - `validate` (a concrete state, with a clear message) and `random_state` (for tests).
 
 The defaults below are written once for every matrix algebra; an algebra overrides what it
@@ -160,6 +160,11 @@ class AbstractAlgebra:
     def from_group_coordinates(self, x):
         """The matrix of the group's Lie algebra with coordinates `x`."""
         return self.to_matrix(self.from_coordinates(x))
+
+    def project_group(self, m):
+        """The state nearest to a matrix `m` of the group's Lie algebra (skew-adjoint up to
+        rounding): `project`, which an algebra may do more cheaply for such matrices."""
+        return self.project(m)
 
     def cayley(self, x):
         r"""The Cayley map $(I - X)^{-1}(I + X) = I + 2X + O(X^2)$ of one matrix `x` of the

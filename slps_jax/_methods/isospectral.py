@@ -34,7 +34,8 @@ class IsospectralMidpoint(AbstractMethod):
     Lévy areas. Works on every algebra (so(3) through $\hat y$, so(n), su(N) with
     $Q Y_n Q^H$).
 
-    Solved on the real coordinates of $X$ from $X = Y_n$ (`jacobian` below).
+    Solved for $X$ from $X = Y_n$ (`jacobian` below); the step is
+    $Y_{n+1} = Y_n + [\hat W, X]$ at the root (one matrix product more).
 
     **Arguments:**
 
@@ -42,8 +43,9 @@ class IsospectralMidpoint(AbstractMethod):
     - `max_iter`: updates allowed (default `None`: 12 for Newton, 48 for the other modes).
     - `jacobian`: `"auto"` (default: `"newton"` up to so(5), `"identity"` above),
       `"newton"` (the Jacobian by autodiff at every update: quadratic convergence, 2–3
-      updates), `"identity"` (the fixed-point iteration
-      $X = Y_n + \tfrac12[\hat W, X] + \tfrac14\hat W X\hat W$: linear convergence at a
+      updates; on the real coordinates of $X$), `"identity"` (the fixed-point iteration
+      $X = Y_n + \tfrac12[\hat W, X] + \tfrac14\hat W X\hat W$ on the matrix, two
+      products per update, complex ones as three real products: linear convergence at a
       rate $O(h^{1/2})$ and no linear algebra, 4–7 updates at $h = 2^{-6}$, the fastest from
       so(8) on and on su(N) (Euler–Zeitlin: 8–25 updates at N = 8 … 128, h = 0.01 s; the
       linearly implicit iteration of quflow, $X = A^{-1}Y_nA^{-H}$, $A = I - \tfrac12\hat W$,
@@ -79,7 +81,7 @@ class IsospectralMidpoint(AbstractMethod):
         eye = jnp.eye(yn.shape[-1], dtype=yn.dtype)
 
         def half_w(x):  # (1/2) W^ = -(1/2) grad K(X) for a matrix X of the group's algebra
-            return -0.5 * alg.to_matrix(model.step_gradient(alg.project(x), dt, dW))
+            return -0.5 * alg.to_matrix(model.step_gradient(alg.project_group(x), dt, dW))
 
         # The midpoint X lies in the group's Lie algebra, not always in the system's: on
         # su(N), tr Y_n = 0 gives tr X = tr((W/2)^2 X), and X is solved for in u(N).
