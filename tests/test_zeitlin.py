@@ -332,3 +332,23 @@ def test_conversions_of_the_low_degrees_alone_agree_with_the_full_ones():
         z.shr2mat(np.zeros(N * N + 1), N)
     with pytest.raises(ValueError, match="L must be"):
         z.mat2shr(W, L=N + 1)
+
+
+def test_final_updates_agree_at_the_root_and_the_default_follows_the_precision():
+    """The explicit final update W_n + 2[A, X] and the Cayley rotation Q W_n Q^H agree to the
+    solver's tolerance in complex128 (one noisy step at N = 16); the default is explicit in
+    double precision and the Cayley rotation in single; a bad value is refused."""
+    N = 16
+    X = 0.2 * z.shr2mat(np.eye(N * N)[[1, 2, 3]], N)
+    w0 = z.shr2mat(np.concatenate([[0.0], np.random.default_rng(3).normal(size=24)]), N)
+    dW, A = sj.brownian_increments(jax.random.key(4), 3, 0.01, n_noises=3, levy_area=True)
+    model = sj.EulerZeitlin(N, noise=sj.salt_noise(X))
+    y = {f: sj.integrate(model, w0, dW, 0.01, levy_area=A,
+                         method=sj.IsospectralMidpoint(final_update=f))
+         for f in ("explicit", "cayley", "auto")}
+    assert 0 < float(jnp.max(jnp.abs(y["explicit"] - y["cayley"]))) < 1e-12
+    np.testing.assert_array_equal(y["auto"], y["explicit"])
+    method = sj.IsospectralMidpoint()
+    assert method._cayley(jnp.complex64) and not method._cayley(jnp.complex128)
+    with pytest.raises(ValueError, match="final_update"):
+        sj.IsospectralMidpoint(final_update="exact")
