@@ -171,12 +171,13 @@ def _quflow_step_ms(w0, h, n_steps=8):
     return 1e3 * float(np.median(times)) / n_steps
 
 
-def scale(ns, dtypes, budget_s, members, max_members_n):
+def scale(ns, dtypes, budget_s, members, member_ns, write):
     """Per N and dtype, one state: `solve_poisson` by each route, two N x N products (the
     floor's unit, by `matmul` and by XLA's complex product), and one `IsospectralMidpoint`
     step at h = 0.64/N s (a step its fixed point solves: h = 0.01 s at N = 64,
-    0.0025 s at N = 256) with its updates and matrix products (2 per update, 1 for the
-    final update). The floor is the products alone, the faster kind.
+    0.0025 s at N = 256) with its updates and matrix products (2 per update; 1 for the
+    explicit final update, the default in complex128; 2 and an LU for the Cayley rotation,
+    the default in complex64). The floor is the products alone, the faster kind.
     quflow's `isomp` at the same h, solved to 1e-13, where it is installed (complex128). A
     part whose last point took longer than `budget_s` is not run at larger N. Matrix
     products at `precision="highest"` (on a GPU the default is TF32 for complex64)."""
@@ -200,7 +201,7 @@ def scale(ns, dtypes, budget_s, members, max_members_n):
             ensemble = jax.vmap(lambda w, d: sj.integrate(  # noqa: E731
                 model, w, d, 0.64 / N, throw=False, method=sj.IsospectralMidpoint()))
             scales = jnp.asarray(1.0 + 0.01 * np.arange(members), real)[:, None, None]
-            if N <= max_members_n:
+            if N in member_ns:
                 parts["ensemble_ms"] = (ensemble, (scales * w0,
                                                    jnp.zeros((members, 4, 1), real)))
             for name, (fn, args) in parts.items():
@@ -220,7 +221,8 @@ def scale(ns, dtypes, budget_s, members, max_members_n):
                                   key=jax.random.key(0), method=sj.IsospectralMidpoint(),
                                   newton_stats=True, throw=False)
                 row["updates"] = float(sol.stats["newton_iterations_mean"])
-                row["products"] = 2 * row["updates"] + 1
+                final = 2 if sj.IsospectralMidpoint()._cayley(dtype) else 1
+                row["products"] = 2 * row["updates"] + final
                 unit = min(row["two_products_ms"], row["two_complex_products_ms"])
                 row["floor_ms"] = row["products"] / 2 * unit
                 row["step_vs_floor"] = row["step_ms"] / row["floor_ms"]
@@ -228,6 +230,7 @@ def scale(ns, dtypes, budget_s, members, max_members_n):
                 row["quflow_ms"] = _quflow_step_ms(w0, 0.64 / N)
                 row["step_vs_quflow"] = row["step_ms"] / row["quflow_ms"]
             rows.append(row)
+            write(rows)
             print("  ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
                             for k, v in row.items()), flush=True)
     return rows
@@ -331,8 +334,8 @@ def main(argv=None):
                         "floor against N (64 ... 256; with --gpu 64 ... 2048), complex128 "
                         "and complex64, into zeitlin_scale.*")
     p.add_argument("--gpu", action="store_true",
-                   help="with --scale: the sizes for one GPU and ensembles of 64, about 5 "
-                        "minutes")
+                   help="with --scale: N = 64 ... 2048 on one GPU and an ensemble of 64 at "
+                        "N = 512, about 8 minutes")
     args = p.parse_args(argv)
     os.makedirs(args.out, exist_ok=True)
     info = _common.machine_info()
@@ -341,23 +344,27 @@ def main(argv=None):
           f"quflow {info['quflow']}, {info['date']}", flush=True)
     if args.scale:
         ns = (8,) if args.fast else (64, 128, 256, 512, 1024, 2048) if args.gpu else (64, 128, 256)
+        device = (info["cpu_model"] if jax.default_backend() == "cpu"
+                  else jax.devices()[0].device_kind)
+
+        def write(rows):  # after every row: a run cut short keeps what it measured
+            _common.write_csv(os.path.join(args.out, "zeitlin_scale.csv"), rows)
+            _common.write_json(os.path.join(args.out, "zeitlin_scale.json"),
+                               dict(machine=info, rows=rows))
+            with open(os.path.join(args.out, "zeitlin_scale.md"), "w") as fh:
+                fh.write(f"Measured on {device}, jax {info['jax']}, {info['date'][:10]}; one "
+                         f"state, ms; an ensemble, ms per member-step.\n\n")
+                cols = ["N", "dtype", "h", "poisson_sweep_ms", "poisson_scan_ms",
+                        "two_products_ms", "two_complex_products_ms", "step_ms", "updates",
+                        "floor_ms", "step_vs_floor", "quflow_ms", "step_vs_quflow",
+                        "ms_per_member_step"]
+                fh.write(_common.markdown_table([{k: r.get(k) for k in cols} for r in rows],
+                                                cols, {k: ".3g" for k in cols[2:]}))
+
         with jax.default_matmul_precision("highest"):
-            rows = scale(ns, (jnp.complex128, jnp.complex64), budget_s=60.0,
-                         members=64 if args.gpu else 4, max_members_n=512)
-        _common.write_csv(os.path.join(args.out, "zeitlin_scale.csv"), rows)
-        _common.write_json(os.path.join(args.out, "zeitlin_scale.json"),
-                           dict(machine=info, rows=rows))
-        with open(os.path.join(args.out, "zeitlin_scale.md"), "w") as fh:
-            device = (info["cpu_model"] if jax.default_backend() == "cpu"
-                      else jax.devices()[0].device_kind)
-            fh.write(f"Measured on {device}, jax {info['jax']}, "
-                     f"{info['date'][:10]}; one state, ms.\n\n")
-            cols = ["N", "dtype", "h", "poisson_sweep_ms", "poisson_scan_ms",
-                    "two_products_ms", "two_complex_products_ms", "step_ms", "updates",
-                    "floor_ms", "step_vs_floor", "quflow_ms", "step_vs_quflow",
-                    "ms_per_member_step"]
-            fh.write(_common.markdown_table([{k: r.get(k) for k in cols} for r in rows], cols,
-                                            {k: ".3g" for k in cols[2:]}))
+            scale(ns, (jnp.complex128, jnp.complex64), budget_s=60.0,
+                  members=64 if args.gpu else 4, member_ns=(512,) if args.gpu else ns,
+                  write=write)
         return
     if args.check_quflow and qf is None:
         raise SystemExit("--check-quflow needs quflow (install it from its sources).")
