@@ -201,6 +201,15 @@ def scale(ns, dtypes, budget_s, members, member_ns, write):
             ensemble = jax.vmap(lambda w, d: sj.integrate(  # noqa: E731
                 model, w, d, 0.64 / N, throw=False, method=sj.IsospectralMidpoint()))
             scales = jnp.asarray(1.0 + 0.01 * np.arange(members), real)[:, None, None]
+            # 8 transport noises with their Lévy areas, one step (the area term's cost)
+            noisy = sj.EulerZeitlin(N, noise=sj.salt_noise(
+                0.05 * z.shr2mat(np.eye(N * N)[1:9], N)), dtype=dtype)
+            dW8, A8 = sj.brownian_increments(jax.random.key(N), 1, 0.64 / N, n_noises=8,
+                                             levy_area=True)
+            areas = lambda w, d, a: sj.integrate(  # noqa: E731
+                noisy, w, d, 0.64 / N, levy_area=a, throw=False,
+                method=sj.IsospectralMidpoint())
+            parts["step_8_areas_ms"] = (areas, (w0, dW8.astype(real), A8.astype(real)))
             if N in member_ns:
                 parts["ensemble_ms"] = (ensemble, (scales * w0,
                                                    jnp.zeros((members, 4, 1), real)))
@@ -226,6 +235,8 @@ def scale(ns, dtypes, budget_s, members, member_ns, write):
                 unit = min(row["two_products_ms"], row["two_complex_products_ms"])
                 row["floor_ms"] = row["products"] / 2 * unit
                 row["step_vs_floor"] = row["step_ms"] / row["floor_ms"]
+            if row["step_8_areas_ms"] is not None and row["step_ms"] is not None:
+                row["areas_vs_step"] = row["step_8_areas_ms"] / row["step_ms"]
             if qf is not None and dtype == jnp.complex128 and jax.default_backend() == "cpu":
                 row["quflow_ms"] = _quflow_step_ms(w0, 0.64 / N)
                 row["step_vs_quflow"] = row["step_ms"] / row["quflow_ms"]
@@ -357,7 +368,7 @@ def main(argv=None):
                 cols = ["N", "dtype", "h", "poisson_sweep_ms", "poisson_scan_ms",
                         "two_products_ms", "two_complex_products_ms", "step_ms", "updates",
                         "floor_ms", "step_vs_floor", "quflow_ms", "step_vs_quflow",
-                        "ms_per_member_step"]
+                        "ms_per_member_step", "areas_vs_step"]
                 fh.write(_common.markdown_table([{k: r.get(k) for k in cols} for r in rows],
                                                 cols, {k: ".3g" for k in cols[2:]}))
 

@@ -42,7 +42,8 @@ def test_zeitlin_scale(tmp_path):
     assert [r["dtype"] for r in rows] == ["complex128", "complex64"]
     for r in rows:
         for k in ("poisson_sweep_ms", "poisson_scan_ms", "two_products_ms",
-                  "two_complex_products_ms", "step_ms", "ms_per_member_step"):
+                  "two_complex_products_ms", "step_ms", "ms_per_member_step",
+                  "step_8_areas_ms"):
             assert r[k] > 0, (k, r)
         assert r["updates"] >= 1 and r["floor_ms"] > 0
     assert (tmp_path / "zeitlin_scale.md").read_text().count("| 8 |") == 2
