@@ -23,7 +23,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--samples", type=int, default=10 ** 5)
+    parser.add_argument("--samples", type=int, default=10**5)
     parser.add_argument("--chunks", default="1000,10000,100000")
     parser.add_argument("--fast", action="store_true", help="2000 samples, chunks of 500, 2000")
     parser.add_argument("--out", default=None)
@@ -33,21 +33,32 @@ def main(argv=None):
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    import slps_jax as sj
     from _common import DEFAULT_OUT, machine_info
 
+    import slps_jax as sj
+
     model, y0 = sj.RigidBody.paper(), jax.numpy.asarray(sj.PAPER_Y0)
-    dt, rows = 2.0 ** -5, []
-    print(f"{args.samples} samples x 32 steps\n\n| chunk_size | s (second run) | "
-          f"us per sample-step |\n|---|---|---|")
+    dt, rows = 2.0**-5, []
+    print(
+        f"{args.samples} samples x 32 steps\n\n| chunk_size | s (second run) | "
+        f"us per sample-step |\n|---|---|---|"
+    )
     for chunk in (int(c) for c in args.chunks.split(",")):
         for _ in range(2):
             start = time.perf_counter()
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)
-                sj.ensemble_statistics(model, y0, t1=1.0, dt=dt, n_samples=args.samples,
-                                       chunk_size=chunk, key=jax.random.key(0),
-                                       method=sj.LiePoisson(), progress=False)
+                sj.ensemble_statistics(
+                    model,
+                    y0,
+                    t1=1.0,
+                    dt=dt,
+                    n_samples=args.samples,
+                    chunk_size=chunk,
+                    key=jax.random.key(0),
+                    method=sj.LiePoisson(),
+                    progress=False,
+                )
             seconds = time.perf_counter() - start
         us = 1e6 * seconds / (args.samples * 32)
         rows.append({"chunk_size": chunk, "seconds": seconds, "us_per_sample_step": us})
@@ -55,8 +66,7 @@ def main(argv=None):
     out_dir = args.out or DEFAULT_OUT
     os.makedirs(out_dir, exist_ok=True)
     with open(os.path.join(out_dir, "chunk_size.json"), "w") as fh:
-        json.dump({"machine": machine_info(), "samples": args.samples, "rows": rows}, fh,
-                  indent=1)
+        json.dump({"machine": machine_info(), "samples": args.samples, "rows": rows}, fh, indent=1)
     return rows
 
 

@@ -22,8 +22,16 @@ import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-METHODS = ["LiePoisson", "LiePoissonSym2", "LiePoissonSym4", "Midpoint", "Strang", "Strang4",
-           "EulerMaruyama", "Exact"]
+METHODS = [
+    "LiePoisson",
+    "LiePoissonSym2",
+    "LiePoissonSym4",
+    "Midpoint",
+    "Strang",
+    "Strang4",
+    "EulerMaruyama",
+    "Exact",
+]
 REFERENCE = "diffrax Heun"
 SCAN_HEUN = "lax.scan Heun"
 
@@ -43,8 +51,8 @@ def measure(name, how, n_samples, n_steps, retry=None):
 
     model = sj.RigidBody.paper()
     y0 = jnp.asarray(sj.PAPER_Y0)
-    dt = 2.0 ** -9
-    dW = jax.random.normal(jax.random.key(0), (n_samples, n_steps)) * dt ** 0.5
+    dt = 2.0**-9
+    dW = jax.random.normal(jax.random.key(0), (n_samples, n_steps)) * dt**0.5
     if name in (REFERENCE, SCAN_HEUN):
         if how == "simulate":
             return None
@@ -55,22 +63,36 @@ def measure(name, how, n_samples, n_steps, retry=None):
             args = (dW,)
         else:
             w = jnp.concatenate([jnp.zeros((n_samples, 1)), jnp.cumsum(dW, axis=1)], axis=1)
-            fn = jax.vmap(lambda wi: wp.diffrax_final(model, y0, wp.IncrementPath(wi, dt),
-                                                      wp.dfx.Heun(), dt, n_steps))
+            fn = jax.vmap(
+                lambda wi: wp.diffrax_final(
+                    model, y0, wp.IncrementPath(wi, dt), wp.dfx.Heun(), dt, n_steps
+                )
+            )
             args = (w,)
     else:
         # a class name, or a constructor call such as "LiePoisson(unroll=3)"
         method = eval(name if "(" in name else name + "()", {"__builtins__": {}}, vars(sj))
-        opts = {} if retry is None else {
-            "retry_substeps": None if retry == "none" else int(retry)}
+        opts = {} if retry is None else {"retry_substeps": None if retry == "none" else int(retry)}
         if how == "integrate":
-            fn = jax.vmap(lambda dw: sj.integrate(model, y0, dw, dt, method=method,
-                                                  throw=False, **opts))
+            fn = jax.vmap(
+                lambda dw: sj.integrate(model, y0, dw, dt, method=method, throw=False, **opts)
+            )
             args = (dW,)
         else:
+
             def fn(key):
-                return sj.simulate(model, y0, t1=n_steps * dt, dt=dt, n_samples=n_samples,
-                                   key=key, method=method, throw=False, **opts).ys
+                return sj.simulate(
+                    model,
+                    y0,
+                    t1=n_steps * dt,
+                    dt=dt,
+                    n_samples=n_samples,
+                    key=key,
+                    method=method,
+                    throw=False,
+                    **opts,
+                ).ys
+
             args = (jax.random.key(1),)
     start = time.perf_counter()
     lowered = jax.jit(fn).lower(*args)
@@ -81,19 +103,43 @@ def measure(name, how, n_samples, n_steps, retry=None):
     from _common import time_call
 
     median, best, _, _ = time_call(compiled, *args, repeats=5)
-    return {"method": name, "how": how, "lower_s": t_lower, "compile_s": t_compile,
-            "total_s": t_lower + t_compile, "stablehlo_lines": _lines(lowered),
-            "run_ns_per_sample_step": 1e9 * median / (n_samples * n_steps),
-            "run_ns_per_sample_step_min": 1e9 * best / (n_samples * n_steps)}
+    return {
+        "method": name,
+        "how": how,
+        "lower_s": t_lower,
+        "compile_s": t_compile,
+        "total_s": t_lower + t_compile,
+        "stablehlo_lines": _lines(lowered),
+        "run_ns_per_sample_step": 1e9 * median / (n_samples * n_steps),
+        "run_ns_per_sample_step_min": 1e9 * best / (n_samples * n_steps),
+    }
 
 
 def child(python, name, how, args, retry=None):
     """One case measured in a fresh process of `python`."""
-    out = subprocess.run(
-        [python, os.path.abspath(__file__), "--one", "--methods", name, "--how", how,
-         "--samples", str(args.samples), "--steps", str(args.steps)]
-        + ([] if retry is None else ["--retry", retry]),
-        capture_output=True, text=True, check=True).stdout.strip().splitlines()[-1]
+    out = (
+        subprocess.run(
+            [
+                python,
+                os.path.abspath(__file__),
+                "--one",
+                "--methods",
+                name,
+                "--how",
+                how,
+                "--samples",
+                str(args.samples),
+                "--steps",
+                str(args.steps),
+            ]
+            + ([] if retry is None else ["--retry", retry]),
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+        .stdout.strip()
+        .splitlines()[-1]
+    )
     return json.loads(out)
 
 
@@ -109,10 +155,13 @@ def ab(args):
     else:
         cases = (("A", args.python, args.retry), ("B", args.ab, args.retry))
         print(f"A: {args.python}\nB: {args.ab}")
-    print(f"{args.samples} samples x {args.steps} steps, "
-          f"{args.repeats} processes each, alternating\n")
-    print("| method | how | compile+trace A s | B s | A/B | run ns per sample-step A (min) | B | "
-          "A/B |")
+    print(
+        f"{args.samples} samples x {args.steps} steps, {args.repeats} processes each, alternating\n"
+    )
+    print(
+        "| method | how | compile+trace A s | B s | A/B | run ns per sample-step A (min) | B | "
+        "A/B |"
+    )
     print("|---|---|---|---|---|---|---|---|")
     for how in args.how.split(","):
         for name in args.methods.split(","):
@@ -129,12 +178,19 @@ def ab(args):
                 continue
             # compile: median over processes; run: the fastest of all timed calls, the
             # least disturbed by other load on a shared machine
-            med = {t: (statistics.median(r["total_s"] for r in rs),
-                       min(r["run_ns_per_sample_step_min"] for r in rs))
-                   for t, rs in runs.items()}
+            med = {
+                t: (
+                    statistics.median(r["total_s"] for r in rs),
+                    min(r["run_ns_per_sample_step_min"] for r in rs),
+                )
+                for t, rs in runs.items()
+            }
             (ca, ra), (cb, rb) = med["A"], med["B"]
-            print(f"| {name} | {how} | {ca:.2f} | {cb:.2f} | {ca / cb:.2f} | {ra:.0f} | "
-                  f"{rb:.0f} | {ra / rb:.2f} |", flush=True)
+            print(
+                f"| {name} | {how} | {ca:.2f} | {cb:.2f} | {ca / cb:.2f} | {ra:.0f} | "
+                f"{rb:.0f} | {ra / rb:.2f} |",
+                flush=True,
+            )
 
 
 def main(argv=None):
@@ -146,20 +202,35 @@ def main(argv=None):
     parser.add_argument("--fast", action="store_true", help="50 samples x 64 steps")
     parser.add_argument("--one", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--out", default=None)
-    parser.add_argument("--ab", default=None, metavar="PYTHON",
-                        help="A/B: alternate this interpreter (another installation of "
-                             "slps_jax, for example of an earlier commit) with --python, "
-                             "--repeats fresh processes each, and print medians and ratios")
-    parser.add_argument("--ab-retry", default=None, metavar="K",
-                        help="A/B in this installation: the default retry_substeps against "
-                             "retry_substeps=K ('none' for no retry)")
-    parser.add_argument("--retry", default=None, metavar="K",
-                        help="retry_substeps of the measured cases: an integer or 'none' "
-                             "(default: the library's default)")
+    parser.add_argument(
+        "--ab",
+        default=None,
+        metavar="PYTHON",
+        help="A/B: alternate this interpreter (another installation of "
+        "slps_jax, for example of an earlier commit) with --python, "
+        "--repeats fresh processes each, and print medians and ratios",
+    )
+    parser.add_argument(
+        "--ab-retry",
+        default=None,
+        metavar="K",
+        help="A/B in this installation: the default retry_substeps against "
+        "retry_substeps=K ('none' for no retry)",
+    )
+    parser.add_argument(
+        "--retry",
+        default=None,
+        metavar="K",
+        help="retry_substeps of the measured cases: an integer or 'none' "
+        "(default: the library's default)",
+    )
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--python", default=sys.executable,
-                        help="the interpreter of the measured processes, for an A/B against "
-                             "another installation of slps_jax (default: this one)")
+    parser.add_argument(
+        "--python",
+        default=sys.executable,
+        help="the interpreter of the measured processes, for an A/B against "
+        "another installation of slps_jax (default: this one)",
+    )
     args = parser.parse_args(argv)
     if args.fast:
         args.samples, args.steps = 50, 64
@@ -181,25 +252,34 @@ def main(argv=None):
             if row is None:
                 continue
             rows.append(row)
-            print(f"{how:9s} {name:16s} lower {row['lower_s']:6.2f} s  compile "
-                  f"{row['compile_s']:6.2f} s  total {row['total_s']:6.2f} s  "
-                  f"{row['stablehlo_lines']:6d} lines  run {row['run_ns_per_sample_step']:7.1f} ns",
-                  flush=True)
+            print(
+                f"{how:9s} {name:16s} lower {row['lower_s']:6.2f} s  compile "
+                f"{row['compile_s']:6.2f} s  total {row['total_s']:6.2f} s  "
+                f"{row['stablehlo_lines']:6d} lines  run {row['run_ns_per_sample_step']:7.1f} ns",
+                flush=True,
+            )
     ref = {r["how"]: r["total_s"] for r in rows if r["method"] == REFERENCE}
     ref_total = ref.get("integrate")
-    print("\n| method | how | trace+lower s | compile s | total s | x diffrax Heun | "
-          "StableHLO lines | run ns per sample-step |")
+    print(
+        "\n| method | how | trace+lower s | compile s | total s | x diffrax Heun | "
+        "StableHLO lines | run ns per sample-step |"
+    )
     print("|---|---|---|---|---|---|---|---|")
     for r in rows:
         ratio = f"{r['total_s'] / ref_total:.2f}" if ref_total else "-"
-        print(f"| {r['method']} | {r['how']} | {r['lower_s']:.2f} | {r['compile_s']:.2f} | "
-              f"{r['total_s']:.2f} | {ratio} | {r['stablehlo_lines']} | "
-              f"{r['run_ns_per_sample_step']:.0f} |")
+        print(
+            f"| {r['method']} | {r['how']} | {r['lower_s']:.2f} | {r['compile_s']:.2f} | "
+            f"{r['total_s']:.2f} | {ratio} | {r['stablehlo_lines']} | "
+            f"{r['run_ns_per_sample_step']:.0f} |"
+        )
     out_dir = args.out or DEFAULT_OUT
     os.makedirs(out_dir, exist_ok=True)
     with open(os.path.join(out_dir, "compile_time.json"), "w") as fh:
-        json.dump({"machine": machine_info(), "samples": args.samples, "steps": args.steps,
-                   "rows": rows}, fh, indent=1)
+        json.dump(
+            {"machine": machine_info(), "samples": args.samples, "steps": args.steps, "rows": rows},
+            fh,
+            indent=1,
+        )
 
 
 if __name__ == "__main__":

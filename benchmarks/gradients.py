@@ -39,34 +39,56 @@ METHODS = {"LiePoisson": sj.LiePoisson(), "Midpoint": sj.Midpoint(), "Strang": s
 
 def statistic(params, method, n_samples, n_steps, dt, retry_kw=None):
     model = sj.RigidBody(params[:3], params[3])
-    sol = sj.simulate(model, Y0, t1=n_steps * dt, dt=dt, n_samples=n_samples,
-                      key=jax.random.key(0), method=method, **(retry_kw or {}))
+    sol = sj.simulate(
+        model,
+        Y0,
+        t1=n_steps * dt,
+        dt=dt,
+        n_samples=n_samples,
+        key=jax.random.key(0),
+        method=method,
+        **(retry_kw or {}),
+    )
     return jnp.mean(model.hamiltonian(sol.ys[:, -1]))
 
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--fast", action="store_true",
-                        help="50 samples, 32 steps, LiePoisson only (the reverse pass's memory: "
-                             "Midpoint)")
+    parser.add_argument(
+        "--fast",
+        action="store_true",
+        help="50 samples, 32 steps, LiePoisson only (the reverse pass's memory: Midpoint)",
+    )
     parser.add_argument("--out", default=_common.DEFAULT_OUT)
-    parser.add_argument("--retry", default=None, metavar="K",
-                        help="retry_substeps: an integer or 'none' (default: the library's)")
+    parser.add_argument(
+        "--retry",
+        default=None,
+        metavar="K",
+        help="retry_substeps: an integer or 'none' (default: the library's)",
+    )
     args = parser.parse_args(argv)
-    retry_kw = ({} if args.retry is None else
-                {"retry_substeps": None if args.retry == "none" else int(args.retry)})
+    retry_kw = (
+        {}
+        if args.retry is None
+        else {"retry_substeps": None if args.retry == "none" else int(args.retry)}
+    )
     os.makedirs(args.out, exist_ok=True)
-    n_samples, n_steps, dt = (50, 32, 2.0 ** -5) if args.fast else (500, 128, 2.0 ** -7)
+    n_samples, n_steps, dt = (50, 32, 2.0**-5) if args.fast else (500, 128, 2.0**-7)
     params = jnp.asarray(np.r_[np.asarray(sj.RigidBody.paper().inertia), 0.2])
 
     rows = []
-    print(f"Gradient of mean H(y_T) w.r.t. (I, c): {n_samples} samples x {n_steps} steps, "
-          f"median wall time\n")
-    print("| method | forward s | grad (reverse) s | ratio | jacfwd (4 tangents) s | ratio | "
-          "compile forward s | compile grad s |\n|---|---|---|---|---|---|---|---|")
+    print(
+        f"Gradient of mean H(y_T) w.r.t. (I, c): {n_samples} samples x {n_steps} steps, "
+        f"median wall time\n"
+    )
+    print(
+        "| method | forward s | grad (reverse) s | ratio | jacfwd (4 tangents) s | ratio | "
+        "compile forward s | compile grad s |\n|---|---|---|---|---|---|---|---|"
+    )
     # --fast (the test suite): LiePoisson only, the compile-heavy case
     methods = {"LiePoisson": METHODS["LiePoisson"]} if args.fast else METHODS
     for name, method in methods.items():
+
         def f(p, method=method):
             return statistic(p, method, n_samples, n_steps, dt, retry_kw)
 
@@ -75,24 +97,35 @@ def main(argv=None):
             compiled, compile_s = _common.compile_timed(fn, params)
             median, minimum, n_rep, _ = _common.time_call(compiled, params)
             out[kind] = (median, compile_s)
-        row = {"method": name, "n_samples": n_samples, "n_steps": n_steps,
-               "forward_s": out["forward"][0], "reverse_s": out["reverse"][0],
-               "jacfwd_s": out["jacfwd"][0],
-               "reverse_ratio": out["reverse"][0] / out["forward"][0],
-               "jacfwd_ratio": out["jacfwd"][0] / out["forward"][0],
-               "compile_forward_s": out["forward"][1], "compile_reverse_s": out["reverse"][1]}
+        row = {
+            "method": name,
+            "n_samples": n_samples,
+            "n_steps": n_steps,
+            "forward_s": out["forward"][0],
+            "reverse_s": out["reverse"][0],
+            "jacfwd_s": out["jacfwd"][0],
+            "reverse_ratio": out["reverse"][0] / out["forward"][0],
+            "jacfwd_ratio": out["jacfwd"][0] / out["forward"][0],
+            "compile_forward_s": out["forward"][1],
+            "compile_reverse_s": out["reverse"][1],
+        }
         rows.append(row)
-        print(f"| {name} | {row['forward_s']:.4f} | {row['reverse_s']:.4f} | "
-              f"{row['reverse_ratio']:.1f} | {row['jacfwd_s']:.4f} | {row['jacfwd_ratio']:.1f} | "
-              f"{row['compile_forward_s']:.2f} | {row['compile_reverse_s']:.2f} |")
+        print(
+            f"| {name} | {row['forward_s']:.4f} | {row['reverse_s']:.4f} | "
+            f"{row['reverse_ratio']:.1f} | {row['jacfwd_s']:.4f} | {row['jacfwd_ratio']:.1f} | "
+            f"{row['compile_forward_s']:.2f} | {row['compile_reverse_s']:.2f} |"
+        )
 
     mem = []
     steps_list = [64, 1024] if args.fast else [64, 256, 1024, 4096, 16384]
     # (--fast: Midpoint, which compiles in half the time; the checkpointing is the same)
     mem_method = "Midpoint" if args.fast else "LiePoisson"
-    print(f"\nXLA temporary memory of the compiled reverse pass ({mem_method}, "
-          f"{n_samples} samples):\n\n| n_steps | temp MiB | ratio to sqrt(n) growth |\n|---|---|---|")
+    print(
+        f"\nXLA temporary memory of the compiled reverse pass ({mem_method}, "
+        f"{n_samples} samples):\n\n| n_steps | temp MiB | ratio to sqrt(n) growth |\n|---|---|---|"
+    )
     for n in steps_list:
+
         def g(p, n=n):
             return statistic(p, METHODS[mem_method], n_samples, n, dt)
 
@@ -100,12 +133,14 @@ def main(argv=None):
         temp = compiled.memory_analysis().temp_size_in_bytes
         mem.append({"n_steps": n, "temp_bytes": int(temp)})
         ref = mem[0]["temp_bytes"] * math.sqrt(n / mem[0]["n_steps"])
-        print(f"| {n} | {temp / 2 ** 20:.2f} | {temp / ref:.2f} |")
+        print(f"| {n} | {temp / 2**20:.2f} | {temp / ref:.2f} |")
 
     _common.write_csv(os.path.join(args.out, "gradients.csv"), rows)
     _common.write_csv(os.path.join(args.out, "gradients_memory.csv"), mem)
-    _common.write_json(os.path.join(args.out, "gradients.json"),
-                       {"machine": _common.machine_info(), "timing": rows, "memory": mem})
+    _common.write_json(
+        os.path.join(args.out, "gradients.json"),
+        {"machine": _common.machine_info(), "timing": rows, "memory": mem},
+    )
     print(f"\nwrote {args.out}/gradients.{{csv,json}}, gradients_memory.csv")
 
 

@@ -54,7 +54,6 @@ import slps_jax as sj  # noqa: E402
 
 try:
     import diffrax as dfx
-
     from work_precision import IncrementPath, diffusion, drift
 except ImportError:  # the `bench` extra is not installed: our methods only
     dfx = None
@@ -73,8 +72,17 @@ FLOOR = 1e-17  # errors of exactly 0 are drawn here on the log axes
 def run_ours(method, model, y0, t1, h, n_samples, key, save_every):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # failures are reported below
-        sol = sj.simulate(model, y0, t1=t1, dt=h, n_samples=n_samples, key=key, method=method,
-                          save_every=save_every, throw=False)
+        sol = sj.simulate(
+            model,
+            y0,
+            t1=t1,
+            dt=h,
+            n_samples=n_samples,
+            key=key,
+            method=method,
+            save_every=save_every,
+            throw=False,
+        )
     ys = np.asarray(sol.ys)
     fail = np.asarray(sol.fail_step)
     return ys, fail
@@ -83,16 +91,26 @@ def run_ours(method, model, y0, t1, h, n_samples, key, save_every):
 def run_diffrax_heun(model, y0, dW, h, save_every):
     n_steps = dW.shape[1]
     ts = jnp.arange(0, n_steps + 1, save_every) * h
-    terms_of = lambda path: dfx.MultiTerm(dfx.ODETerm(drift(model)),  # noqa: E731
-                                          dfx.ControlTerm(diffusion(model), path))
+    terms_of = lambda path: dfx.MultiTerm(
+        dfx.ODETerm(drift(model)),
+        dfx.ControlTerm(diffusion(model), path),
+    )
 
     @jax.jit
     def solve(dW):
         def one(d):
             w = jnp.concatenate([jnp.zeros(1, d.dtype), jnp.cumsum(d)])
-            sol = dfx.diffeqsolve(terms_of(IncrementPath(w, h)), dfx.Heun(), 0.0,
-                                  n_steps * h, h, y0, saveat=dfx.SaveAt(ts=ts),
-                                  max_steps=n_steps + 16, throw=False)
+            sol = dfx.diffeqsolve(
+                terms_of(IncrementPath(w, h)),
+                dfx.Heun(),
+                0.0,
+                n_steps * h,
+                h,
+                y0,
+                saveat=dfx.SaveAt(ts=ts),
+                max_steps=n_steps + 16,
+                throw=False,
+            )
             return sol.ys, sol.result == dfx.RESULTS.successful
 
         return jax.vmap(one)(dW)
@@ -145,8 +163,10 @@ def plot(rows, summary, path, t1):
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.6), sharex=True)
     names = list(summary)
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    for ax, key, title in ((axes[0], "casimir", "Casimir $|y|^2/2$"),
-                           (axes[1], "energy", "Hamiltonian $H$")):
+    for ax, key, title in (
+        (axes[0], "casimir", "Casimir $|y|^2/2$"),
+        (axes[1], "energy", "Hamiltonian $H$"),
+    ):
         for i, name in enumerate(names):
             pts = [r for r in rows if r["method"] == name and r["t"] > 0]
             ts = np.array([r["t"] for r in pts])
@@ -154,10 +174,20 @@ def plot(rows, summary, path, t1):
             mx = np.array([r[f"{key}_max"] for r in pts], float)
             col = colors[i % len(colors)]
             s = summary[name][key]
-            ax.loglog(ts, np.maximum(med, FLOOR), color=col,
-                      label=f"{name} ({s['verdict']}, slope {s['slope']:.2f})")
-            ax.fill_between(ts, np.maximum(med, FLOOR), np.maximum(mx, FLOOR), color=col,
-                            alpha=0.12, linewidth=0)
+            ax.loglog(
+                ts,
+                np.maximum(med, FLOOR),
+                color=col,
+                label=f"{name} ({s['verdict']}, slope {s['slope']:.2f})",
+            )
+            ax.fill_between(
+                ts,
+                np.maximum(med, FLOOR),
+                np.maximum(mx, FLOOR),
+                color=col,
+                alpha=0.12,
+                linewidth=0,
+            )
         ax.set_title(f"{title}: relative error, median (band: max) over paths")
         ax.set_xlabel("t")
         ax.set_xlim(t1 / 200, t1)
@@ -196,8 +226,10 @@ def main(argv=None):
     os.makedirs(args.out, exist_ok=True)
     model, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
     key = jax.random.key(args.seed)
-    setting = (f"paper's rigid body, y0 = {sj.PAPER_Y0}, c = 0.2, h = {h:g}, T = {t1:g}, "
-               f"{n_samples} paths shared by all methods")
+    setting = (
+        f"paper's rigid body, y0 = {sj.PAPER_Y0}, c = 0.2, h = {h:g}, T = {t1:g}, "
+        f"{n_samples} paths shared by all methods"
+    )
     print(f"long-time invariants: {setting}")
     use_diffrax = dfx is not None and not args.no_diffrax
     if not use_diffrax:
@@ -221,44 +253,80 @@ def main(argv=None):
         alive = np.sum(np.isfinite(cas), axis=0)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns after blow-up
-            stats = {k: (np.nanmedian(e, 0), np.nanmax(e, 0)) for k, e in
-                     (("casimir", cas), ("energy", ene))}
+            stats = {
+                k: (np.nanmedian(e, 0), np.nanmax(e, 0))
+                for k, e in (("casimir", cas), ("energy", ene))
+            }
         for i, t in enumerate(ts):
-            rows.append({"method": name, "t": float(t), "n_alive": int(alive[i]),
-                         "casimir_median": float(stats["casimir"][0][i]),
-                         "casimir_max": float(stats["casimir"][1][i]),
-                         "energy_median": float(stats["energy"][0][i]),
-                         "energy_max": float(stats["energy"][1][i])})
+            rows.append(
+                {
+                    "method": name,
+                    "t": float(t),
+                    "n_alive": int(alive[i]),
+                    "casimir_median": float(stats["casimir"][0][i]),
+                    "casimir_max": float(stats["casimir"][1][i]),
+                    "energy_median": float(stats["energy"][0][i]),
+                    "energy_max": float(stats["energy"][1][i]),
+                }
+            )
         failed = fail >= 0
-        entry = {"seconds": seconds, "n_failed": int(failed.sum()), "setting": setting,
-                 "first_failure_t": float(fail[failed].min() * h) if failed.any() else None}
+        entry = {
+            "seconds": seconds,
+            "n_failed": int(failed.sum()),
+            "setting": setting,
+            "first_failure_t": float(fail[failed].min() * h) if failed.any() else None,
+        }
         for k in ("casimir", "energy"):
             med, mx = stats[k]
             slope = growth_slope(ts, med, t1)
             last = np.flatnonzero(np.isfinite(med))
             final = float(med[last[-1]]) if last.size else float("nan")
-            entry[k] = {"slope": slope, "final_median": final,
-                        "max_over_time_and_paths": float(np.nanmax(mx)) if last.size else None,
-                        "at_t": {f"{t:g}": float(med[np.argmin(np.abs(ts - t))])
-                                 for t in (t1 / 100, t1 / 10, t1)},
-                        "verdict": verdict(slope, final, bool(failed.any()))}
+            entry[k] = {
+                "slope": slope,
+                "final_median": final,
+                "max_over_time_and_paths": float(np.nanmax(mx)) if last.size else None,
+                "at_t": {
+                    f"{t:g}": float(med[np.argmin(np.abs(ts - t))]) for t in (t1 / 100, t1 / 10, t1)
+                },
+                "verdict": verdict(slope, final, bool(failed.any())),
+            }
         summary[name] = entry
 
     _common.write_csv(os.path.join(args.out, "long_time.csv"), rows)
-    _common.write_json(os.path.join(args.out, "long_time.json"), {
-        "settings": {"t1": t1, "dt": h, "n_samples": n_samples, "save_every": save_every,
-                     "seed": args.seed, "y0": list(sj.PAPER_Y0), "c": 0.2},
-        "methods": summary, "machine": _common.machine_info()})
+    _common.write_json(
+        os.path.join(args.out, "long_time.json"),
+        {
+            "settings": {
+                "t1": t1,
+                "dt": h,
+                "n_samples": n_samples,
+                "save_every": save_every,
+                "seed": args.seed,
+                "y0": list(sj.PAPER_Y0),
+                "c": 0.2,
+            },
+            "methods": summary,
+            "machine": _common.machine_info(),
+        },
+    )
     plot(rows, summary, os.path.join(args.out, "long_time.png"), t1)
 
-    print(f"\n{'method':16s} {'Casimir at T':>12s} {'slope':>6s} {'':11s} "
-          f"{'energy at T':>12s} {'slope':>6s} {'':11s} {'seconds':>8s}")
+    print(
+        f"\n{'method':16s} {'Casimir at T':>12s} {'slope':>6s} {'':11s} "
+        f"{'energy at T':>12s} {'slope':>6s} {'':11s} {'seconds':>8s}"
+    )
     for name, s in summary.items():
         c, e = s["casimir"], s["energy"]
-        print(f"{name:16s} {c['final_median']:12.2e} {c['slope']:6.2f} {c['verdict']:11s} "
-              f"{e['final_median']:12.2e} {e['slope']:6.2f} {e['verdict']:11s} "
-              f"{s['seconds']:8.1f}" + (f"  ({s['n_failed']} paths failed, first at t = "
-                                         f"{s['first_failure_t']:g})" if s["n_failed"] else ""))
+        print(
+            f"{name:16s} {c['final_median']:12.2e} {c['slope']:6.2f} {c['verdict']:11s} "
+            f"{e['final_median']:12.2e} {e['slope']:6.2f} {e['verdict']:11s} "
+            f"{s['seconds']:8.1f}"
+            + (
+                f"  ({s['n_failed']} paths failed, first at t = {s['first_failure_t']:g})"
+                if s["n_failed"]
+                else ""
+            )
+        )
     print(f"wrote {args.out}/long_time.{{csv,json,png}}")
 
 

@@ -57,17 +57,30 @@ def main(argv=None):
     levels = [5, 6, 7] if args.fast else [5, 6, 7, 8, 9]
     key = jax.random.key(0)
     tol = 64 * float(jnp.finfo(y0.dtype).eps)
-    rows, summary = [], {"machine": _common.machine_info(), "n_samples": n_samples,
-                         "usual_updates": USUAL, "tol": tol, "per_h": []}
-    print(f"LiePoisson Newton updates per sample-step, paper's setup, {n_samples} samples, "
-          f"T = 1 (usually {USUAL} updates, the fourth residual passing the test)\n")
-    print("| h | mean | max | at most 3 updates | time steps where some sample needed more | max residual |\n"
-          "|---|---|---|---|---|---|")
+    rows, summary = (
+        [],
+        {
+            "machine": _common.machine_info(),
+            "n_samples": n_samples,
+            "usual_updates": USUAL,
+            "tol": tol,
+            "per_h": [],
+        },
+    )
+    print(
+        f"LiePoisson Newton updates per sample-step, paper's setup, {n_samples} samples, "
+        f"T = 1 (usually {USUAL} updates, the fourth residual passing the test)\n"
+    )
+    print(
+        "| h | mean | max | at most 3 updates | time steps where some sample needed more | max residual |\n"
+        "|---|---|---|---|---|---|"
+    )
     for k in levels:
-        dt = 2.0 ** -k
-        n_steps = 2 ** k
-        sol = sj.simulate(model, y0, t1=1.0, dt=dt, n_samples=n_samples, key=key,
-                          method=method, save_every=1)
+        dt = 2.0**-k
+        n_steps = 2**k
+        sol = sj.simulate(
+            model, y0, t1=1.0, dt=dt, n_samples=n_samples, key=key, method=method, save_every=1
+        )
         dW = sj.brownian_increments(key, n_steps, dt, n_samples=n_samples)
         y_next, info = step_infos(model, method, sol.ys, dW, dt)
         # the re-solved steps reproduce the trajectory: the statistics are of the same steps
@@ -79,16 +92,30 @@ def main(argv=None):
         counts = np.bincount(it.ravel())
         for n_it, count in enumerate(counts):
             if count:
-                rows.append({"h": dt, "log2_h": -k, "iterations": n_it, "count": int(count),
-                             "fraction": count / it.size})
-        entry = {"h": dt, "log2_h": -k, "mean": float(it.mean()), "max": int(it.max()),
-                 "fraction_at_most_usual": float(np.mean(it <= USUAL)),
-                 "fraction_time_steps_with_more": more_steps,
-                 "max_residual": float(res.max())}
+                rows.append(
+                    {
+                        "h": dt,
+                        "log2_h": -k,
+                        "iterations": n_it,
+                        "count": int(count),
+                        "fraction": count / it.size,
+                    }
+                )
+        entry = {
+            "h": dt,
+            "log2_h": -k,
+            "mean": float(it.mean()),
+            "max": int(it.max()),
+            "fraction_at_most_usual": float(np.mean(it <= USUAL)),
+            "fraction_time_steps_with_more": more_steps,
+            "max_residual": float(res.max()),
+        }
         summary["per_h"].append(entry)
-        print(f"| 2^-{k} | {entry['mean']:.4f} | {entry['max']} | "
-              f"{100 * entry['fraction_at_most_usual']:.3f} % | {100 * more_steps:.1f} % | "
-              f"{entry['max_residual']:.1e} |")
+        print(
+            f"| 2^-{k} | {entry['mean']:.4f} | {entry['max']} | "
+            f"{100 * entry['fraction_at_most_usual']:.3f} % | {100 * more_steps:.1f} % | "
+            f"{entry['max_residual']:.1e} |"
+        )
 
     _common.write_csv(os.path.join(args.out, "newton_iterations.csv"), rows)
     _common.write_json(os.path.join(args.out, "newton_iterations.json"), summary)
@@ -97,8 +124,12 @@ def main(argv=None):
     width = 0.8 / len(levels)
     for i, k in enumerate(levels):
         pts = [r for r in rows if r["log2_h"] == -k]
-        ax.bar([r["iterations"] + (i - len(levels) / 2) * width for r in pts],
-               [r["fraction"] for r in pts], width=width, label=f"h = 2^-{k}")
+        ax.bar(
+            [r["iterations"] + (i - len(levels) / 2) * width for r in pts],
+            [r["fraction"] for r in pts],
+            width=width,
+            label=f"h = 2^-{k}",
+        )
     ax.set_yscale("log")
     ax.set_xlabel("Newton updates in one step")
     ax.set_ylabel("fraction of sample-steps")

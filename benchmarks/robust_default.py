@@ -25,22 +25,31 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 def run(n_samples, chunk_size, dt, retry):
     import jax
+
     import slps_jax as sj
 
     model, y0 = sj.RigidBody.paper(), jax.numpy.asarray(sj.PAPER_Y0)
     start = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # the failures are the measurement
-        st = sj.ensemble_statistics(model, y0, t1=1.0, dt=dt, n_samples=n_samples,
-                                    chunk_size=chunk_size, key=jax.random.key(0),
-                                    retry_substeps=retry, method=sj.LiePoisson(),
-                                    progress=False)
+        st = sj.ensemble_statistics(
+            model,
+            y0,
+            t1=1.0,
+            dt=dt,
+            n_samples=n_samples,
+            chunk_size=chunk_size,
+            key=jax.random.key(0),
+            retry_substeps=retry,
+            method=sj.LiePoisson(),
+            progress=False,
+        )
     return st.n_failed, time.perf_counter() - start
 
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--samples", type=int, default=10 ** 6)
+    parser.add_argument("--samples", type=int, default=10**6)
     parser.add_argument("--chunk", type=int, default=1000)
     parser.add_argument("--levels", default="4,5,6", help="k of the step sizes 2^-k")
     parser.add_argument("--fast", action="store_true", help="4000 samples, h = 2^-4")
@@ -58,18 +67,27 @@ def main(argv=None):
     print("| h | failed, no retry | failed, default | s, no retry | s, default | default / none |")
     print("|---|---|---|---|---|---|")
     for k in (int(x) for x in args.levels.split(",")):
-        dt = 2.0 ** -k
+        dt = 2.0**-k
         fail_none, s_none = run(args.samples, args.chunk, dt, None)
         fail_def, s_def = run(args.samples, args.chunk, dt, 4)
-        rows.append({"dt": dt, "failed_no_retry": fail_none, "failed_default": fail_def,
-                     "seconds_no_retry": s_none, "seconds_default": s_def})
-        print(f"| 2^-{k} | {fail_none} | {fail_def} | {s_none:.1f} | {s_def:.1f} | "
-              f"{s_def / s_none:.2f} |", flush=True)
+        rows.append(
+            {
+                "dt": dt,
+                "failed_no_retry": fail_none,
+                "failed_default": fail_def,
+                "seconds_no_retry": s_none,
+                "seconds_default": s_def,
+            }
+        )
+        print(
+            f"| 2^-{k} | {fail_none} | {fail_def} | {s_none:.1f} | {s_def:.1f} | "
+            f"{s_def / s_none:.2f} |",
+            flush=True,
+        )
     out_dir = args.out or DEFAULT_OUT
     os.makedirs(out_dir, exist_ok=True)
     with open(os.path.join(out_dir, "robust_default.json"), "w") as fh:
-        json.dump({"machine": machine_info(), "samples": args.samples, "rows": rows}, fh,
-                  indent=1)
+        json.dump({"machine": machine_info(), "samples": args.samples, "rows": rows}, fh, indent=1)
     with open(os.path.join(out_dir, "robust_default.csv"), "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]))
         w.writeheader()

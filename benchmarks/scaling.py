@@ -49,15 +49,23 @@ import _common  # noqa: E402
 import slps_jax as sj  # noqa: E402
 
 METHODS = {"LiePoisson": sj.LiePoisson(), "Strang": sj.Strang()}
-DT = 2.0 ** -7
+DT = 2.0**-7
 CONTROL = "Strang, materialised increments (control)"
 RSS_NOISE_MB = 8.0
 
 
 def run_simulate(method, n_steps, n_samples, seed=0):
     model, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
-    sol = sj.simulate(model, y0, t1=n_steps * DT, dt=DT, n_samples=n_samples,
-                      key=jax.random.key(seed), method=METHODS[method], throw=False)
+    sol = sj.simulate(
+        model,
+        y0,
+        t1=n_steps * DT,
+        dt=DT,
+        n_samples=n_samples,
+        key=jax.random.key(seed),
+        method=METHODS[method],
+        throw=False,
+    )
     return jax.block_until_ready(sol.ys)
 
 
@@ -65,35 +73,60 @@ def time_point(method, n_steps, n_samples, repeats):
     start = time.perf_counter()
     ys = run_simulate(method, n_steps, n_samples)
     first = time.perf_counter() - start
-    t_med, t_min, n_rep, ys = _common.time_call(lambda: run_simulate(method, n_steps, n_samples),
-                                                repeats=repeats, min_total=0.3,
-                                                warmup=False)  # the first call warmed up
+    t_med, t_min, n_rep, ys = _common.time_call(
+        lambda: run_simulate(method, n_steps, n_samples),
+        repeats=repeats,
+        min_total=0.3,
+        warmup=False,
+    )  # the first call warmed up
     assert ys.shape == (n_samples, 1, 3)
     finite = bool(jnp.all(jnp.isfinite(ys)))
-    return {"method": method, "n_samples": n_samples, "n_steps": n_steps, "h": DT,
-            "first_call_s": first, "time_median_s": t_med, "time_min_s": t_min,
-            "n_repeats": n_rep, "compile_est_s": max(first - t_med, 0.0),
-            "ns_per_sample_step": t_med / (n_samples * n_steps) * 1e9, "finite": finite}
+    return {
+        "method": method,
+        "n_samples": n_samples,
+        "n_steps": n_steps,
+        "h": DT,
+        "first_call_s": first,
+        "time_median_s": t_med,
+        "time_min_s": t_min,
+        "n_repeats": n_rep,
+        "compile_est_s": max(first - t_med, 0.0),
+        "ns_per_sample_step": t_med / (n_samples * n_steps) * 1e9,
+        "finite": finite,
+    }
 
 
 def compiled_memory(method, n_steps, n_samples):
     """XLA's memory analysis of one compiled final-state-only ensemble run (bytes)."""
     model, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
     if method == CONTROL:
+
         def fn(key):
             dW = sj.brownian_increments(key, n_steps, DT, n_samples=n_samples)
-            return jax.vmap(lambda d: sj.integrate(model, y0, d, DT, method=sj.Strang(),
-                                                   throw=False))(dW)
+            return jax.vmap(
+                lambda d: sj.integrate(model, y0, d, DT, method=sj.Strang(), throw=False)
+            )(dW)
     else:
+
         def fn(key):
-            return sj.simulate(model, y0, t1=n_steps * DT, dt=DT, n_samples=n_samples, key=key,
-                               method=METHODS[method], throw=False).ys
+            return sj.simulate(
+                model,
+                y0,
+                t1=n_steps * DT,
+                dt=DT,
+                n_samples=n_samples,
+                key=key,
+                method=METHODS[method],
+                throw=False,
+            ).ys
 
     m = jax.jit(fn).lower(jax.random.key(0)).compile().memory_analysis()
     if m is None:
         return None
-    out = {k: int(getattr(m, k + "_size_in_bytes", 0) or 0)
-           for k in ("temp", "argument", "output", "alias")}
+    out = {
+        k: int(getattr(m, k + "_size_in_bytes", 0) or 0)
+        for k in ("temp", "argument", "output", "alias")
+    }
     out["total"] = out["temp"] + out["argument"] + out["output"] - out["alias"]
     return out
 
@@ -130,18 +163,25 @@ def child_rss(method, n_steps, n_samples):
     start = time.perf_counter()
     if method == CONTROL:
         dW = sj.brownian_increments(key, n_steps, DT, n_samples=n_samples)
-        ys = jax.jit(jax.vmap(lambda d: sj.integrate(model, y0, d, DT, method=sj.Strang(),
-                                                     throw=False)))(dW)
+        ys = jax.jit(
+            jax.vmap(lambda d: sj.integrate(model, y0, d, DT, method=sj.Strang(), throw=False))
+        )(dW)
         ys = jax.block_until_ready(ys)
     else:
         ys = run_simulate(method, n_steps, n_samples)
     seconds = time.perf_counter() - start
     hwm = _status_kb("VmHWM")
-    print(json.dumps({
-        "ru_maxrss_start_kb": inherited,
-        "ru_maxrss_kb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,
-        "run_peak_rise_kb": (hwm - baseline) if (reset and hwm and baseline) else None,
-        "seconds": seconds, "finite": bool(jnp.all(jnp.isfinite(ys)))}))
+    print(
+        json.dumps(
+            {
+                "ru_maxrss_start_kb": inherited,
+                "ru_maxrss_kb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,
+                "run_peak_rise_kb": (hwm - baseline) if (reset and hwm and baseline) else None,
+                "seconds": seconds,
+                "finite": bool(jnp.all(jnp.isfinite(ys))),
+            }
+        )
+    )
 
 
 # Linux keeps a process' peak RSS (ru_maxrss) across fork and exec, so a child started from
@@ -157,8 +197,12 @@ for line in sys.stdin:
 
 class Launcher:
     def __init__(self):
-        self.proc = subprocess.Popen([sys.executable, "-c", _LAUNCHER], stdin=subprocess.PIPE,
-                                     stdout=subprocess.PIPE, text=True)
+        self.proc = subprocess.Popen(
+            [sys.executable, "-c", _LAUNCHER],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
 
     def run(self, cmd):
         self.proc.stdin.write(json.dumps(cmd) + "\n")
@@ -171,8 +215,14 @@ class Launcher:
 
 
 def fresh_rss(launcher, method, n_steps, n_samples):
-    cmd = [sys.executable, os.path.abspath(__file__), "--child-rss", method, str(n_steps),
-           str(n_samples)]
+    cmd = [
+        sys.executable,
+        os.path.abspath(__file__),
+        "--child-rss",
+        method,
+        str(n_steps),
+        str(n_samples),
+    ]
     out = launcher.run(cmd)
     if out["rc"]:
         raise RuntimeError(f"RSS child failed:\n{out['err']}")
@@ -188,16 +238,28 @@ def plot(time_rows, mem_rows, path, fixed_steps, fixed_samples):
     fig, axes = plt.subplots(1, 3, figsize=(16, 4.8))
     methods = list(dict.fromkeys(r["method"] for r in time_rows))
     for name in methods:
-        pts = sorted({r["n_samples"]: r for r in time_rows
-                      if r["method"] == name and r["n_steps"] == fixed_steps}.values(),
-                     key=lambda r: r["n_samples"])
-        axes[0].plot([p["n_samples"] for p in pts], [p["time_median_s"] for p in pts], "o-",
-                     label=name)
-        pts = sorted({r["n_steps"]: r for r in time_rows
-                      if r["method"] == name and r["n_samples"] == fixed_samples}.values(),
-                     key=lambda r: r["n_steps"])
-        axes[1].plot([p["n_steps"] for p in pts], [p["time_median_s"] for p in pts], "o-",
-                     label=name)
+        pts = sorted(
+            {
+                r["n_samples"]: r
+                for r in time_rows
+                if r["method"] == name and r["n_steps"] == fixed_steps
+            }.values(),
+            key=lambda r: r["n_samples"],
+        )
+        axes[0].plot(
+            [p["n_samples"] for p in pts], [p["time_median_s"] for p in pts], "o-", label=name
+        )
+        pts = sorted(
+            {
+                r["n_steps"]: r
+                for r in time_rows
+                if r["method"] == name and r["n_samples"] == fixed_samples
+            }.values(),
+            key=lambda r: r["n_steps"],
+        )
+        axes[1].plot(
+            [p["n_steps"] for p in pts], [p["time_median_s"] for p in pts], "o-", label=name
+        )
     axes[0].set_xlabel("n_samples")
     axes[0].set_xscale("log")
     axes[0].set_title(f"simulate, {fixed_steps} steps (h = 2^-7)", fontsize=10)
@@ -213,15 +275,23 @@ def plot(time_rows, mem_rows, path, fixed_steps, fixed_samples):
     for i, name in enumerate(dict.fromkeys(r["method"] for r in mem_rows)):
         color = plt.get_cmap("tab10")(i)
         pts = sorted((r for r in mem_rows if r["method"] == name), key=lambda r: r["n_steps"])
-        xla = [(p["n_steps"], p["xla_total_bytes"] / 2**20) for p in pts
-               if p["xla_total_bytes"] is not None]
+        xla = [
+            (p["n_steps"], p["xla_total_bytes"] / 2**20)
+            for p in pts
+            if p["xla_total_bytes"] is not None
+        ]
         if xla:
             ax.plot(*zip(*xla), "o-", color=color, label=f"{name}: XLA temp+arg+out")
-        rss = [(p["n_steps"], p["rss_run_rise_mb"]) for p in pts
-               if p["rss_run_rise_mb"] is not None]
+        rss = [
+            (p["n_steps"], p["rss_run_rise_mb"]) for p in pts if p["rss_run_rise_mb"] is not None
+        ]
         if rss:
-            ax.plot(*zip(*rss), "s--", color=color,
-                    label=f"{name}: peak RSS rise in compile+run (fresh process)")
+            ax.plot(
+                *zip(*rss),
+                "s--",
+                color=color,
+                label=f"{name}: peak RSS rise in compile+run (fresh process)",
+            )
     ax.set_xscale("log", base=2)
     ax.set_yscale("log")
     ax.set_xlabel("n_steps (final state only)")
@@ -236,16 +306,24 @@ def plot(time_rows, mem_rows, path, fixed_steps, fixed_samples):
 
 def parse(argv):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--fast", action="store_true",
-                   help="tiny size for the test suite (Strang only, 50-100 samples, 32-64 steps)")
+    p.add_argument(
+        "--fast",
+        action="store_true",
+        help="tiny size for the test suite (Strang only, 50-100 samples, 32-64 steps)",
+    )
     p.add_argument("--out", default=_common.DEFAULT_OUT, help="output folder")
     p.add_argument("--methods", default=None, help="comma-separated (LiePoisson,Strang)")
     p.add_argument("--repeats", type=int, default=3)
-    p.add_argument("--max-call-s", type=float, default=40.0,
-                   help="skip configurations predicted to take longer per call")
+    p.add_argument(
+        "--max-call-s",
+        type=float,
+        default=40.0,
+        help="skip configurations predicted to take longer per call",
+    )
     p.add_argument("--no-rss", action="store_true", help="skip the fresh-process RSS runs")
-    p.add_argument("--child-rss", nargs=3, metavar=("METHOD", "N_STEPS", "N_SAMPLES"),
-                   help=argparse.SUPPRESS)
+    p.add_argument(
+        "--child-rss", nargs=3, metavar=("METHOD", "N_STEPS", "N_SAMPLES"), help=argparse.SUPPRESS
+    )
     return p.parse_args(argv)
 
 
@@ -257,8 +335,7 @@ def main(argv=None):
         return 0
     launcher = None if args.no_rss else Launcher()  # while this process is still small
     fast = args.fast
-    methods = (args.methods.split(",") if args.methods
-               else (["Strang"] if fast else list(METHODS)))
+    methods = args.methods.split(",") if args.methods else (["Strang"] if fast else list(METHODS))
     if fast:
         samples_sweep, fixed_steps = [50, 100], 32
         steps_sweep, fixed_samples = [32, 64], 50
@@ -269,13 +346,17 @@ def main(argv=None):
         mem_steps, rss_steps = [2**k for k in range(6, 13)], [2**6, 2**8, 2**10, 2**12]
     os.makedirs(args.out, exist_ok=True)
     info = _common.machine_info()
-    print(f"scaling of simulate (final state only), h = 2^-7: {info['cpu_model']} "
-          f"({info['cpu_count']} cores), jax {info['jax']}; skipping calls predicted "
-          f"> {args.max_call_s:g} s")
+    print(
+        f"scaling of simulate (final state only), h = 2^-7: {info['cpu_model']} "
+        f"({info['cpu_count']} cores), jax {info['jax']}; skipping calls predicted "
+        f"> {args.max_call_s:g} s"
+    )
 
     time_rows, skipped, done, cost = [], [], set(), {}
-    configs = sorted({(s, fixed_steps) for s in samples_sweep}
-                     | {(fixed_samples, n) for n in steps_sweep}, key=lambda c: c[0] * c[1])
+    configs = sorted(
+        {(s, fixed_steps) for s in samples_sweep} | {(fixed_samples, n) for n in steps_sweep},
+        key=lambda c: c[0] * c[1],
+    )
     for method in methods:
         for n_samples, n_steps in configs:
             if (method, n_samples, n_steps) in done:
@@ -283,18 +364,28 @@ def main(argv=None):
             done.add((method, n_samples, n_steps))
             predicted = cost.get(method, 0.0) * n_samples * n_steps
             if predicted > args.max_call_s:
-                skipped.append({"method": method, "n_samples": n_samples, "n_steps": n_steps,
-                                "predicted_s": predicted})
-                print(f"  {method:10s} samples {n_samples:7d} steps {n_steps:5d}: skipped "
-                      f"(predicted {predicted:.0f} s per call)")
+                skipped.append(
+                    {
+                        "method": method,
+                        "n_samples": n_samples,
+                        "n_steps": n_steps,
+                        "predicted_s": predicted,
+                    }
+                )
+                print(
+                    f"  {method:10s} samples {n_samples:7d} steps {n_steps:5d}: skipped "
+                    f"(predicted {predicted:.0f} s per call)"
+                )
                 continue
             row = time_point(method, n_steps, n_samples, args.repeats)
             cost[method] = row["time_median_s"] / (n_samples * n_steps)
             time_rows.append(row)
-            print(f"  {method:10s} samples {n_samples:7d} steps {n_steps:5d}: "
-                  f"{row['time_median_s']:9.4f} s (min {row['time_min_s']:.4f}, "
-                  f"n={row['n_repeats']}), first call {row['first_call_s']:.2f} s, "
-                  f"{row['ns_per_sample_step']:8.1f} ns/sample-step")
+            print(
+                f"  {method:10s} samples {n_samples:7d} steps {n_steps:5d}: "
+                f"{row['time_median_s']:9.4f} s (min {row['time_min_s']:.4f}, "
+                f"n={row['n_repeats']}), first call {row['first_call_s']:.2f} s, "
+                f"{row['ns_per_sample_step']:8.1f} ns/sample-step"
+            )
 
     mem_rows = []
     for method in methods + [CONTROL]:
@@ -307,40 +398,59 @@ def main(argv=None):
                     note = f"RSS skipped (predicted {predicted:.0f} s)"
                 else:
                     rss = fresh_rss(launcher, method, n_steps, fixed_samples)
-            rise = None if rss is None or rss["run_peak_rise_kb"] is None \
+            rise = (
+                None
+                if rss is None or rss["run_peak_rise_kb"] is None
                 else rss["run_peak_rise_kb"] / 1024
-            row = {"method": method, "n_samples": fixed_samples, "n_steps": n_steps,
-                   "xla_temp_bytes": None if xla is None else xla["temp"],
-                   "xla_total_bytes": None if xla is None else xla["total"],
-                   "ru_maxrss_mb": None if rss is None else rss["ru_maxrss_kb"] / 1024,
-                   "ru_maxrss_at_start_mb": None if rss is None
-                   else rss["ru_maxrss_start_kb"] / 1024,
-                   "rss_run_rise_mb": rise,
-                   "materialised_increments_mb": fixed_samples * n_steps * 8 / 2**20,
-                   "note": note}
+            )
+            row = {
+                "method": method,
+                "n_samples": fixed_samples,
+                "n_steps": n_steps,
+                "xla_temp_bytes": None if xla is None else xla["temp"],
+                "xla_total_bytes": None if xla is None else xla["total"],
+                "ru_maxrss_mb": None if rss is None else rss["ru_maxrss_kb"] / 1024,
+                "ru_maxrss_at_start_mb": None if rss is None else rss["ru_maxrss_start_kb"] / 1024,
+                "rss_run_rise_mb": rise,
+                "materialised_increments_mb": fixed_samples * n_steps * 8 / 2**20,
+                "note": note,
+            }
             mem_rows.append(row)
-            print(f"  memory {method:42s} steps {n_steps:5d}: XLA "
-                  + ("n/a" if xla is None else f"{xla['total'] / 2**20:8.3f} MiB")
-                  + ("" if rss is None else f", ru_maxrss {row['ru_maxrss_mb']:7.1f} MiB "
-                                            f"(at start {row['ru_maxrss_at_start_mb']:.0f})")
-                  + ("" if rise is None else f", peak rise in compile+run {rise:7.1f} MiB")
-                  + (f", {note}" if note else ""))
+            print(
+                f"  memory {method:42s} steps {n_steps:5d}: XLA "
+                + ("n/a" if xla is None else f"{xla['total'] / 2**20:8.3f} MiB")
+                + (
+                    ""
+                    if rss is None
+                    else f", ru_maxrss {row['ru_maxrss_mb']:7.1f} MiB "
+                    f"(at start {row['ru_maxrss_at_start_mb']:.0f})"
+                )
+                + ("" if rise is None else f", peak rise in compile+run {rise:7.1f} MiB")
+                + (f", {note}" if note else "")
+            )
 
     # Flatness: from the smallest to the largest n_steps, a final-state-only run may grow by
     # no more than a small part of what merely storing the increments would take.
     def growth(method, key):
         """Signed: at the largest n_steps minus at the smallest (compilation of a short loop
         can take more memory than of a long one, so max - min would overstate growth)."""
-        pts = sorted((r["n_steps"], r[key]) for r in mem_rows
-                     if r["method"] == method and r[key] is not None)
+        pts = sorted(
+            (r["n_steps"], r[key]) for r in mem_rows if r["method"] == method and r[key] is not None
+        )
         return (pts[-1][1] - pts[0][1]) if len(pts) > 1 else None
 
     verdict = {}
     for method in methods + [CONTROL]:
-        steps_x = [r["n_steps"] for r in mem_rows
-                   if r["method"] == method and r["xla_total_bytes"] is not None]
-        steps_r = [r["n_steps"] for r in mem_rows
-                   if r["method"] == method and r["rss_run_rise_mb"] is not None]
+        steps_x = [
+            r["n_steps"]
+            for r in mem_rows
+            if r["method"] == method and r["xla_total_bytes"] is not None
+        ]
+        steps_r = [
+            r["n_steps"]
+            for r in mem_rows
+            if r["method"] == method and r["rss_run_rise_mb"] is not None
+        ]
         xg = growth(method, "xla_total_bytes")
         rg = growth(method, "rss_run_rise_mb")
         # materialised increments over the measured range, in MiB
@@ -359,38 +469,56 @@ def main(argv=None):
 
     _common.write_csv(os.path.join(args.out, "scaling.csv"), time_rows)
     _common.write_csv(os.path.join(args.out, "scaling_memory.csv"), mem_rows)
-    _common.write_json(os.path.join(args.out, "scaling.json"), {
-        "machine": info, "h": DT, "fixed_steps": fixed_steps, "fixed_samples": fixed_samples,
-        "max_call_s": args.max_call_s, "time": time_rows, "skipped": skipped,
-        "memory": mem_rows, "memory_flat": verdict, "control": control,
-        "control_growth_mb": control["xla_growth_mb"],
-        "memory_method": "XLA compiled memory_analysis (temp+argument+output-alias) of "
-                         "jit(simulate(...).ys); fresh process per configuration (started by "
-                         "a small launcher, since ru_maxrss survives fork/exec): ru_maxrss "
-                         "(whole process, import included) and the rise of VmHWM during "
-                         "compile+run after resetting it via /proc/self/clear_refs; growth = "
-                         "value at the largest n_steps minus value at the smallest",
-        "note": "noisy numbers from a shared 2-core machine; medians of repeated calls",
-    })
+    _common.write_json(
+        os.path.join(args.out, "scaling.json"),
+        {
+            "machine": info,
+            "h": DT,
+            "fixed_steps": fixed_steps,
+            "fixed_samples": fixed_samples,
+            "max_call_s": args.max_call_s,
+            "time": time_rows,
+            "skipped": skipped,
+            "memory": mem_rows,
+            "memory_flat": verdict,
+            "control": control,
+            "control_growth_mb": control["xla_growth_mb"],
+            "memory_method": "XLA compiled memory_analysis (temp+argument+output-alias) of "
+            "jit(simulate(...).ys); fresh process per configuration (started by "
+            "a small launcher, since ru_maxrss survives fork/exec): ru_maxrss "
+            "(whole process, import included) and the rise of VmHWM during "
+            "compile+run after resetting it via /proc/self/clear_refs; growth = "
+            "value at the largest n_steps minus value at the smallest",
+            "note": "noisy numbers from a shared 2-core machine; medians of repeated calls",
+        },
+    )
     plot(time_rows, mem_rows, os.path.join(args.out, "scaling.png"), fixed_steps, fixed_samples)
 
-    print(f"\nmemory of final-state-only runs as n_steps grows {min(mem_steps)} -> "
-          f"{max(mem_steps)} ({fixed_samples} samples):")
+    print(
+        f"\nmemory of final-state-only runs as n_steps grows {min(mem_steps)} -> "
+        f"{max(mem_steps)} ({fixed_samples} samples):"
+    )
     for method, v in list(verdict.items()) + [(CONTROL, control)]:
         line = f"  {method}: XLA growth {v['xla_growth_mb']:.3f} MiB"
         if v["rss_growth_mb"] is not None:
-            line += (f"; RSS peak-rise growth {v['rss_growth_mb']:.1f} MiB over n_steps "
-                     f"{v['rss_range_steps'][0]}..{v['rss_range_steps'][1]}")
+            line += (
+                f"; RSS peak-rise growth {v['rss_growth_mb']:.1f} MiB over n_steps "
+                f"{v['rss_range_steps'][0]}..{v['rss_range_steps'][1]}"
+            )
         line += f" (storing the increments: {v['materialised_growth_mb']:.1f} MiB)"
         if method != CONTROL:
-            line += " -> " + ("flat" if v["xla_flat"] and v["rss_flat"] is not False
-                              else "NOT flat")
+            line += " -> " + (
+                "flat" if v["xla_flat"] and v["rss_flat"] is not False else "NOT flat"
+            )
         print(line)
-    print(f"  (growth: value at the largest n_steps minus at the smallest; flat: XLA growth <= "
-          f"5% of the increments' size, RSS growth <= max(25% of it, {RSS_NOISE_MB:g} MiB of "
-          f"process-to-process noise))")
-    all_flat = all(v["xla_flat"] is not False and v["rss_flat"] is not False
-                   for v in verdict.values())
+    print(
+        f"  (growth: value at the largest n_steps minus at the smallest; flat: XLA growth <= "
+        f"5% of the increments' size, RSS growth <= max(25% of it, {RSS_NOISE_MB:g} MiB of "
+        f"process-to-process noise))"
+    )
+    all_flat = all(
+        v["xla_flat"] is not False and v["rss_flat"] is not False for v in verdict.values()
+    )
     print("memory stayed flat as n_steps grew: " + ("YES" if all_flat else "NO"))
     if skipped:
         print(f"skipped {len(skipped)} configurations predicted > {args.max_call_s:g} s per call")

@@ -81,8 +81,16 @@ OURS = {
     "Heun": (sj.Heun(), False),
     "EulerMaruyama": (sj.EulerMaruyama(), False),
 }
-POISSON = ("LiePoisson + areas", "Midpoint + areas", "SaltSplitting + areas", "LiePoisson",
-           "LiePoissonSym2", "LiePoissonSym4", "Midpoint", "SaltSplitting")
+POISSON = (
+    "LiePoisson + areas",
+    "Midpoint + areas",
+    "SaltSplitting + areas",
+    "LiePoisson",
+    "LiePoissonSym2",
+    "LiePoissonSym4",
+    "Midpoint",
+    "SaltSplitting",
+)
 POISSON_AREAS = ("LiePoisson + areas", "Midpoint + areas", "SaltSplitting + areas")
 BASELINE = "Milstein + areas"  # order 1, no structure
 SCAN_HEUN = "lax.scan Heun"
@@ -98,6 +106,7 @@ def fields(y):
 
 def scan_heun(y0, dW, h):
     """Stratonovich Heun for the SALT rigid body, one path, as a plain lax.scan."""
+
     def step(y, dw):
         f, g = fields(y)
         k1 = f * h + g @ dw
@@ -109,24 +118,34 @@ def scan_heun(y0, dW, h):
 
 def diffrax_heun(w, h, n_steps, h_fine):
     dfx = wp.dfx
-    terms = dfx.MultiTerm(dfx.ODETerm(lambda t, y, a: fields(y)[0]),
-                          dfx.ControlTerm(lambda t, y, a: fields(y)[1],
-                                          wp.IncrementPath(w, h_fine)))
-    sol = dfx.diffeqsolve(terms, dfx.Heun(), 0.0, n_steps * h, h, Y0, max_steps=n_steps,
-                          throw=False)
+    terms = dfx.MultiTerm(
+        dfx.ODETerm(lambda t, y, a: fields(y)[0]),
+        dfx.ControlTerm(lambda t, y, a: fields(y)[1], wp.IncrementPath(w, h_fine)),
+    )
+    sol = dfx.diffeqsolve(
+        terms, dfx.Heun(), 0.0, n_steps * h, h, Y0, max_steps=n_steps, throw=False
+    )
     return sol.ys[-1]
 
 
 def parse(argv):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--fast", action="store_true",
-                   help="a smoke run: 32 samples, h = 2^-4 and 2^-5, reference at 2^-8, weak "
-                        "errors of two methods, a short long-time run, small so(4) and "
-                        "area-cost runs")
-    p.add_argument("--area-costs-only", action="store_true",
-                   help="only the cost of drawing the areas (written to "
-                        "several_noises_area_costs.md and .json)")
-    p.add_argument("--out", default=_common.DEFAULT_OUT, help="output folder (default: %(default)s)")
+    p.add_argument(
+        "--fast",
+        action="store_true",
+        help="a smoke run: 32 samples, h = 2^-4 and 2^-5, reference at 2^-8, weak "
+        "errors of two methods, a short long-time run, small so(4) and "
+        "area-cost runs",
+    )
+    p.add_argument(
+        "--area-costs-only",
+        action="store_true",
+        help="only the cost of drawing the areas (written to "
+        "several_noises_area_costs.md and .json)",
+    )
+    p.add_argument(
+        "--out", default=_common.DEFAULT_OUT, help="output folder (default: %(default)s)"
+    )
     return p.parse_args(argv)
 
 
@@ -139,28 +158,33 @@ def draw_paths(key, n_samples, n_steps, h, n_noises=3, batch=20):
     steps = jnp.arange(n_steps, dtype=jnp.uint32)
 
     def one(k):
-        noise = jax.vmap(lambda n: _noise.draw(k, n, jnp.asarray(h, dtype), jnp.inf, dtype,
-                                               n_noises, terms))(steps)
+        noise = jax.vmap(
+            lambda n: _noise.draw(k, n, jnp.asarray(h, dtype), jnp.inf, dtype, n_noises, terms)
+        )(steps)
         return noise.dW, noise.area
 
     return jax.jit(lambda keys: jax.lax.map(one, keys, batch_size=batch))(
-        _noise.sample_keys(key, n_samples))
+        _noise.sample_keys(key, n_samples)
+    )
 
 
 def solver(model, y0, method, h, areas):
     """All samples' final states of `method` on given increments (and areas): one jit."""
     if areas:
-        return lambda d, a: jax.vmap(lambda di, ai: sj.integrate(
-            model, y0, di, h, levy_area=ai, method=method, throw=False))(d, a)
-    return lambda d, a: jax.vmap(lambda di: sj.integrate(model, y0, di, h, method=method,
-                                                         throw=False))(d)
+        return lambda d, a: jax.vmap(
+            lambda di, ai: sj.integrate(model, y0, di, h, levy_area=ai, method=method, throw=False)
+        )(d, a)
+    return lambda d, a: jax.vmap(
+        lambda di: sj.integrate(model, y0, di, h, method=method, throw=False)
+    )(d)
 
 
 def count_failed(model, y0, method, h, areas, d, a):
     """Samples whose step failed: `integrate(throw=False)` freezes such a sample, so its last
     two saved states are identical (an untimed extra run)."""
-    run = (lambda di, ai: sj.integrate(model, y0, di, h, method=method, save_every=1,
-                                       throw=False, levy_area=ai if areas else None))
+    run = lambda di, ai: sj.integrate(
+        model, y0, di, h, method=method, save_every=1, throw=False, levy_area=ai if areas else None
+    )
     traj = jax.jit(jax.vmap(run))(d, a)
     return int(jnp.sum(jnp.all(traj[:, -1] == traj[:, -2], axis=tuple(range(1, traj.ndim - 1)))))
 
@@ -191,40 +215,62 @@ def area_costs(fast):
     key = jax.random.key(5)
     keys = _noise.sample_keys(key, n_samples)
     steps = jnp.arange(n_steps, dtype=jnp.uint32)
-    for s in ((3,) if fast else (2, 3, 5)):
-        for k in ((8,) if fast else (6, 8, 10)):
-            h = jnp.asarray(2.0 ** -k)
-            terms = _noise.levy_area_terms(2.0 ** -k, s)
+    for s in (3,) if fast else (2, 3, 5):
+        for k in (8,) if fast else (6, 8, 10):
+            h = jnp.asarray(2.0**-k)
+            terms = _noise.levy_area_terms(2.0**-k, s)
 
             def draws(keys, terms=terms, s=s, h=h):
-                return jax.vmap(lambda kk: jax.vmap(lambda n: _noise.draw(
-                    kk, n, h, jnp.inf, jnp.float64, s, terms))(steps))(keys)
+                return jax.vmap(
+                    lambda kk: jax.vmap(
+                        lambda n: _noise.draw(kk, n, h, jnp.inf, jnp.float64, s, terms)
+                    )(steps)
+                )(keys)
 
             def incs(keys, s=s, h=h):
-                return jax.vmap(lambda kk: jax.vmap(lambda n: _noise.increment(
-                    kk, n, h, jnp.inf, jnp.float64, s))(steps))(keys)
+                return jax.vmap(
+                    lambda kk: jax.vmap(
+                        lambda n: _noise.increment(kk, n, h, jnp.inf, jnp.float64, s)
+                    )(steps)
+                )(keys)
 
             t_inc = _common.time_call(jax.jit(incs), keys)[0]
             t_area = _common.time_call(jax.jit(draws), keys)[0]
             per = 1e9 / (n_samples * n_steps)
-            rows.append(dict(s=s, h=2.0 ** -k, terms=terms,
-                             normals_per_step=2 * s * terms + s + s * (s - 1) // 2 + s,
-                             ns_increments=t_inc * per, ns_with_areas=t_area * per,
-                             ratio=t_area / t_inc))
-            print(f"areas s={s} h=2^-{k}: p={terms}, {rows[-1]['normals_per_step']} normals, "
-                  f"{rows[-1]['ns_increments']:.0f} ns -> {rows[-1]['ns_with_areas']:.0f} ns "
-                  f"per sample-step ({rows[-1]['ratio']:.2f}x)", flush=True)
+            rows.append(
+                dict(
+                    s=s,
+                    h=2.0**-k,
+                    terms=terms,
+                    normals_per_step=2 * s * terms + s + s * (s - 1) // 2 + s,
+                    ns_increments=t_inc * per,
+                    ns_with_areas=t_area * per,
+                    ratio=t_area / t_inc,
+                )
+            )
+            print(
+                f"areas s={s} h=2^-{k}: p={terms}, {rows[-1]['normals_per_step']} normals, "
+                f"{rows[-1]['ns_increments']:.0f} ns -> {rows[-1]['ns_with_areas']:.0f} ns "
+                f"per sample-step ({rows[-1]['ratio']:.2f}x)",
+                flush=True,
+            )
     return rows
 
 
 J4 = jnp.asarray([0.6, 0.9, 1.3, 1.7])
 _E = np.eye(4)
-X4 = 0.5 * np.stack([np.outer(_E[0], _E[1]) - np.outer(_E[1], _E[0]),
-                     np.outer(_E[1], _E[2]) - np.outer(_E[2], _E[1])
-                     + 0.3 * (np.outer(_E[0], _E[3]) - np.outer(_E[3], _E[0])),
-                     np.outer(_E[2], _E[3]) - np.outer(_E[3], _E[2])])
-Y4 = 0.3 * jnp.asarray(np.array([[0, 1, -0.5, 0.2], [-1, 0, 0.8, -0.4],
-                                 [0.5, -0.8, 0, 0.6], [-0.2, 0.4, -0.6, 0]]))
+X4 = 0.5 * np.stack(
+    [
+        np.outer(_E[0], _E[1]) - np.outer(_E[1], _E[0]),
+        np.outer(_E[1], _E[2])
+        - np.outer(_E[2], _E[1])
+        + 0.3 * (np.outer(_E[0], _E[3]) - np.outer(_E[3], _E[0])),
+        np.outer(_E[2], _E[3]) - np.outer(_E[3], _E[2]),
+    ]
+)
+Y4 = 0.3 * jnp.asarray(
+    np.array([[0, 1, -0.5, 0.2], [-1, 0, 0.8, -0.4], [0.5, -0.8, 0, 0.6], [-0.2, 0.4, -0.6, 0]])
+)
 
 
 def so4_study(fast):
@@ -237,35 +283,54 @@ def so4_study(fast):
     n_fine = 2 ** max(ks) * (8 if fast else 64)
     dW, A = draw_paths(jax.random.key(4), n_samples, n_fine, 1.0 / n_fine)
     reference = jax.jit(solver(model, Y4, sj.IsospectralMidpoint(), 1.0 / n_fine, True))(dW, A)
-    methods = {"IsospectralMidpoint + areas": (sj.IsospectralMidpoint(), True),
-               "LiePoisson + areas": (sj.LiePoisson(), True),
-               "Milstein + areas": (sj.Milstein(), True),
-               "IsospectralMidpoint": (sj.IsospectralMidpoint(), False),
-               "LiePoisson": (sj.LiePoisson(), False)}
+    methods = {
+        "IsospectralMidpoint + areas": (sj.IsospectralMidpoint(), True),
+        "LiePoisson + areas": (sj.LiePoisson(), True),
+        "Milstein + areas": (sj.Milstein(), True),
+        "IsospectralMidpoint": (sj.IsospectralMidpoint(), False),
+        "LiePoisson": (sj.LiePoisson(), False),
+    }
     if fast:  # a smoke run: the two Poisson methods with areas
         methods = {n: methods[n] for n in ("IsospectralMidpoint + areas", "LiePoisson + areas")}
     c0 = np.asarray(model.algebra.casimirs(Y4))
     rows = []
     for name, (method, areas) in methods.items():
         for k in ks:
-            n, h = 2 ** k, 2.0 ** -k
+            n, h = 2**k, 2.0**-k
             d, a = _noise.coarsen(dW, A, n_fine // n)
             compiled, compile_s = _common.compile_timed(solver(model, Y4, method, h, areas), d, a)
             med, _, _, y = _common.time_call(compiled, d, a)
             err = float(jnp.sqrt(jnp.mean(model.algebra.norm_sq(y - reference))))
             drift = float(np.max(np.abs(np.asarray(model.algebra.casimirs(y)) - c0) / np.abs(c0)))
-            rows.append(dict(method=name, h=h, rms_error=err, time_median_s=med,
-                             compile_s=compile_s, max_rel_casimir_error=drift))
-            print(f"so(4) {name:28s} h=2^-{k} rms {err:.3e} run {med:.4f} s casimirs {drift:.1e}",
-                  flush=True)
+            rows.append(
+                dict(
+                    method=name,
+                    h=h,
+                    rms_error=err,
+                    time_median_s=med,
+                    compile_s=compile_s,
+                    max_rel_casimir_error=drift,
+                )
+            )
+            print(
+                f"so(4) {name:28s} h=2^-{k} rms {err:.3e} run {med:.4f} s casimirs {drift:.1e}",
+                flush=True,
+            )
     summary = []
     for name in methods:
         pts = [r for r in rows if r["method"] == name]
-        order = float(np.polyfit(np.log([r["h"] for r in pts]),
-                                 np.log([r["rms_error"] for r in pts]), 1)[0])
-        summary.append(dict(method=name, strong_order=order, rms_error=pts[-1]["rms_error"],
-                            time_median_s=pts[-1]["time_median_s"],
-                            max_rel_casimir_error=max(r["max_rel_casimir_error"] for r in pts)))
+        order = float(
+            np.polyfit(np.log([r["h"] for r in pts]), np.log([r["rms_error"] for r in pts]), 1)[0]
+        )
+        summary.append(
+            dict(
+                method=name,
+                strong_order=order,
+                rms_error=pts[-1]["rms_error"],
+                time_median_s=pts[-1]["time_median_s"],
+                max_rel_casimir_error=max(r["max_rel_casimir_error"] for r in pts),
+            )
+        )
     return rows, summary, n_samples, max(ks)
 
 
@@ -276,27 +341,36 @@ def main(argv=None):
     fast = args.fast
     if args.area_costs_only:
         costs = area_costs(fast)
-        md = (f"Drawing the Lévy areas (`_noise.draw`, jitted, per sample-step) against the "
-              f"increments alone. {info['cpu_model']}, jax {info['jax']}, "
-              f"{info['date'][:10]}.\n\n" + _common.markdown_table(
-                  costs, ["s", "h", "terms", "normals_per_step", "ns_increments",
-                          "ns_with_areas", "ratio"],
-                  {"h": ".5f", "ns_increments": ".0f", "ns_with_areas": ".0f", "ratio": ".2f"}))
+        md = (
+            f"Drawing the Lévy areas (`_noise.draw`, jitted, per sample-step) against the "
+            f"increments alone. {info['cpu_model']}, jax {info['jax']}, "
+            f"{info['date'][:10]}.\n\n"
+            + _common.markdown_table(
+                costs,
+                ["s", "h", "terms", "normals_per_step", "ns_increments", "ns_with_areas", "ratio"],
+                {"h": ".5f", "ns_increments": ".0f", "ns_with_areas": ".0f", "ratio": ".2f"},
+            )
+        )
         print("\n" + md)
         with open(os.path.join(args.out, "several_noises_area_costs.md"), "w") as fh:
             fh.write(md)
-        _common.write_json(os.path.join(args.out, "several_noises_area_costs.json"),
-                           dict(machine=info, area_costs=costs))
+        _common.write_json(
+            os.path.join(args.out, "several_noises_area_costs.json"),
+            dict(machine=info, area_costs=costs),
+        )
         return
     n_samples = 32 if fast else 500
     ks = range(4, 6) if fast else range(4, 9)
     factor = 8 if fast else 64
     n_fine = 2 ** (max(ks)) * factor
     h_fine = 1.0 / n_fine
-    print(f"# several noises: SALT rigid body, {n_samples} samples, h = 2^-{min(ks)}..2^-"
-          f"{max(ks)}, reference Midpoint with areas at 2^-{int(math.log2(n_fine))}\n"
-          f"# {info['cpu_model']}, {info['cpu_count']} cores, jax {info['jax']}, "
-          f"diffrax {info['diffrax']}, {info['date']}", flush=True)
+    print(
+        f"# several noises: SALT rigid body, {n_samples} samples, h = 2^-{min(ks)}..2^-"
+        f"{max(ks)}, reference Midpoint with areas at 2^-{int(math.log2(n_fine))}\n"
+        f"# {info['cpu_model']}, {info['cpu_count']} cores, jax {info['jax']}, "
+        f"diffrax {info['diffrax']}, {info['date']}",
+        flush=True,
+    )
 
     # The paths: fine increments and areas, drawn once; a coarse step's are joined by Chen's
     # relation (`_noise.coarsen`). Every method is timed on precomputed noise.
@@ -309,90 +383,144 @@ def main(argv=None):
     reference = jax.jit(solver(MODEL, Y0, sj.Midpoint(), h_fine, True))(dW, A)
     ref2 = jax.jit(solver(MODEL, Y0, sj.Midpoint(), 2 * h_fine, True))(*coarse(n_fine // 2))
     ref_error = float(jnp.sqrt(jnp.mean(jnp.sum((ref2 - reference) ** 2, -1))))
-    print(f"reference's own error (RMS, Midpoint with areas at 2 h_fine vs h_fine): "
-          f"{ref_error:.2e}", flush=True)
+    print(
+        f"reference's own error (RMS, Midpoint with areas at 2 h_fine vs h_fine): {ref_error:.2e}",
+        flush=True,
+    )
 
     # (--fast, a smoke run: without the compositions and Euler-Maruyama, which add nothing
     # the full run does not measure)
     skipped = ("LiePoissonSym2", "LiePoissonSym4", "EulerMaruyama") if fast else ()
-    names = ([n for n in OURS if n not in skipped] + [SCAN_HEUN]
-             + ([DIFFRAX_HEUN] if wp.dfx is not None else []))
+    names = (
+        [n for n in OURS if n not in skipped]
+        + [SCAN_HEUN]
+        + ([DIFFRAX_HEUN] if wp.dfx is not None else [])
+    )
     rows = []
     for name in names:
         for k in ks:
-            n, h = 2 ** k, 2.0 ** -k
+            n, h = 2**k, 2.0**-k
             if name in OURS:
                 method, areas = OURS[name]
                 fn, arg = solver(MODEL, Y0, method, h, areas), coarse(n)
             elif name == SCAN_HEUN:
-                fn = (lambda d, a, h=h: jax.vmap(lambda di: scan_heun(Y0, di, h))(d))
+                fn = lambda d, a, h=h: jax.vmap(lambda di: scan_heun(Y0, di, h))(d)
                 arg = coarse(n)
             else:
-                fn = (lambda w, h=h, n=n: jax.vmap(
-                    lambda wi: diffrax_heun(wi, h, n, h_fine))(w))
+                fn = lambda w, h=h, n=n: jax.vmap(lambda wi: diffrax_heun(wi, h, n, h_fine))(w)
                 arg = (cumulative,)
             compiled, compile_s = _common.compile_timed(fn, *arg)
             med, best, reps, y = _common.time_call(compiled, *arg)
             e2 = jnp.sum((y - reference) ** 2, -1)
-            casimir = float(jnp.max(jnp.abs(jnp.linalg.norm(y, axis=-1) / jnp.linalg.norm(Y0)
-                                            - 1.0)))
-            failed = (count_failed(MODEL, Y0, OURS[name][0], h, OURS[name][1], *arg)
-                      if name in OURS and OURS[name][0].can_fail else 0)
-            rows.append(dict(method=name, h=h, rms_error=float(jnp.sqrt(jnp.mean(e2))),
-                             time_median_s=med, time_min_s=best, compile_s=compile_s,
-                             ns_per_sample_step=1e9 * med / (n_samples * n),
-                             max_rel_casimir_error=casimir, failed=failed))
-            print(f"{name:22s} h=2^-{k}  rms {rows[-1]['rms_error']:.3e}  run {med:.4f} s  "
-                  f"compile {compile_s:.2f} s  casimir {casimir:.1e}  failed {failed}",
-                  flush=True)
+            casimir = float(
+                jnp.max(jnp.abs(jnp.linalg.norm(y, axis=-1) / jnp.linalg.norm(Y0) - 1.0))
+            )
+            failed = (
+                count_failed(MODEL, Y0, OURS[name][0], h, OURS[name][1], *arg)
+                if name in OURS and OURS[name][0].can_fail
+                else 0
+            )
+            rows.append(
+                dict(
+                    method=name,
+                    h=h,
+                    rms_error=float(jnp.sqrt(jnp.mean(e2))),
+                    time_median_s=med,
+                    time_min_s=best,
+                    compile_s=compile_s,
+                    ns_per_sample_step=1e9 * med / (n_samples * n),
+                    max_rel_casimir_error=casimir,
+                    failed=failed,
+                )
+            )
+            print(
+                f"{name:22s} h=2^-{k}  rms {rows[-1]['rms_error']:.3e}  run {med:.4f} s  "
+                f"compile {compile_s:.2f} s  casimir {casimir:.1e}  failed {failed}",
+                flush=True,
+            )
             if failed:
-                raise RuntimeError(f"{name} at h = 2^-{k}: {failed} samples failed; their "
-                                   "frozen states are not data. Use smaller steps.")
+                raise RuntimeError(
+                    f"{name} at h = 2^-{k}: {failed} samples failed; their "
+                    "frozen states are not data. Use smaller steps."
+                )
     _common.write_csv(os.path.join(args.out, "several_noises.csv"), rows)
 
     # Strong orders; per sample-step cost at the finest h; run time at the target error.
     summary = []
     h_last = 2.0 ** -max(ks)
-    base = next((r["ns_per_sample_step"] for r in rows
-                 if r["method"] == DIFFRAX_HEUN and r["h"] == h_last), None)
+    base = next(
+        (r["ns_per_sample_step"] for r in rows if r["method"] == DIFFRAX_HEUN and r["h"] == h_last),
+        None,
+    )
     for name in names:
         pts = [r for r in rows if r["method"] == name]
-        order = float(np.polyfit(np.log([r["h"] for r in pts]),
-                                 np.log([r["rms_error"] for r in pts]), 1)[0])
+        order = float(
+            np.polyfit(np.log([r["h"] for r in pts]), np.log([r["rms_error"] for r in pts]), 1)[0]
+        )
         t_target, extrapolated = time_at(pts, TARGET, order)
         last = pts[-1]
-        summary.append(dict(method=name, strong_order=order, rms_error=last["rms_error"],
-                            ns_per_sample_step=last["ns_per_sample_step"],
-                            vs_diffrax_heun=(last["ns_per_sample_step"] / base if base else None),
-                            compile_s=last["compile_s"], time_at_target_s=t_target,
-                            extrapolated=extrapolated,
-                            max_rel_casimir_error=max(r["max_rel_casimir_error"] for r in pts)))
+        summary.append(
+            dict(
+                method=name,
+                strong_order=order,
+                rms_error=last["rms_error"],
+                ns_per_sample_step=last["ns_per_sample_step"],
+                vs_diffrax_heun=(last["ns_per_sample_step"] / base if base else None),
+                compile_s=last["compile_s"],
+                time_at_target_s=t_target,
+                extrapolated=extrapolated,
+                max_rel_casimir_error=max(r["max_rel_casimir_error"] for r in pts),
+            )
+        )
     at = {r["method"]: r["time_at_target_s"] for r in summary}
     fastest = min(POISSON_AREAS, key=lambda n: at[n])
-    targets = dict(target_rms=TARGET, fastest_poisson_with_areas=fastest,
-                   seconds=at[fastest], baseline_seconds=at[BASELINE],
-                   vs_baseline=at[fastest] / at[BASELINE],
-                   diffrax_heun_seconds=at.get(DIFFRAX_HEUN),
-                   speedup_vs_diffrax_heun=(at[DIFFRAX_HEUN] / at[fastest]
-                                            if DIFFRAX_HEUN in at else None),
-                   speedup_vs_scan_heun=at[SCAN_HEUN] / at[fastest])
+    targets = dict(
+        target_rms=TARGET,
+        fastest_poisson_with_areas=fastest,
+        seconds=at[fastest],
+        baseline_seconds=at[BASELINE],
+        vs_baseline=at[fastest] / at[BASELINE],
+        diffrax_heun_seconds=at.get(DIFFRAX_HEUN),
+        speedup_vs_diffrax_heun=(at[DIFFRAX_HEUN] / at[fastest] if DIFFRAX_HEUN in at else None),
+        speedup_vs_scan_heun=at[SCAN_HEUN] / at[fastest],
+    )
 
     # Weak orders against the same reference (coupled differences): with areas for the
     # methods that use them, without for the rest.
     def observable(y):
         return jnp.stack([MODEL.hamiltonian(y), y[2] ** 2])
 
-    weak_names = (("Midpoint + areas", "SaltSplitting") if fast else
-                  ("LiePoisson + areas", "Midpoint + areas", "SaltSplitting + areas",
-                   "Milstein + areas", "Midpoint", "SaltSplitting", "Heun"))
+    weak_names = (
+        ("Midpoint + areas", "SaltSplitting")
+        if fast
+        else (
+            "LiePoisson + areas",
+            "Midpoint + areas",
+            "SaltSplitting + areas",
+            "Milstein + areas",
+            "Midpoint",
+            "SaltSplitting",
+            "Heun",
+        )
+    )
     weak = {}
     for areas in (True, False):
         chosen = {n: OURS[n][0] for n in weak_names if OURS[n][1] == areas}
         if chosen:
             res = sj.weak_convergence(
-                MODEL, Y0, t1=1.0, dts=[2.0 ** -k for k in ks], n_samples=n_samples,
-                key=jax.random.key(0), observable=observable, reference=sj.Midpoint(),
-                reference_factor=factor, retry_substeps=4, methods=chosen, levy_area=areas)
+                MODEL,
+                Y0,
+                t1=1.0,
+                dts=[2.0**-k for k in ks],
+                n_samples=n_samples,
+                key=jax.random.key(0),
+                observable=observable,
+                reference=sj.Midpoint(),
+                reference_factor=factor,
+                retry_substeps=4,
+                methods=chosen,
+                levy_area=areas,
+            )
             weak.update({n: (res.order[n], res.bias[n], res.ci[n]) for n in chosen})
     for row in summary:
         row.update(weak_order_H=math.nan, weak_order_y3sq=math.nan, weak_resolved="—")
@@ -407,85 +535,157 @@ def main(argv=None):
                 row["weak_order_y3sq"] = float(order[1])
 
     # Long time: Casimir drift along the path and E[H(y_T)].
-    t_long, h_long, n_long = (4.0, 2.0 ** -4, 8) if fast else (100.0, 2.0 ** -6, 100)
+    t_long, h_long, n_long = (4.0, 2.0**-4, 8) if fast else (100.0, 2.0**-6, 100)
     key = jax.random.key(1)
     long_rows = []
-    long_names = (("SaltSplitting + areas", "Midpoint", "Heun") if fast else
-                  POISSON + ("Milstein + areas", "Heun", "EulerMaruyama"))
+    long_names = (
+        ("SaltSplitting + areas", "Midpoint", "Heun")
+        if fast
+        else POISSON + ("Milstein + areas", "Heun", "EulerMaruyama")
+    )
     for name in long_names:
         method, areas = OURS[name]
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # failures are counted below
-            sol = sj.simulate(MODEL, Y0, t1=t_long, dt=h_long, n_samples=n_long, key=key,
-                              method=method, save_every=int(round(1 / h_long)),
-                              throw=False, levy_area=areas)
+            sol = sj.simulate(
+                MODEL,
+                Y0,
+                t1=t_long,
+                dt=h_long,
+                n_samples=n_long,
+                key=key,
+                method=method,
+                save_every=int(round(1 / h_long)),
+                throw=False,
+                levy_area=areas,
+            )
         ys = np.asarray(sol.ys)
         ok = np.asarray(sol.result) == 0  # failed samples (EulerMaruyama blows up) left out
         if ok.sum() >= 2:
-            drift = np.abs(np.linalg.norm(ys[ok], axis=-1) / float(jnp.linalg.norm(Y0))
-                           - 1).max()
+            drift = np.abs(np.linalg.norm(ys[ok], axis=-1) / float(jnp.linalg.norm(Y0)) - 1).max()
             energy = np.asarray(MODEL.hamiltonian(ys[ok, -1]))
             mean, ci = energy.mean(), 1.96 * energy.std(ddof=1) / math.sqrt(ok.sum())
         else:
             drift = mean = ci = math.nan
-        long_rows.append(dict(method=name, failed=int((~ok).sum()),
-                              max_rel_casimir_drift=float(drift), mean_H_T=float(mean),
-                              ci95_H_T=float(ci)))
-        print(f"long time {name:22s} casimir drift {drift:.1e}  E[H(T)] "
-              f"{long_rows[-1]['mean_H_T']:.4f} ± {long_rows[-1]['ci95_H_T']:.4f}", flush=True)
+        long_rows.append(
+            dict(
+                method=name,
+                failed=int((~ok).sum()),
+                max_rel_casimir_drift=float(drift),
+                mean_H_T=float(mean),
+                ci95_H_T=float(ci),
+            )
+        )
+        print(
+            f"long time {name:22s} casimir drift {drift:.1e}  E[H(T)] "
+            f"{long_rows[-1]['mean_H_T']:.4f} ± {long_rows[-1]['ci95_H_T']:.4f}",
+            flush=True,
+        )
 
     costs = area_costs(fast)
     so4_rows, so4_summary, so4_n, so4_k = so4_study(fast)
 
-    md = (f"SALT rigid body, I = (1, 2, 3), three noises, {n_samples} samples, T = 1; reference "
-          f"Midpoint with Lévy areas at 2^-{int(math.log2(n_fine))} on the same paths (its own "
-          f"error {ref_error:.1e}). Every method runs on precomputed increments (and areas) "
-          f"of the same paths. Per sample-step cost at h = 2^-{max(ks)}; run time at RMS "
-          f"error {TARGET:g} interpolated on each method's work-precision line (* "
-          f"extrapolated from the smallest step along the fitted order). "
-          f"{info['cpu_model']}, jax {info['jax']}, diffrax {info['diffrax']}, "
-          f"{info['date'][:10]}.\n\n")
+    md = (
+        f"SALT rigid body, I = (1, 2, 3), three noises, {n_samples} samples, T = 1; reference "
+        f"Midpoint with Lévy areas at 2^-{int(math.log2(n_fine))} on the same paths (its own "
+        f"error {ref_error:.1e}). Every method runs on precomputed increments (and areas) "
+        f"of the same paths. Per sample-step cost at h = 2^-{max(ks)}; run time at RMS "
+        f"error {TARGET:g} interpolated on each method's work-precision line (* "
+        f"extrapolated from the smallest step along the fitted order). "
+        f"{info['cpu_model']}, jax {info['jax']}, diffrax {info['diffrax']}, "
+        f"{info['date'][:10]}.\n\n"
+    )
     for row in summary:
-        row["time_at_target"] = (f"{row['time_at_target_s']:.3g}"
-                                 + ("*" if row["extrapolated"] else ""))
+        row["time_at_target"] = f"{row['time_at_target_s']:.3g}" + (
+            "*" if row["extrapolated"] else ""
+        )
     md += _common.markdown_table(
-        summary, ["method", "strong_order", "weak_order_H", "weak_order_y3sq", "weak_resolved",
-                  "rms_error", "ns_per_sample_step", "vs_diffrax_heun", "compile_s",
-                  "time_at_target", "max_rel_casimir_error"],
-        {"strong_order": ".2f", "weak_order_H": ".2f", "weak_order_y3sq": ".2f",
-         "rms_error": ".2e", "ns_per_sample_step": ".0f", "vs_diffrax_heun": ".2f",
-         "compile_s": ".2f", "max_rel_casimir_error": ".1e"}).replace("| nan ", "| — ")
-    md += (f"\nAt RMS error {TARGET:g}: the fastest Poisson method with areas, {fastest}, "
-           f"takes {targets['seconds']:.3g} s; the order-1 baseline {BASELINE} "
-           f"{targets['baseline_seconds']:.3g} s ({targets['vs_baseline']:.2f}x)"
-           + (f"; diffrax Heun {targets['diffrax_heun_seconds']:.3g} s "
-              f"({targets['speedup_vs_diffrax_heun']:.0f}x slower)"
-              if targets["speedup_vs_diffrax_heun"] else "")
-           + f"; lax.scan Heun {targets['speedup_vs_scan_heun']:.0f}x slower.\n")
-    md += ("\nDrawing the Lévy areas (`_noise.draw`, jitted, per sample-step) against the "
-           "increments alone:\n\n" + _common.markdown_table(
-               costs, ["s", "h", "terms", "normals_per_step", "ns_increments", "ns_with_areas",
-                       "ratio"],
-               {"h": ".5f", "ns_increments": ".0f", "ns_with_areas": ".0f", "ratio": ".2f"}))
-    md += (f"\nso(4), generalised rigid body with three SALT noises, {so4_n} samples, "
-           f"T = 1, values at h = 2^-{so4_k}; reference IsospectralMidpoint with areas at a "
-           f"64x finer step:\n\n" + _common.markdown_table(
-               so4_summary, ["method", "strong_order", "rms_error", "time_median_s",
-                             "max_rel_casimir_error"],
-               {"strong_order": ".2f", "rms_error": ".2e", "time_median_s": ".4f",
-                "max_rel_casimir_error": ".1e"}))
-    md += (f"\nLong time: T = {t_long:g}, h = 2^{int(math.log2(h_long))}, {n_long} samples.\n\n"
-           + _common.markdown_table(long_rows, ["method", "failed", "max_rel_casimir_drift",
-                                                "mean_H_T", "ci95_H_T"],
-                                    {"max_rel_casimir_drift": ".1e", "mean_H_T": ".4f",
-                                     "ci95_H_T": ".4f"}).replace("| nan ", "| — "))
+        summary,
+        [
+            "method",
+            "strong_order",
+            "weak_order_H",
+            "weak_order_y3sq",
+            "weak_resolved",
+            "rms_error",
+            "ns_per_sample_step",
+            "vs_diffrax_heun",
+            "compile_s",
+            "time_at_target",
+            "max_rel_casimir_error",
+        ],
+        {
+            "strong_order": ".2f",
+            "weak_order_H": ".2f",
+            "weak_order_y3sq": ".2f",
+            "rms_error": ".2e",
+            "ns_per_sample_step": ".0f",
+            "vs_diffrax_heun": ".2f",
+            "compile_s": ".2f",
+            "max_rel_casimir_error": ".1e",
+        },
+    ).replace("| nan ", "| — ")
+    md += (
+        f"\nAt RMS error {TARGET:g}: the fastest Poisson method with areas, {fastest}, "
+        f"takes {targets['seconds']:.3g} s; the order-1 baseline {BASELINE} "
+        f"{targets['baseline_seconds']:.3g} s ({targets['vs_baseline']:.2f}x)"
+        + (
+            f"; diffrax Heun {targets['diffrax_heun_seconds']:.3g} s "
+            f"({targets['speedup_vs_diffrax_heun']:.0f}x slower)"
+            if targets["speedup_vs_diffrax_heun"]
+            else ""
+        )
+        + f"; lax.scan Heun {targets['speedup_vs_scan_heun']:.0f}x slower.\n"
+    )
+    md += (
+        "\nDrawing the Lévy areas (`_noise.draw`, jitted, per sample-step) against the "
+        "increments alone:\n\n"
+        + _common.markdown_table(
+            costs,
+            ["s", "h", "terms", "normals_per_step", "ns_increments", "ns_with_areas", "ratio"],
+            {"h": ".5f", "ns_increments": ".0f", "ns_with_areas": ".0f", "ratio": ".2f"},
+        )
+    )
+    md += (
+        f"\nso(4), generalised rigid body with three SALT noises, {so4_n} samples, "
+        f"T = 1, values at h = 2^-{so4_k}; reference IsospectralMidpoint with areas at a "
+        f"64x finer step:\n\n"
+        + _common.markdown_table(
+            so4_summary,
+            ["method", "strong_order", "rms_error", "time_median_s", "max_rel_casimir_error"],
+            {
+                "strong_order": ".2f",
+                "rms_error": ".2e",
+                "time_median_s": ".4f",
+                "max_rel_casimir_error": ".1e",
+            },
+        )
+    )
+    md += (
+        f"\nLong time: T = {t_long:g}, h = 2^{int(math.log2(h_long))}, {n_long} samples.\n\n"
+        + _common.markdown_table(
+            long_rows,
+            ["method", "failed", "max_rel_casimir_drift", "mean_H_T", "ci95_H_T"],
+            {"max_rel_casimir_drift": ".1e", "mean_H_T": ".4f", "ci95_H_T": ".4f"},
+        ).replace("| nan ", "| — ")
+    )
     print("\n" + md)
     with open(os.path.join(args.out, "several_noises.md"), "w") as fh:
         fh.write(md)
-    _common.write_json(os.path.join(args.out, "several_noises.json"),
-                       dict(machine=info, reference_error=ref_error, rows=rows,
-                            summary=summary, targets=targets, area_costs=costs,
-                            so4_rows=so4_rows, so4_summary=so4_summary, long_time=long_rows))
+    _common.write_json(
+        os.path.join(args.out, "several_noises.json"),
+        dict(
+            machine=info,
+            reference_error=ref_error,
+            rows=rows,
+            summary=summary,
+            targets=targets,
+            area_costs=costs,
+            so4_rows=so4_rows,
+            so4_summary=so4_summary,
+            long_time=long_rows,
+        ),
+    )
 
     plt = _common.pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(12, 5))
@@ -494,8 +694,14 @@ def main(argv=None):
         pts = [r for r in rows if r["method"] == name]
         style = "-" if name in POISSON_AREAS or name == BASELINE else "--"
         for ax, key in ((axes[0], "h"), (axes[1], "time_median_s")):
-            ax.loglog([r[key] for r in pts], [r["rms_error"] for r in pts], style,
-                      marker=markers[i % len(markers)], color=f"C{i % 10}", label=name)
+            ax.loglog(
+                [r[key] for r in pts],
+                [r["rms_error"] for r in pts],
+                style,
+                marker=markers[i % len(markers)],
+                color=f"C{i % 10}",
+                label=name,
+            )
     for ax in axes:
         ax.axhline(ref_error, color="gray", ls=":", label="reference's own error")
         ax.axhline(TARGET, color="k", lw=0.5)

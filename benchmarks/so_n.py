@@ -57,19 +57,23 @@ def setup(n):
 
 
 def methods(n):
-    out = {"LiePoisson newton": sj.LiePoisson(jacobian="newton"),
-           "LiePoisson chart": sj.LiePoisson(jacobian="chart"),
-           "Isospectral newton": sj.IsospectralMidpoint(jacobian="newton"),
-           "Isospectral identity": sj.IsospectralMidpoint(jacobian="identity"),
-           "Midpoint": sj.Midpoint(), "Heun": sj.Heun()}
+    out = {
+        "LiePoisson newton": sj.LiePoisson(jacobian="newton"),
+        "LiePoisson chart": sj.LiePoisson(jacobian="chart"),
+        "Isospectral newton": sj.IsospectralMidpoint(jacobian="newton"),
+        "Isospectral identity": sj.IsospectralMidpoint(jacobian="identity"),
+        "Midpoint": sj.Midpoint(),
+        "Heun": sj.Heun(),
+    }
     if n >= 16:  # 11 ms per sample-step: the n(n-1)/2 tangents at every update
         del out["LiePoisson newton"]
     return out
 
 
 def ours(model, y0, method, h):
-    return lambda d: jax.vmap(lambda di: sj.integrate(model, y0, di, h, method=method,
-                                                      throw=False))(d)
+    return lambda d: jax.vmap(
+        lambda di: sj.integrate(model, y0, di, h, method=method, throw=False)
+    )(d)
 
 
 def diffrax_heun(model, y0, h, n_steps, h_fine):
@@ -77,11 +81,13 @@ def diffrax_heun(model, y0, h, n_steps, h_fine):
     f = model.vector_field
 
     def fn(w):
-        terms = dfx.MultiTerm(dfx.ODETerm(lambda t, y, a: f(y)),
-                              dfx.ControlTerm(lambda t, y, a: C * f(y),
-                                              wp.IncrementPath(w, h_fine)))
-        sol = dfx.diffeqsolve(terms, dfx.Heun(), 0.0, n_steps * h, h, y0, max_steps=n_steps,
-                              throw=False)
+        terms = dfx.MultiTerm(
+            dfx.ODETerm(lambda t, y, a: f(y)),
+            dfx.ControlTerm(lambda t, y, a: C * f(y), wp.IncrementPath(w, h_fine)),
+        )
+        sol = dfx.diffeqsolve(
+            terms, dfx.Heun(), 0.0, n_steps * h, h, y0, max_steps=n_steps, throw=False
+        )
         return sol.ys[-1]
 
     return lambda ws: jax.vmap(fn)(ws)
@@ -90,8 +96,16 @@ def diffrax_heun(model, y0, h, n_steps, h_fine):
 def newton_stats(model, y0, method, h, n_steps, n_samples):
     if method.__class__ in (sj.Heun,):
         return 0.0
-    sol = sj.simulate(model, y0, t1=n_steps * h, dt=h, n_samples=n_samples,
-                      key=jax.random.key(0), method=method, newton_stats=True)
+    sol = sj.simulate(
+        model,
+        y0,
+        t1=n_steps * h,
+        dt=h,
+        n_samples=n_samples,
+        key=jax.random.key(0),
+        method=method,
+        newton_stats=True,
+    )
     if int(sol.stats["n_failed"]):
         raise RuntimeError(f"{method}: samples failed; their frozen states are not data.")
     return float(sol.stats["newton_iterations_mean"])
@@ -104,23 +118,46 @@ def cost(ns, n_samples, n_steps, skipped=()):
         model, y0 = setup(n)
         dW = sj.brownian_increments(jax.random.key(n), n_steps, h, n_samples=n_samples)
         cumulative = jnp.concatenate([jnp.zeros((n_samples, 1)), jnp.cumsum(dW, axis=1)], 1)
-        runs = {name: (ours(model, y0, m, h), dW[..., None]) for name, m in methods(n).items()
-                if name not in skipped}
+        runs = {
+            name: (ours(model, y0, m, h), dW[..., None])
+            for name, m in methods(n).items()
+            if name not in skipped
+        }
         if wp.dfx is not None:
             runs[DIFFRAX_HEUN] = diffrax_heun(model, y0, h, n_steps, h), cumulative
         for name, (fn, arg) in runs.items():
             compiled, compile_s = _common.compile_timed(fn, arg)
             med, best, reps, y = _common.time_call(compiled, arg, repeats=3, min_total=0.3)
-            its = (newton_stats(model, y0, methods(n)[name], h, n_steps, n_samples)
-                   if name in methods(n) else 0.0)
-            rows.append(dict(n=n, unknowns=n * (n - 1) // 2, method=name,
-                             ns_per_sample_step=1e9 * med / (n_samples * n_steps),
-                             time_min_s=best, compile_s=compile_s, newton_updates=its))
-            print(f"n={n:2d} {name:22s} {rows[-1]['ns_per_sample_step']:12.0f} ns/sample-step"
-                  f"  compile {compile_s:5.2f} s  updates {its:.2f}", flush=True)
+            its = (
+                newton_stats(model, y0, methods(n)[name], h, n_steps, n_samples)
+                if name in methods(n)
+                else 0.0
+            )
+            rows.append(
+                dict(
+                    n=n,
+                    unknowns=n * (n - 1) // 2,
+                    method=name,
+                    ns_per_sample_step=1e9 * med / (n_samples * n_steps),
+                    time_min_s=best,
+                    compile_s=compile_s,
+                    newton_updates=its,
+                )
+            )
+            print(
+                f"n={n:2d} {name:22s} {rows[-1]['ns_per_sample_step']:12.0f} ns/sample-step"
+                f"  compile {compile_s:5.2f} s  updates {its:.2f}",
+                flush=True,
+            )
     for row in rows:
-        base = next((r["ns_per_sample_step"] for r in rows
-                     if r["n"] == row["n"] and r["method"] == DIFFRAX_HEUN), None)
+        base = next(
+            (
+                r["ns_per_sample_step"]
+                for r in rows
+                if r["n"] == row["n"] and r["method"] == DIFFRAX_HEUN
+            ),
+            None,
+        )
         row["vs_diffrax_heun"] = row["ns_per_sample_step"] / base if base else None
     return rows
 
@@ -132,28 +169,36 @@ def work_precision(ks, n_samples):
     w_t = np.asarray(jnp.sum(dW, axis=1))
     reference = sj.deterministic_flow(model, y0, 1.0 + C * w_t)
     cumulative = jnp.concatenate([jnp.zeros((n_samples, 1)), jnp.cumsum(dW, axis=1)], 1)
-    named = {"LiePoisson": sj.LiePoisson(), "IsospectralMidpoint": sj.IsospectralMidpoint(),
-             "Midpoint": sj.Midpoint(), "Heun": sj.Heun()}
+    named = {
+        "LiePoisson": sj.LiePoisson(),
+        "IsospectralMidpoint": sj.IsospectralMidpoint(),
+        "Midpoint": sj.Midpoint(),
+        "Heun": sj.Heun(),
+    }
     rows = []
     for name in list(named) + ([DIFFRAX_HEUN] if wp.dfx is not None else []):
         for k in ks:
-            n, h = 2 ** k, 2.0 ** -k
+            n, h = 2**k, 2.0**-k
             if name in named:
-                fn, arg = ours(model, y0, named[name], h), dW.reshape(
-                    n_samples, n, -1).sum(2)[..., None]
+                fn, arg = (
+                    ours(model, y0, named[name], h),
+                    dW.reshape(n_samples, n, -1).sum(2)[..., None],
+                )
             else:
                 fn, arg = diffrax_heun(model, y0, h, n, 1.0 / n_fine), cumulative
             compiled, compile_s = _common.compile_timed(fn, arg)
             med, _, _, y = _common.time_call(compiled, arg, repeats=3, min_total=0.3)
             err = float(jnp.sqrt(jnp.mean(sj.so(4).norm_sq(y - reference))))
-            rows.append(dict(method=name, h=h, rms_error=err, time_median_s=med,
-                             compile_s=compile_s))
+            rows.append(
+                dict(method=name, h=h, rms_error=err, time_median_s=med, compile_s=compile_s)
+            )
             print(f"n=4 {name:20s} h=2^-{k}  rms {err:.3e}  run {med:.4f} s", flush=True)
     orders = {}
     for name in {r["method"] for r in rows}:
         pts = [r for r in rows if r["method"] == name]
-        orders[name] = float(np.polyfit(np.log([r["h"] for r in pts]),
-                                        np.log([r["rms_error"] for r in pts]), 1)[0])
+        orders[name] = float(
+            np.polyfit(np.log([r["h"] for r in pts]), np.log([r["rms_error"] for r in pts]), 1)[0]
+        )
     return rows, orders
 
 
@@ -169,13 +214,23 @@ def casimirs(n_steps, n_paths):
     dW = sj.brownian_increments(jax.random.key(6), n_steps, h, n_samples=n_paths, n_noises=2)
     c0 = np.asarray(sj.so(n).casimirs(y0))
     rows = []
-    for name, m in {"LiePoisson": sj.LiePoisson(), "IsospectralMidpoint": sj.IsospectralMidpoint(),
-                    "Midpoint": sj.Midpoint(), "Heun": sj.Heun()}.items():
-        ys = jax.jit(jax.vmap(lambda d: sj.integrate(model, y0, d, h, method=m, throw=False,
-                                                     save_every=n_steps // 10)))(dW)
+    for name, m in {
+        "LiePoisson": sj.LiePoisson(),
+        "IsospectralMidpoint": sj.IsospectralMidpoint(),
+        "Midpoint": sj.Midpoint(),
+        "Heun": sj.Heun(),
+    }.items():
+        ys = jax.jit(
+            jax.vmap(
+                lambda d: sj.integrate(
+                    model, y0, d, h, method=m, throw=False, save_every=n_steps // 10
+                )
+            )
+        )(dW)
         drift = np.max(np.abs(np.asarray(sj.so(n).casimirs(ys)) / c0 - 1), axis=(0, 1))
-        rows.append(dict(method=name, steps=n_steps, tr_y2=drift[0], tr_y4=drift[1],
-                         tr_y6=drift[2]))
+        rows.append(
+            dict(method=name, steps=n_steps, tr_y2=drift[0], tr_y4=drift[1], tr_y6=drift[2])
+        )
         print(f"casimirs {name:20s} " + "  ".join(f"{d:.1e}" for d in drift), flush=True)
     return rows
 
@@ -184,14 +239,17 @@ def stress(fast):
     import warnings
 
     rows = []
-    ns, norms, dts = ((4,), (0.99,), (0.25,)) if fast else ((4, 8), (0.5, 0.9, 0.99),
-                                                             (0.25, 0.0625))
+    ns, norms, dts = (
+        ((4,), (0.99,), (0.25,)) if fast else ((4, 8), (0.5, 0.9, 0.99), (0.25, 0.0625))
+    )
     for n in ns:
         j = jnp.asarray([0.6, 1.1, 1.7, 2.3]) if n == 4 else jnp.linspace(0.6, 2.3, n)
         chi = np.random.default_rng(2).normal(size=(3, n, n))
         chi = 0.4 * (chi - np.swapaxes(chi, 1, 2)) / np.sqrt(2 * n)
-        models = {"c=0.4": sj.GeneralisedRigidBody(j, c=C),
-                  "3 SALT": sj.GeneralisedRigidBody(j, noise=sj.salt_noise(chi))}
+        models = {
+            "c=0.4": sj.GeneralisedRigidBody(j, c=C),
+            "3 SALT": sj.GeneralisedRigidBody(j, noise=sj.salt_noise(chi)),
+        }
         a = np.random.default_rng(1).normal(size=(n, n))
         for label, model in models.items():
             if fast and label != "c=0.4":
@@ -199,25 +257,38 @@ def stress(fast):
             for norm in norms:
                 y0 = jnp.asarray(norm * (a - a.T) / np.linalg.norm(a - a.T, 2))
                 for dt in dts:
-                    for name, m in {"LiePoisson": sj.LiePoisson(),
-                                    "IsospectralMidpoint": sj.IsospectralMidpoint(),
-                                    "Midpoint": sj.Midpoint()}.items():
+                    for name, m in {
+                        "LiePoisson": sj.LiePoisson(),
+                        "IsospectralMidpoint": sj.IsospectralMidpoint(),
+                        "Midpoint": sj.Midpoint(),
+                    }.items():
                         row = dict(n=n, noise=label, norm=norm, h=dt, method=name)
                         for retry in (None, 4):
                             with warnings.catch_warnings():
                                 warnings.simplefilter("ignore", RuntimeWarning)
-                                sol = sj.simulate(model, y0, t1=1.0, dt=dt,
-                                                  n_samples=8 if fast else 200,
-                                                  key=jax.random.key(0), method=m,
-                                                  throw=False, retry_substeps=retry)
+                                sol = sj.simulate(
+                                    model,
+                                    y0,
+                                    t1=1.0,
+                                    dt=dt,
+                                    n_samples=8 if fast else 200,
+                                    key=jax.random.key(0),
+                                    method=m,
+                                    throw=False,
+                                    retry_substeps=retry,
+                                )
                             key = "failed" if retry is None else "failed_retry4"
                             row[key] = int(sol.stats["n_failed"])
                             row["nonfinite"] = row.get("nonfinite", 0) + int(
-                                jnp.sum(~jnp.isfinite(sol.ys)))
+                                jnp.sum(~jnp.isfinite(sol.ys))
+                            )
                         rows.append(row)
-                        print(f"stress n={n} {label:6s} |Y0|={norm} h={dt} {name:20s} failed "
-                              f"{row['failed']}, with retry {row['failed_retry4']}, non-finite "
-                              f"{row['nonfinite']}", flush=True)
+                        print(
+                            f"stress n={n} {label:6s} |Y0|={norm} h={dt} {name:20s} failed "
+                            f"{row['failed']}, with retry {row['failed_retry4']}, non-finite "
+                            f"{row['nonfinite']}",
+                            flush=True,
+                        )
     return rows
 
 
@@ -228,16 +299,27 @@ def figure(path, cost_rows, wp_rows):
     colors = plt.get_cmap("tab10")
     for i, name in enumerate(names):
         pts = [r for r in cost_rows if r["method"] == name]
-        ax1.loglog([r["n"] for r in pts], [r["ns_per_sample_step"] for r in pts], "o-",
-                   color=colors(i), label=name, base=2)
+        ax1.loglog(
+            [r["n"] for r in pts],
+            [r["ns_per_sample_step"] for r in pts],
+            "o-",
+            color=colors(i),
+            label=name,
+            base=2,
+        )
     ax1.set_xlabel("n (so(n))")
     ax1.set_ylabel("ns per sample-step")
     ax1.set_title("Cost against n, generalised rigid body")
     ax1.legend(fontsize=7)
     for i, name in enumerate(dict.fromkeys(r["method"] for r in wp_rows)):
         pts = [r for r in wp_rows if r["method"] == name]
-        ax2.loglog([r["time_median_s"] for r in pts], [r["rms_error"] for r in pts], "o-",
-                   color=colors(i), label=name)
+        ax2.loglog(
+            [r["time_median_s"] for r in pts],
+            [r["rms_error"] for r in pts],
+            "o-",
+            color=colors(i),
+            label=name,
+        )
     ax2.set_xlabel("run time (s), 200 samples")
     ax2.set_ylabel("RMS error at T = 1")
     ax2.set_title("Work-precision, so(4), one noise c H")
@@ -249,42 +331,92 @@ def figure(path, cost_rows, wp_rows):
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--fast", action="store_true",
-                   help="a smoke run: n = 3 without the Newton-Jacobian variants; 8 samples; "
-                        "h = 2^-3, 2^-4; 200 steps")
-    p.add_argument("--out", default=_common.DEFAULT_OUT, help="output folder (default: %(default)s)")
+    p.add_argument(
+        "--fast",
+        action="store_true",
+        help="a smoke run: n = 3 without the Newton-Jacobian variants; 8 samples; "
+        "h = 2^-3, 2^-4; 200 steps",
+    )
+    p.add_argument(
+        "--out", default=_common.DEFAULT_OUT, help="output folder (default: %(default)s)"
+    )
     args = p.parse_args(argv)
     os.makedirs(args.out, exist_ok=True)
     info = _common.machine_info()
-    print(f"# so(n): {info['cpu_model']}, {info['cpu_count']} cores, jax {info['jax']}, "
-          f"diffrax {info['diffrax']}, {info['date']}", flush=True)
+    print(
+        f"# so(n): {info['cpu_model']}, {info['cpu_count']} cores, jax {info['jax']}, "
+        f"diffrax {info['diffrax']}, {info['date']}",
+        flush=True,
+    )
     fast = args.fast
     # (--fast, a smoke run: without the two Newton-Jacobian variants, which add nothing the
     # full run does not measure)
-    cost_rows = cost((3,) if fast else (3, 4, 6, 8, 12, 16), 8 if fast else 32, 32,
-                     skipped=("LiePoisson newton", "Isospectral newton") if fast else ())
+    cost_rows = cost(
+        (3,) if fast else (3, 4, 6, 8, 12, 16),
+        8 if fast else 32,
+        32,
+        skipped=("LiePoisson newton", "Isospectral newton") if fast else (),
+    )
     wp_rows, orders = work_precision(range(3, 5) if fast else range(3, 8), 8 if fast else 200)
     cas_rows = casimirs(200 if fast else 10_000, 2 if fast else 8)
     stress_rows = stress(fast)
     _common.write_csv(os.path.join(args.out, "so_n.csv"), cost_rows)
-    _common.write_json(os.path.join(args.out, "so_n.json"),
-                       dict(machine=info, cost=cost_rows, work_precision=wp_rows,
-                            strong_orders=orders, casimirs=cas_rows, stress=stress_rows))
+    _common.write_json(
+        os.path.join(args.out, "so_n.json"),
+        dict(
+            machine=info,
+            cost=cost_rows,
+            work_precision=wp_rows,
+            strong_orders=orders,
+            casimirs=cas_rows,
+            stress=stress_rows,
+        ),
+    )
     with open(os.path.join(args.out, "so_n.md"), "w") as fh:
-        fh.write(f"Measured on {info['cpu_model']} ({info['cpu_count']} cores), jax "
-                 f"{info['jax']}, diffrax {info['diffrax']}, {info['date'][:10]}.\n\n")
-        fh.write(_common.markdown_table(
-            cost_rows, ["n", "method", "ns_per_sample_step", "vs_diffrax_heun", "compile_s",
-                        "newton_updates"],
-            {"ns_per_sample_step": ".0f", "vs_diffrax_heun": ".2f", "compile_s": ".2f",
-             "newton_updates": ".2f"}))
-        fh.write("\nStrong orders at n = 4 (h = 2^-3..2^-7): "
-                 + ", ".join(f"{k} {v:.2f}" for k, v in sorted(orders.items())) + "\n\n")
-        fh.write(_common.markdown_table(cas_rows, ["method", "steps", "tr_y2", "tr_y4", "tr_y6"],
-                                        {"tr_y2": ".1e", "tr_y4": ".1e", "tr_y6": ".1e"}))
-        fh.write("\nStress (200 samples, T = 1): failed samples without / with retry_substeps=4\n\n")
-        fh.write(_common.markdown_table(stress_rows, ["n", "noise", "norm", "h", "method",
-                                                      "failed", "failed_retry4", "nonfinite"]))
+        fh.write(
+            f"Measured on {info['cpu_model']} ({info['cpu_count']} cores), jax "
+            f"{info['jax']}, diffrax {info['diffrax']}, {info['date'][:10]}.\n\n"
+        )
+        fh.write(
+            _common.markdown_table(
+                cost_rows,
+                [
+                    "n",
+                    "method",
+                    "ns_per_sample_step",
+                    "vs_diffrax_heun",
+                    "compile_s",
+                    "newton_updates",
+                ],
+                {
+                    "ns_per_sample_step": ".0f",
+                    "vs_diffrax_heun": ".2f",
+                    "compile_s": ".2f",
+                    "newton_updates": ".2f",
+                },
+            )
+        )
+        fh.write(
+            "\nStrong orders at n = 4 (h = 2^-3..2^-7): "
+            + ", ".join(f"{k} {v:.2f}" for k, v in sorted(orders.items()))
+            + "\n\n"
+        )
+        fh.write(
+            _common.markdown_table(
+                cas_rows,
+                ["method", "steps", "tr_y2", "tr_y4", "tr_y6"],
+                {"tr_y2": ".1e", "tr_y4": ".1e", "tr_y6": ".1e"},
+            )
+        )
+        fh.write(
+            "\nStress (200 samples, T = 1): failed samples without / with retry_substeps=4\n\n"
+        )
+        fh.write(
+            _common.markdown_table(
+                stress_rows,
+                ["n", "noise", "norm", "h", "method", "failed", "failed_retry4", "nonfinite"],
+            )
+        )
     figure(os.path.join(args.out, "so_n.png"), cost_rows, wp_rows)
 
 

@@ -35,7 +35,7 @@ import scaling  # noqa: E402  (the fresh-process launcher and /proc helpers)
 
 import slps_jax as sj  # noqa: E402
 
-DT = 2.0 ** -5
+DT = 2.0**-5
 T1 = 1.0
 RSS_FLAT_MB = 20.0
 
@@ -46,17 +46,34 @@ def child(n_samples, chunk_size):
     baseline = scaling._status_kb("VmRSS")
     reset = scaling._reset_peak()
     start = time.perf_counter()
-    st = sj.ensemble_statistics(model, y0, t1=T1, dt=DT, n_samples=n_samples,
-                                chunk_size=chunk_size, key=jax.random.key(0),
-                                statistics=("mean", "var", "cov"), method=sj.LiePoisson(),
-                                progress=False)
+    st = sj.ensemble_statistics(
+        model,
+        y0,
+        t1=T1,
+        dt=DT,
+        n_samples=n_samples,
+        chunk_size=chunk_size,
+        key=jax.random.key(0),
+        statistics=("mean", "var", "cov"),
+        method=sj.LiePoisson(),
+        progress=False,
+    )
     seconds = time.perf_counter() - start
     hwm = scaling._status_kb("VmHWM")
-    print(json.dumps({
-        "n": st.n, "n_failed": st.n_failed, "n_chunks": st.n_chunks, "seconds": seconds,
-        "mean_final": st.mean[-1].tolist(), "var_final": st.var[-1].tolist(),
-        "ru_maxrss_kb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,
-        "run_peak_rise_kb": (hwm - baseline) if (reset and hwm and baseline) else None}))
+    print(
+        json.dumps(
+            {
+                "n": st.n,
+                "n_failed": st.n_failed,
+                "n_chunks": st.n_chunks,
+                "seconds": seconds,
+                "mean_final": st.mean[-1].tolist(),
+                "var_final": st.var[-1].tolist(),
+                "ru_maxrss_kb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,
+                "run_peak_rise_kb": (hwm - baseline) if (reset and hwm and baseline) else None,
+            }
+        )
+    )
 
 
 def parse(argv):
@@ -73,43 +90,68 @@ def main(argv=None):
         child(*args.child)
         return 0
     launcher = scaling.Launcher()  # while this process is still small
-    chunk = 10 ** 3 if args.fast else 10 ** 5
+    chunk = 10**3 if args.fast else 10**5
     sizes = [chunk, 2 * chunk, 10 * chunk]
     os.makedirs(args.out, exist_ok=True)
     info = _common.machine_info()
-    print(f"streamed ensemble_statistics, LiePoisson, h = 2^-5, T = 1, chunk_size {chunk}: "
-          f"{info['cpu_model']} ({info['cpu_count']} cores, {info['backend']}), "
-          f"jax {info['jax']}")
+    print(
+        f"streamed ensemble_statistics, LiePoisson, h = 2^-5, T = 1, chunk_size {chunk}: "
+        f"{info['cpu_model']} ({info['cpu_count']} cores, {info['backend']}), "
+        f"jax {info['jax']}"
+    )
     rows = []
     for n in sizes:
-        out = launcher.run([sys.executable, os.path.abspath(__file__), "--child", str(n),
-                            str(chunk)])
+        out = launcher.run(
+            [sys.executable, os.path.abspath(__file__), "--child", str(n), str(chunk)]
+        )
         if out["rc"]:
             raise RuntimeError(f"child failed:\n{out['err']}")
         res = json.loads(out["out"].strip().splitlines()[-1])
-        row = {"n_samples": n, "chunk_size": chunk, "n_chunks": res["n_chunks"],
-               "n_failed": res["n_failed"], "seconds": res["seconds"],
-               "ru_maxrss_mb": res["ru_maxrss_kb"] / 1024,
-               "run_peak_rise_mb": (res["run_peak_rise_kb"] / 1024
-                                    if res["run_peak_rise_kb"] is not None else None),
-               "mean_final": res["mean_final"], "var_final": res["var_final"]}
+        row = {
+            "n_samples": n,
+            "chunk_size": chunk,
+            "n_chunks": res["n_chunks"],
+            "n_failed": res["n_failed"],
+            "seconds": res["seconds"],
+            "ru_maxrss_mb": res["ru_maxrss_kb"] / 1024,
+            "run_peak_rise_mb": (
+                res["run_peak_rise_kb"] / 1024 if res["run_peak_rise_kb"] is not None else None
+            ),
+            "mean_final": res["mean_final"],
+            "var_final": res["var_final"],
+        }
         rows.append(row)
         rise = row["run_peak_rise_mb"]
-        print(f"  n_samples {n:>8d} ({row['n_chunks']:3d} chunks): {row['seconds']:7.2f} s, "
-              f"peak RSS {row['ru_maxrss_mb']:7.1f} MB (rise during the run "
-              f"{'n/a' if rise is None else f'{rise:.1f}'} MB), {row['n_failed']} failed")
+        print(
+            f"  n_samples {n:>8d} ({row['n_chunks']:3d} chunks): {row['seconds']:7.2f} s, "
+            f"peak RSS {row['ru_maxrss_mb']:7.1f} MB (rise during the run "
+            f"{'n/a' if rise is None else f'{rise:.1f}'} MB), {row['n_failed']} failed"
+        )
     launcher.close()
     # From 2 chunks on, the allocator has seen a chunk's buffers freed and reused.
     growth = rows[-1]["ru_maxrss_mb"] - rows[1]["ru_maxrss_mb"]
     flat = growth < RSS_FLAT_MB
-    print(f"peak RSS {'stayed flat' if flat else 'GREW'} from {rows[1]['n_chunks']} to "
-          f"{rows[-1]['n_chunks']} chunks: {growth:+.1f} MB (from 1 chunk: "
-          f"{rows[-1]['ru_maxrss_mb'] - rows[0]['ru_maxrss_mb']:+.1f} MB)")
-    _common.write_csv(os.path.join(args.out, "streaming.csv"),
-                      [{k: v for k, v in r.items() if not k.endswith("_final")} for r in rows])
-    _common.write_json(os.path.join(args.out, "streaming.json"),
-                       {"machine": info, "dt": DT, "t1": T1, "method": "LiePoisson",
-                        "rows": rows, "rss_growth_mb": growth, "flat": flat})
+    print(
+        f"peak RSS {'stayed flat' if flat else 'GREW'} from {rows[1]['n_chunks']} to "
+        f"{rows[-1]['n_chunks']} chunks: {growth:+.1f} MB (from 1 chunk: "
+        f"{rows[-1]['ru_maxrss_mb'] - rows[0]['ru_maxrss_mb']:+.1f} MB)"
+    )
+    _common.write_csv(
+        os.path.join(args.out, "streaming.csv"),
+        [{k: v for k, v in r.items() if not k.endswith("_final")} for r in rows],
+    )
+    _common.write_json(
+        os.path.join(args.out, "streaming.json"),
+        {
+            "machine": info,
+            "dt": DT,
+            "t1": T1,
+            "method": "LiePoisson",
+            "rows": rows,
+            "rss_growth_mb": growth,
+            "flat": flat,
+        },
+    )
     return 0
 
 

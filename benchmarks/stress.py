@@ -67,8 +67,16 @@ import _common  # noqa: E402
 import slps_jax as sj  # noqa: E402
 
 PAPER_I = tuple(float(x) for x in sj.RigidBody.paper().inertia)
-BASE = dict(h=2.0 ** -5, c=0.2, r=0.99, direction="paper", inertia=PAPER_I, T=1.0,
-            dtype="float64", n_samples=100)
+BASE = dict(
+    h=2.0**-5,
+    c=0.2,
+    r=0.99,
+    direction="paper",
+    inertia=PAPER_I,
+    T=1.0,
+    dtype="float64",
+    n_samples=100,
+)
 METHODS = ("LiePoisson", "LiePoisson+retry4", "Midpoint", "Strang", "EulerMaruyama", "Exact")
 
 
@@ -83,8 +91,7 @@ def direction(name, inertia):
         # axisymmetric bodies (1, 1, 2) and (2, 2, 1), whose flow would then be trivial.
         v = np.array([0.6, 0.5, 0.62])
     elif name.startswith("near_"):
-        axis = {"near_minor": order[0], "near_intermediate": order[1],
-                "near_major": order[2]}[name]
+        axis = {"near_minor": order[0], "near_intermediate": order[1], "near_major": order[2]}[name]
         v = np.full(3, 1e-3)
         v[axis] = 1.0
     elif name == "separatrix":
@@ -103,9 +110,13 @@ def direction(name, inertia):
 def cells(fast):
     """(sweep, label, settings) for each cell of the matrix."""
     if fast:
-        return [("corner", "h=0.25 c=3 |y0|=0.999 separatrix",
-                 dict(h=0.25, c=3.0, r=0.999, direction="separatrix")),
-                ]
+        return [
+            (
+                "corner",
+                "h=0.25 c=3 |y0|=0.999 separatrix",
+                dict(h=0.25, c=3.0, r=0.999, direction="separatrix"),
+            ),
+        ]
     out = [("base", "base", {})]
     for h in (1e-3, 1e-2, 0.1, 0.25, 0.5):
         out.append(("h", f"h={h:g}", dict(h=h)))
@@ -115,24 +126,45 @@ def cells(fast):
         out.append(("|y0|", f"|y0|={r:g}", dict(r=r)))
     for d in ("near_major", "near_minor", "near_intermediate", "separatrix"):
         out.append(("y0 direction", d, dict(direction=d)))
-    for inertia in ((1.0, 2.0, 3.0), (1.0, 10.0, 100.0), (1.0, 30.0, 1000.0), (1.0, 1.0, 2.0),
-                    (2.0, 2.0, 1.0)):
-        out.append(("inertia", "I=" + ",".join(f"{x:g}" for x in inertia),
-                    dict(inertia=inertia, direction="generic")))
+    for inertia in (
+        (1.0, 2.0, 3.0),
+        (1.0, 10.0, 100.0),
+        (1.0, 30.0, 1000.0),
+        (1.0, 1.0, 2.0),
+        (2.0, 2.0, 1.0),
+    ):
+        out.append(
+            (
+                "inertia",
+                "I=" + ",".join(f"{x:g}" for x in inertia),
+                dict(inertia=inertia, direction="generic"),
+            )
+        )
     out.append(("T", "T=10", dict(T=10.0, n_samples=20)))
-    out.append(("T", "T=100", dict(T=100.0, h=2.0 ** -4, n_samples=8)))
-    out.append(("T", "T=1e4", dict(T=1e4, h=2.0 ** -3, n_samples=4)))
+    out.append(("T", "T=100", dict(T=100.0, h=2.0**-4, n_samples=8)))
+    out.append(("T", "T=1e4", dict(T=1e4, h=2.0**-3, n_samples=4)))
     out.append(("dtype", "float32", dict(dtype="float32")))
     out.append(("dtype", "float32 h=0.25", dict(dtype="float32", h=0.25)))
     out.append(("dtype", "float32 |y0|=0.999", dict(dtype="float32", r=0.999)))
     out.append(("corner", "h=0.5 c=3 |y0|=0.999", dict(h=0.5, c=3.0, r=0.999)))
-    out.append(("corner", "h=0.25 c=1 near_intermediate I=1,30,1000",
-                dict(h=0.25, c=1.0, direction="near_intermediate", inertia=(1.0, 30.0, 1000.0))))
-    out.append(("corner", "h=0.25 c=3 |y0|=0.999 separatrix",
-                dict(h=0.25, c=3.0, r=0.999, direction="separatrix")))
+    out.append(
+        (
+            "corner",
+            "h=0.25 c=1 near_intermediate I=1,30,1000",
+            dict(h=0.25, c=1.0, direction="near_intermediate", inertia=(1.0, 30.0, 1000.0)),
+        )
+    )
+    out.append(
+        (
+            "corner",
+            "h=0.25 c=3 |y0|=0.999 separatrix",
+            dict(h=0.25, c=3.0, r=0.999, direction="separatrix"),
+        )
+    )
     out.append(("corner", "h=0.1 c=1 T=100", dict(h=0.1, c=1.0, T=100.0, n_samples=8)))
-    out.append(("corner", "float32 h=0.5 c=3 |y0|=0.999",
-                dict(dtype="float32", h=0.5, c=3.0, r=0.999)))
+    out.append(
+        ("corner", "float32 h=0.5 c=3 |y0|=0.999", dict(dtype="float32", h=0.5, c=3.0, r=0.999))
+    )
     return out
 
 
@@ -151,13 +183,15 @@ def make_method(name, r):
 def exact_reference(settings, y0, key, n_steps):
     """y(T) = phi_{T + c W_T}(y0) in float64, with W_T the sum of the run's own increments."""
     dtype = jnp.float32 if settings["dtype"] == "float32" else jnp.float64
-    dW = sj.brownian_increments(key, n_steps, settings["h"], n_samples=settings["n_samples"],
-                                dtype=dtype)
+    dW = sj.brownian_increments(
+        key, n_steps, settings["h"], n_samples=settings["n_samples"], dtype=dtype
+    )
     w_t = jnp.sum(dW.astype(jnp.float64), axis=1)
     model = sj.RigidBody(jnp.asarray(settings["inertia"], jnp.float64), settings["c"])
     y0 = jnp.asarray(y0, jnp.float64)
-    return np.asarray(jax.jit(jax.vmap(
-        lambda w: sj.exact_solution(model, y0, settings["T"], w)))(w_t))
+    return np.asarray(
+        jax.jit(jax.vmap(lambda w: sj.exact_solution(model, y0, settings["T"], w)))(w_t)
+    )
 
 
 def run_cell(settings, method_name, seed=0):
@@ -171,9 +205,18 @@ def run_cell(settings, method_name, seed=0):
     start = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # failures are counted below
-        sol = sj.simulate(model, y0, t1=s["T"], dt=s["h"], n_samples=s["n_samples"], key=key,
-                          method=method, throw=False, newton_stats=True,
-                          retry_substeps=retry)
+        sol = sj.simulate(
+            model,
+            y0,
+            t1=s["T"],
+            dt=s["h"],
+            n_samples=s["n_samples"],
+            key=key,
+            method=method,
+            throw=False,
+            newton_stats=True,
+            retry_substeps=retry,
+        )
         ys = np.asarray(jax.block_until_ready(sol.ys), np.float64)
     wall = time.perf_counter() - start
     failed = np.asarray(sol.result) != sj.RESULTS.successful
@@ -183,10 +226,10 @@ def run_cell(settings, method_name, seed=0):
     y0_64 = y0.astype(np.float64)
     y_t = np.where(ok[:, None], y_t, 0.0)  # (an unflagged EM state may still be huge)
     inertia = np.asarray(s["inertia"], float)
-    c0, h0 = 0.5 * y0_64 @ y0_64, 0.5 * np.sum(y0_64 ** 2 / inertia)
+    c0, h0 = 0.5 * y0_64 @ y0_64, 0.5 * np.sum(y0_64**2 / inertia)
     with np.errstate(over="ignore", invalid="ignore"):
-        cas = np.abs(0.5 * np.sum(y_t ** 2, -1) / c0 - 1)[ok]
-        ham = np.abs(0.5 * np.sum(y_t ** 2 / inertia, -1) / h0 - 1)[ok]
+        cas = np.abs(0.5 * np.sum(y_t**2, -1) / c0 - 1)[ok]
+        ham = np.abs(0.5 * np.sum(y_t**2 / inertia, -1) / h0 - 1)[ok]
     y_ref = exact_reference(s, y0, key, n_steps)
     with np.errstate(over="ignore", invalid="ignore"):
         err = np.sqrt(np.mean(np.sum((y_t[ok] - y_ref[ok]) ** 2, -1))) if ok.any() else math.nan
@@ -209,9 +252,15 @@ def run_cell(settings, method_name, seed=0):
     }
 
 
-NOISE_BASE = dict(h=2.0 ** -5, a=0.4, r=0.9, T=1.0, dtype="float64", n_samples=100)
-NOISE_METHODS = ("LiePoisson", "LiePoisson+retry4", "Midpoint", "SaltSplitting", "Heun",
-                 "EulerMaruyama")
+NOISE_BASE = dict(h=2.0**-5, a=0.4, r=0.9, T=1.0, dtype="float64", n_samples=100)
+NOISE_METHODS = (
+    "LiePoisson",
+    "LiePoisson+retry4",
+    "Midpoint",
+    "SaltSplitting",
+    "Heun",
+    "EulerMaruyama",
+)
 SALT_AXES = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.5, 1.0]])
 
 
@@ -224,14 +273,16 @@ def noise_cells(fast):
     out += [("noise", f"a={a:g}", dict(a=a)) for a in (0.1, 1.0, 3.0)]
     out += [("h", f"h={h:g}", dict(h=h)) for h in (1e-2, 0.1, 0.25, 0.5)]
     out += [("|y0|", f"|y0|={r:g}", dict(r=r)) for r in (0.5, 0.99, 0.999)]
-    out += [("T", "T=10", dict(T=10.0, n_samples=20)),
-            ("T", "T=100", dict(T=100.0, n_samples=8)),
-            ("T", "T=1e4", dict(T=1e4, h=2.0 ** -3, n_samples=4)),
-            ("dtype", "float32", dict(dtype="float32")),
-            ("dtype", "float32 h=0.25 a=1", dict(dtype="float32", h=0.25, a=1.0)),
-            corner,
-            ("corner", "h=0.5 a=3 |y0|=0.99", dict(h=0.5, a=3.0, r=0.99)),
-            ("corner", "h=0.1 a=1 T=100", dict(h=0.1, a=1.0, T=100.0, n_samples=8))]
+    out += [
+        ("T", "T=10", dict(T=10.0, n_samples=20)),
+        ("T", "T=100", dict(T=100.0, n_samples=8)),
+        ("T", "T=1e4", dict(T=1e4, h=2.0**-3, n_samples=4)),
+        ("dtype", "float32", dict(dtype="float32")),
+        ("dtype", "float32 h=0.25 a=1", dict(dtype="float32", h=0.25, a=1.0)),
+        corner,
+        ("corner", "h=0.5 a=3 |y0|=0.99", dict(h=0.5, a=3.0, r=0.99)),
+        ("corner", "h=0.1 a=1 T=100", dict(h=0.1, a=1.0, T=100.0, n_samples=8)),
+    ]
     return out
 
 
@@ -239,44 +290,63 @@ def run_noise_cell(settings, method_name, seed=0):
     s = settings
     dtype = np.float32 if s["dtype"] == "float32" else np.float64
     y0 = (s["r"] * np.array([0.6, 0.5, 0.3]) / np.linalg.norm([0.6, 0.5, 0.3])).astype(dtype)
-    model = sj.RigidBody(np.array([1.0, 2.0, 3.0], dtype),
-                         noise=sj.salt_noise((s["a"] * SALT_AXES).astype(dtype)))
+    model = sj.RigidBody(
+        np.array([1.0, 2.0, 3.0], dtype), noise=sj.salt_noise((s["a"] * SALT_AXES).astype(dtype))
+    )
     method, retry = {
-        "LiePoisson": (sj.LiePoisson(), None), "LiePoisson+retry4": (sj.LiePoisson(), 4),
-        "Midpoint": (sj.Midpoint(), None), "SaltSplitting": (sj.SaltSplitting(), None),
-        "Heun": (sj.Heun(), None), "EulerMaruyama": (sj.EulerMaruyama(), None)}[method_name]
+        "LiePoisson": (sj.LiePoisson(), None),
+        "LiePoisson+retry4": (sj.LiePoisson(), 4),
+        "Midpoint": (sj.Midpoint(), None),
+        "SaltSplitting": (sj.SaltSplitting(), None),
+        "Heun": (sj.Heun(), None),
+        "EulerMaruyama": (sj.EulerMaruyama(), None),
+    }[method_name]
     start = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # failures are counted below
-        sol = sj.simulate(model, y0, t1=s["T"], dt=s["h"], n_samples=s["n_samples"],
-                          key=jax.random.key(seed), method=method, throw=False,
-                          retry_substeps=retry)
+        sol = sj.simulate(
+            model,
+            y0,
+            t1=s["T"],
+            dt=s["h"],
+            n_samples=s["n_samples"],
+            key=jax.random.key(seed),
+            method=method,
+            throw=False,
+            retry_substeps=retry,
+        )
         ys = np.asarray(jax.block_until_ready(sol.ys), np.float64)
     wall = time.perf_counter() - start
     result = np.asarray(sol.result)
     failed = result != sj.RESULTS.successful
-    reasons = ", ".join(f"{int((result == code).sum())} {sj.RESULTS.name(code)}"
-                        for code in np.unique(result[failed]))
+    reasons = ", ".join(
+        f"{int((result == code).sum())} {sj.RESULTS.name(code)}"
+        for code in np.unique(result[failed])
+    )
     ok = ~failed & np.isfinite(ys).all(axis=(1, 2))
     with np.errstate(over="ignore", invalid="ignore"):
         cas = np.abs(np.linalg.norm(ys[ok], axis=-1) / np.linalg.norm(y0.astype(float)) - 1)
     return {
-        "n_samples": s["n_samples"], "n_steps": int(round(s["T"] / s["h"])),
-        "failed": int(failed.sum()), "reasons": reasons or "-",
+        "n_samples": s["n_samples"],
+        "n_steps": int(round(s["T"] / s["h"])),
+        "failed": int(failed.sum()),
+        "reasons": reasons or "-",
         "nonfinite_unflagged": int((~np.isfinite(ys[~failed])).sum()),
         "nonfinite_flagged": int((~np.isfinite(ys[failed])).sum()),
-        "casimir_drift": float(cas.max()) if cas.size else math.nan, "wall_s": wall,
+        "casimir_drift": float(cas.max()) if cas.size else math.nan,
+        "wall_s": wall,
     }
 
 
 def parse(argv):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--fast", action="store_true",
-                   help="a smoke run for the test suite: one hard corner, every method, "
-                        "8 samples")
+    p.add_argument(
+        "--fast",
+        action="store_true",
+        help="a smoke run for the test suite: one hard corner, every method, 8 samples",
+    )
     p.add_argument("--out", default=_common.DEFAULT_OUT, help="output folder")
-    p.add_argument("--methods", default=None, help="comma-separated subset of " +
-                   ",".join(METHODS))
+    p.add_argument("--methods", default=None, help="comma-separated subset of " + ",".join(METHODS))
     return p.parse_args(argv)
 
 
@@ -289,22 +359,33 @@ def compact_tables(rows, methods):
     """Two Markdown tables with one row per cell: failures (and Newton work), invariants."""
     cells_ = list(dict.fromkeys(r["cell"] for r in rows))
     by = {(r["cell"], r["method"]): r for r in rows}
-    short = {"LiePoisson": "LP", "LiePoisson+retry4": "LP+retry4", "Midpoint": "Midpoint",
-             "Strang": "Strang", "EulerMaruyama": "EM", "Exact": "Exact"}
+    short = {
+        "LiePoisson": "LP",
+        "LiePoisson+retry4": "LP+retry4",
+        "Midpoint": "Midpoint",
+        "Strang": "Strang",
+        "EulerMaruyama": "EM",
+        "Exact": "Exact",
+    }
     ms = [m for m in METHODS if m in methods]
 
     def get(cell, m):
         return by.get((cell, m))
 
-    head = ("| cell | n | " + " | ".join(f"{short[m]} failed" for m in ms)
-            + " | LP Newton it mean/max | LP+retry4 retried steps, it max | NaN/Inf |\n|"
-            + "---|" * (len(ms) + 5) + "\n")
+    head = (
+        "| cell | n | "
+        + " | ".join(f"{short[m]} failed" for m in ms)
+        + " | LP Newton it mean/max | LP+retry4 retried steps, it max | NaN/Inf |\n|"
+        + "---|" * (len(ms) + 5)
+        + "\n"
+    )
     body = ""
     for cell in cells_:
         any_row = next(r for r in rows if r["cell"] == cell)
         lp, lpr = get(cell, "LiePoisson"), get(cell, "LiePoisson+retry4")
-        nonfinite = sum(r["nonfinite_unflagged"] + r["nonfinite_flagged"]
-                        for r in rows if r["cell"] == cell)
+        nonfinite = sum(
+            r["nonfinite_unflagged"] + r["nonfinite_flagged"] for r in rows if r["cell"] == cell
+        )
         fails = [str(get(cell, m)["failed"]) if get(cell, m) else "" for m in ms]
         lp_it = f"{lp['newton_it_mean']:.1f} / {lp['newton_it_max']}" if lp else ""
         lpr_it = f"{lpr['retried_steps']}, {lpr['newton_it_max']}" if lpr else ""
@@ -312,24 +393,47 @@ def compact_tables(rows, methods):
         body += f" | {nonfinite} |\n"
     failures = head + body
 
-    head = ("| cell | " + " | ".join(f"{short[m]} Casimir / H" for m in ms) + " |\n|"
-            + "---|" * (len(ms) + 1) + "\n")
+    head = (
+        "| cell | "
+        + " | ".join(f"{short[m]} Casimir / H" for m in ms)
+        + " |\n|"
+        + "---|" * (len(ms) + 1)
+        + "\n"
+    )
     body = ""
     for cell in cells_:
         cols = []
         for m in ms:
             r = get(cell, m)
-            cols.append("" if r is None else
-                        f"{r['casimir_drift']:.0e} / {r['hamiltonian_error']:.0e}"
-                        if r["casimir_drift"] == r["casimir_drift"] else "all failed")
+            cols.append(
+                ""
+                if r is None
+                else f"{r['casimir_drift']:.0e} / {r['hamiltonian_error']:.0e}"
+                if r["casimir_drift"] == r["casimir_drift"]
+                else "all failed"
+            )
         body += f"| {md(cell)} | " + " | ".join(cols) + " |\n"
     return failures, head + body
 
 
-COLUMNS = ["sweep", "cell", "method", "failed", "nonfinite_unflagged", "newton_it_mean",
-           "newton_it_max", "casimir_drift", "hamiltonian_error", "rms_error_vs_exact"]
-FORMATS = {"newton_it_mean": ".1f", "casimir_drift": ".1e", "hamiltonian_error": ".1e",
-           "rms_error_vs_exact": ".1e"}
+COLUMNS = [
+    "sweep",
+    "cell",
+    "method",
+    "failed",
+    "nonfinite_unflagged",
+    "newton_it_mean",
+    "newton_it_max",
+    "casimir_drift",
+    "hamiltonian_error",
+    "rms_error_vs_exact",
+]
+FORMATS = {
+    "newton_it_mean": ".1f",
+    "casimir_drift": ".1e",
+    "hamiltonian_error": ".1e",
+    "rms_error_vs_exact": ".1e",
+}
 
 
 def main(argv=None):
@@ -343,23 +447,37 @@ def main(argv=None):
         if args.fast:
             settings["n_samples"] = min(settings["n_samples"], 8)
         for name in methods:
-            row = {"sweep": sweep, "cell": label, "method": name, "h": settings["h"],
-                   "c": settings["c"], "r": settings["r"], "direction": settings["direction"],
-                   "inertia": ",".join(f"{x:g}" for x in settings["inertia"]),
-                   "T": settings["T"], "dtype": settings["dtype"]}
+            row = {
+                "sweep": sweep,
+                "cell": label,
+                "method": name,
+                "h": settings["h"],
+                "c": settings["c"],
+                "r": settings["r"],
+                "direction": settings["direction"],
+                "inertia": ",".join(f"{x:g}" for x in settings["inertia"]),
+                "T": settings["T"],
+                "dtype": settings["dtype"],
+            }
             row.update(run_cell(settings, name))
             rows.append(row)
-            print(f"{label:45s} {name:18s} failed {row['failed']:3d}/{row['n_samples']:<3d} "
-                  f"nonfinite {row['nonfinite_unflagged']} "
-                  f"it {row['newton_it_mean']:5.1f}/{row['newton_it_max']:3d} "
-                  f"C {row['casimir_drift']:.1e} H {row['hamiltonian_error']:.1e} "
-                  f"err {row['rms_error_vs_exact']:.1e} ({row['wall_s']:.1f} s)", flush=True)
+            print(
+                f"{label:45s} {name:18s} failed {row['failed']:3d}/{row['n_samples']:<3d} "
+                f"nonfinite {row['nonfinite_unflagged']} "
+                f"it {row['newton_it_mean']:5.1f}/{row['newton_it_max']:3d} "
+                f"C {row['casimir_drift']:.1e} H {row['hamiltonian_error']:.1e} "
+                f"err {row['rms_error_vs_exact']:.1e} ({row['wall_s']:.1f} s)",
+                flush=True,
+            )
     total = time.perf_counter() - start
-    summary = {"machine": _common.machine_info(), "fast": args.fast, "wall_s": total,
-               "base": {k: v for k, v in BASE.items()},
-               "nonfinite_total": sum(r["nonfinite_unflagged"] + r["nonfinite_flagged"]
-                                      for r in rows),
-               "rows": rows}
+    summary = {
+        "machine": _common.machine_info(),
+        "fast": args.fast,
+        "wall_s": total,
+        "base": {k: v for k, v in BASE.items()},
+        "nonfinite_total": sum(r["nonfinite_unflagged"] + r["nonfinite_flagged"] for r in rows),
+        "rows": rows,
+    }
     _common.write_csv(os.path.join(args.out, "stress.csv"), rows)
     _common.write_json(os.path.join(args.out, "stress.json"), summary)
     noise_rows = []
@@ -371,14 +489,18 @@ def main(argv=None):
             row = {"sweep": sweep, "cell": label, "method": name, **settings}
             row.update(run_noise_cell(settings, name))
             noise_rows.append(row)
-            print(f"[noises] {label:28s} {name:18s} failed {row['failed']:3d}/"
-                  f"{row['n_samples']:<3d} ({row['reasons']}) nonfinite "
-                  f"{row['nonfinite_unflagged']}/{row['nonfinite_flagged']} "
-                  f"C {row['casimir_drift']:.1e} ({row['wall_s']:.1f} s)", flush=True)
+            print(
+                f"[noises] {label:28s} {name:18s} failed {row['failed']:3d}/"
+                f"{row['n_samples']:<3d} ({row['reasons']}) nonfinite "
+                f"{row['nonfinite_unflagged']}/{row['nonfinite_flagged']} "
+                f"C {row['casimir_drift']:.1e} ({row['wall_s']:.1f} s)",
+                flush=True,
+            )
     total = time.perf_counter() - start
     summary["wall_s"] = total
-    summary["nonfinite_total"] += sum(r["nonfinite_unflagged"] + r["nonfinite_flagged"]
-                                      for r in noise_rows)
+    summary["nonfinite_total"] += sum(
+        r["nonfinite_unflagged"] + r["nonfinite_flagged"] for r in noise_rows
+    )
     summary["noise_rows"] = noise_rows
     _common.write_csv(os.path.join(args.out, "stress_noises.csv"), noise_rows)
     _common.write_json(os.path.join(args.out, "stress.json"), summary)
@@ -386,15 +508,29 @@ def main(argv=None):
     failures, invariants = compact_tables(rows, methods)
     noise_table = _common.markdown_table(
         [dict(r, cell=md(r["cell"])) for r in noise_rows],
-        ["cell", "method", "n_samples", "failed", "reasons", "nonfinite_unflagged",
-         "casimir_drift"], {"casimir_drift": ".1e"})
+        [
+            "cell",
+            "method",
+            "n_samples",
+            "failed",
+            "reasons",
+            "nonfinite_unflagged",
+            "casimir_drift",
+        ],
+        {"casimir_drift": ".1e"},
+    )
     with open(os.path.join(args.out, "stress.md"), "w") as fh:
-        fh.write("### Failed samples, Newton work, non-finite values\n\n" + failures
-                 + "\n### Largest relative Casimir drift / Hamiltonian error at T "
-                   "(successful samples)\n\n" + invariants
-                 + "\n### Every run\n\n" + table
-                 + "\n### Several noises: failures with their reasons, Casimir drift\n\n"
-                 + noise_table)
+        fh.write(
+            "### Failed samples, Newton work, non-finite values\n\n"
+            + failures
+            + "\n### Largest relative Casimir drift / Hamiltonian error at T "
+            "(successful samples)\n\n"
+            + invariants
+            + "\n### Every run\n\n"
+            + table
+            + "\n### Several noises: failures with their reasons, Casimir drift\n\n"
+            + noise_table
+        )
     print(f"\nNaN/Inf entries in any returned state: {summary['nonfinite_total']}")
     print(f"stress matrix: {len(rows) + len(noise_rows)} runs in {total:.0f} s")
     return 0

@@ -44,7 +44,7 @@ import work_precision as wp  # noqa: E402  (its diffrax import is guarded)
 
 import slps_jax as sj  # noqa: E402
 
-H = 2.0 ** -6
+H = 2.0**-6
 N_STEPS = 64
 DIFFRAX_HEUN = "diffrax Heun (shared dW)"
 SCAN_HEUN = "lax.scan Heun"
@@ -53,13 +53,23 @@ SCAN_HEUN = "lax.scan Heun"
 def _increments(key, h):
     bound = jnp.asarray(sj._noise.truncation_bound(h, 4), jnp.float64)
     steps = jnp.arange(N_STEPS, dtype=jnp.uint32)
-    return jax.vmap(lambda n: sj._noise.increment(key, n, jnp.asarray(h), bound,
-                                                  jnp.float64))(steps)
+    return jax.vmap(lambda n: sj._noise.increment(key, n, jnp.asarray(h), bound, jnp.float64))(
+        steps
+    )
 
 
 # the library's methods for the paper's rigid body, run through `simulate`
-SIMULATED = ("Midpoint", "LiePoisson", "LiePoissonSym2", "LiePoissonSym4", "Strang",
-             "Strang4", "Heun", "Milstein", "EulerMaruyama")
+SIMULATED = (
+    "Midpoint",
+    "LiePoisson",
+    "LiePoissonSym2",
+    "LiePoissonSym4",
+    "Strang",
+    "Strang4",
+    "Heun",
+    "Milstein",
+    "EulerMaruyama",
+)
 
 
 def runner(name, model, y0):
@@ -68,12 +78,21 @@ def runner(name, model, y0):
         method = getattr(sj, name)()
 
         def run(key, n_samples):
-            sol = sj.simulate(model, y0, t1=N_STEPS * H, dt=H, n_samples=n_samples, key=key,
-                              method=method, throw=False)
+            sol = sj.simulate(
+                model,
+                y0,
+                t1=N_STEPS * H,
+                dt=H,
+                n_samples=n_samples,
+                key=key,
+                method=method,
+                throw=False,
+            )
             return jax.block_until_ready(sol.ys[:, -1])
 
         return run
     if name == SCAN_HEUN:
+
         def one(k):
             return wp.scan_heun(model, y0, _increments(k, H), H)
     else:
@@ -102,10 +121,15 @@ def parse(argv):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--fast", action="store_true", help="tiny sizes for the test suite")
     p.add_argument("--out", default=_common.DEFAULT_OUT, help="output folder")
-    p.add_argument("--max-samples", type=int, default=None,
-                   help="largest n_samples (CPU 10^5, GPU 10^7)")
-    p.add_argument("--max-call-s", type=float, default=20.0,
-                   help="skip points predicted to take longer per call")
+    p.add_argument(
+        "--max-samples", type=int, default=None, help="largest n_samples (CPU 10^5, GPU 10^7)"
+    )
+    p.add_argument(
+        "--max-call-s",
+        type=float,
+        default=20.0,
+        help="skip points predicted to take longer per call",
+    )
     p.add_argument("--methods", default=None, help="comma-separated subset")
     return p.parse_args(argv)
 
@@ -113,30 +137,44 @@ def parse(argv):
 def main(argv=None):
     args = parse(argv)
     backend = jax.default_backend()
-    top = args.max_samples or (10 ** 7 if backend == "gpu" else 10 ** 5)
-    sizes = [100, 1000] if args.fast else [n for n in (10 ** k for k in range(3, 8)) if n <= top]
+    top = args.max_samples or (10**7 if backend == "gpu" else 10**5)
+    sizes = [100, 1000] if args.fast else [n for n in (10**k for k in range(3, 8)) if n <= top]
     methods = ["Midpoint", "LiePoisson", "Strang", "Strang4", SCAN_HEUN] + (
-        [DIFFRAX_HEUN] if wp.dfx else [])
+        [DIFFRAX_HEUN] if wp.dfx else []
+    )
     if args.methods:
         methods = args.methods.split(",")
     unknown = [m for m in methods if m not in SIMULATED + (SCAN_HEUN, DIFFRAX_HEUN)]
     if unknown:
-        raise SystemExit(f"unknown methods {unknown}: choose among "
-                         f"{', '.join(SIMULATED + (SCAN_HEUN, DIFFRAX_HEUN))}")
+        raise SystemExit(
+            f"unknown methods {unknown}: choose among "
+            f"{', '.join(SIMULATED + (SCAN_HEUN, DIFFRAX_HEUN))}"
+        )
     os.makedirs(args.out, exist_ok=True)
     info = _common.machine_info()
     info["device"] = device_name(info["cpu_model"])
-    print(f"throughput, {N_STEPS} steps of h = 2^-6, float64, on {info['device']} "
-          f"(jax {info['jax']}, diffrax {info['diffrax']})")
+    print(
+        f"throughput, {N_STEPS} steps of h = 2^-6, float64, on {info['device']} "
+        f"(jax {info['jax']}, diffrax {info['diffrax']})"
+    )
     model, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
     key = jax.random.key(0)
     rows = []
     for name in methods:
         run, cost = runner(name, model, y0), None
         for n in sizes:
-            row = {"method": name, "n_samples": n, "n_steps": N_STEPS, "device": info["device"],
-                   "first_call_s": None, "time_median_s": None, "time_min_s": None,
-                   "compile_est_s": None, "sample_steps_per_s": None, "status": "ok"}
+            row = {
+                "method": name,
+                "n_samples": n,
+                "n_steps": N_STEPS,
+                "device": info["device"],
+                "first_call_s": None,
+                "time_median_s": None,
+                "time_min_s": None,
+                "compile_est_s": None,
+                "sample_steps_per_s": None,
+                "status": "ok",
+            }
             if cost is not None and cost * n > args.max_call_s:
                 row["status"] = f"skipped (predicted {cost * n:.0f} s)"
                 rows.append(row)
@@ -146,8 +184,9 @@ def main(argv=None):
                 start = time.perf_counter()
                 out = run(key, n)
                 first = time.perf_counter() - start
-                t_med, t_min, _, out = _common.time_call(lambda: run(key, n), repeats=3,
-                                                         min_total=0.3, warmup=False)
+                t_med, t_min, _, out = _common.time_call(
+                    lambda: run(key, n), repeats=3, min_total=0.3, warmup=False
+                )
             except Exception as err:  # noqa: BLE001 - out of memory and the like: record it
                 row["status"] = f"failed: {type(err).__name__}: {str(err).splitlines()[0][:120]}"
                 rows.append(row)
@@ -155,25 +194,36 @@ def main(argv=None):
                 break
             assert out.shape == (n, 3)
             cost = t_med / n
-            row.update(first_call_s=first, time_median_s=t_med, time_min_s=t_min,
-                       compile_est_s=max(first - t_med, 0.0),
-                       sample_steps_per_s=n * N_STEPS / t_med,
-                       finite=bool(jnp.all(jnp.isfinite(out))))
+            row.update(
+                first_call_s=first,
+                time_median_s=t_med,
+                time_min_s=t_min,
+                compile_est_s=max(first - t_med, 0.0),
+                sample_steps_per_s=n * N_STEPS / t_med,
+                finite=bool(jnp.all(jnp.isfinite(out))),
+            )
             rows.append(row)
-            print(f"  {name:26s} n={n:>9d}: {t_med:9.4f} s (min {t_min:.4f}), first call "
-                  f"{first:6.2f} s, {row['sample_steps_per_s']:10.3e} sample-steps/s")
+            print(
+                f"  {name:26s} n={n:>9d}: {t_med:9.4f} s (min {t_min:.4f}), first call "
+                f"{first:6.2f} s, {row['sample_steps_per_s']:10.3e} sample-steps/s"
+            )
     for row in rows:
         row.setdefault("finite", None)
     _common.write_csv(os.path.join(args.out, "throughput.csv"), rows)
-    _common.write_json(os.path.join(args.out, "throughput.json"),
-                       {"machine": info, "h": H, "n_steps": N_STEPS, "rows": rows})
+    _common.write_json(
+        os.path.join(args.out, "throughput.json"),
+        {"machine": info, "h": H, "n_steps": N_STEPS, "rows": rows},
+    )
     table = _common.markdown_table(
-        rows, ["method", "n_samples", "time_median_s", "compile_est_s", "sample_steps_per_s",
-               "status"],
-        {"time_median_s": ".4f", "compile_est_s": ".1f", "sample_steps_per_s": ".3e"})
+        rows,
+        ["method", "n_samples", "time_median_s", "compile_est_s", "sample_steps_per_s", "status"],
+        {"time_median_s": ".4f", "compile_est_s": ".1f", "sample_steps_per_s": ".3e"},
+    )
     with open(os.path.join(args.out, "throughput.md"), "w") as fh:
-        fh.write(f"Throughput on {info['device']}, jax {info['jax']}, {info['date']}; "
-                 f"{N_STEPS} steps of h = 2^-6, float64, final state only.\n\n" + table)
+        fh.write(
+            f"Throughput on {info['device']}, jax {info['jax']}, {info['date']}; "
+            f"{N_STEPS} steps of h = 2^-6, float64, final state only.\n\n" + table
+        )
     print(table)
     return 0
 

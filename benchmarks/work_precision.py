@@ -83,8 +83,13 @@ DIFFRAX = {
     "diffrax SPaRK (VBT, space-time Levy area)": ("SPaRK", "vbt-levy"),
 }
 SCAN_HEUN = "lax.scan Heun (shared dW)"
-FAST_METHODS = ["LiePoisson", "Strang", SCAN_HEUN, "diffrax Heun (shared dW)",
-                "diffrax SPaRK (VBT, space-time Levy area)"]
+FAST_METHODS = [
+    "LiePoisson",
+    "Strang",
+    SCAN_HEUN,
+    "diffrax Heun (shared dW)",
+    "diffrax SPaRK (VBT, space-time Levy area)",
+]
 
 
 def all_method_names(with_diffrax):
@@ -167,8 +172,7 @@ def vbt(key, tol, levy):
 
 def diffrax_final(model, y0, path, solver, h, n_steps):
     terms = dfx.MultiTerm(dfx.ODETerm(drift(model)), dfx.ControlTerm(diffusion(model), path))
-    sol = dfx.diffeqsolve(terms, solver, 0.0, n_steps * h, h, y0, max_steps=n_steps,
-                          throw=False)
+    sol = dfx.diffeqsolve(terms, solver, 0.0, n_steps * h, h, y0, max_steps=n_steps, throw=False)
     return sol.ys[-1]
 
 
@@ -179,26 +183,31 @@ def build(name, model, y0, h, n_steps, h_fine, data):
         method = OURS[name]
 
         def fn(dW):
-            return jax.vmap(lambda d: sj.integrate(model, y0, d, h, method=method,
-                                                   throw=False))(dW)
+            return jax.vmap(lambda d: sj.integrate(model, y0, d, h, method=method, throw=False))(dW)
 
         return fn, (data["coarse"](n_steps),), "shared"
     if name == SCAN_HEUN:
-        return (lambda dW: jax.vmap(lambda d: scan_heun(model, y0, d, h))(dW),
-                (data["coarse"](n_steps),), "shared")
+        return (
+            lambda dW: jax.vmap(lambda d: scan_heun(model, y0, d, h))(dW),
+            (data["coarse"](n_steps),),
+            "shared",
+        )
     solver_name, kind = DIFFRAX[name]
     solver = getattr(dfx, solver_name)()
     if kind == "shared":
+
         def fn(w):
-            return jax.vmap(lambda wi: diffrax_final(
-                model, y0, IncrementPath(wi, h_fine), solver, h, n_steps))(w)
+            return jax.vmap(
+                lambda wi: diffrax_final(model, y0, IncrementPath(wi, h_fine), solver, h, n_steps)
+            )(w)
 
         return fn, (data["cumulative"],), "shared"
     levy = kind == "vbt-levy"
 
     def fn(keys):
-        return jax.vmap(lambda k: diffrax_final(model, y0, vbt(k, h_fine, levy), solver, h,
-                                                n_steps))(keys)
+        return jax.vmap(
+            lambda k: diffrax_final(model, y0, vbt(k, h_fine, levy), solver, h, n_steps)
+        )(keys)
 
     return fn, (data["vbt_keys"],), kind
 
@@ -209,8 +218,9 @@ IMPLICIT = ("LiePoisson", "Midpoint")  # Newton solves that can fail at large st
 def count_failed(model, y0, dW, h, method):
     """Samples whose Newton solve failed: `integrate(throw=False)` freezes such a sample at
     its last good state, so its last two saved states are identical (an untimed extra run)."""
-    traj = jax.jit(jax.vmap(lambda d: sj.integrate(model, y0, d, h, method=method, save_every=1,
-                                                   throw=False)))(dW)
+    traj = jax.jit(
+        jax.vmap(lambda d: sj.integrate(model, y0, d, h, method=method, save_every=1, throw=False))
+    )(dW)
     return int(jnp.sum(jnp.all(traj[:, -1] == traj[:, -2], axis=-1)))
 
 
@@ -221,7 +231,8 @@ def references(model, y0, data, h_fine, with_diffrax):
     if with_diffrax:
         for kind, levy in (("vbt", False), ("vbt-levy", True)):
             w1 = jax.jit(jax.vmap(lambda k: vbt(k, h_fine, levy).evaluate(0.0, 1.0)))(
-                data["vbt_keys"])
+                data["vbt_keys"]
+            )
             refs[kind] = exact(w1)
     return refs
 
@@ -247,8 +258,9 @@ def time_to_target(points, target=TARGET):
     for i in range(len(pts) - 1):
         if e[i] > target >= e[i + 1]:
             s = (math.log(t[i + 1]) - math.log(t[i])) / (math.log(e[i + 1]) - math.log(e[i]))
-            return float(math.exp(math.log(t[i]) + s * (math.log(target) - math.log(e[i])))), \
-                "interpolated"
+            return float(
+                math.exp(math.log(t[i]) + s * (math.log(target) - math.log(e[i])))
+            ), "interpolated"
     # Extrapolate only a short way (the target within a factor 2 of the last error) and only
     # where the error still falls like a convergent method's (local order >= 1/2).
     if len(pts) >= 2 and e[-1] <= 2 * target and t[-1] > t[-2]:
@@ -256,8 +268,9 @@ def time_to_target(points, target=TARGET):
         order = math.log(e[-2] / e[-1]) / math.log(h[-2] / h[-1])
         if order >= 0.5:
             s = (math.log(t[-1]) - math.log(t[-2])) / (math.log(e[-1]) - math.log(e[-2]))
-            return float(math.exp(math.log(t[-1]) + s * (math.log(target) - math.log(e[-1])))), \
-                "extrapolated"
+            return float(
+                math.exp(math.log(t[-1]) + s * (math.log(target) - math.log(e[-1])))
+            ), "extrapolated"
     return None, "not reached"
 
 
@@ -272,8 +285,9 @@ def fastest(rows, target=TARGET):
     usable = [r for r in table if r["how"] in ("interpolated", "coarsest h")]
     best = min(usable, key=lambda r: r["seconds"], default=None)
     # Exact has round-off error at every h: it "reaches" any target at the coarsest step.
-    best_integrator = min((r for r in usable if r["method"] != "Exact"),
-                          key=lambda r: r["seconds"], default=None)
+    best_integrator = min(
+        (r for r in usable if r["method"] != "Exact"), key=lambda r: r["seconds"], default=None
+    )
     return table, best, best_integrator
 
 
@@ -293,48 +307,86 @@ def plot(rows, path, n_samples, fastest_row):
     # solvers (tab10 repeated LiePoisson's colour for the eleventh).
     cmap = plt.get_cmap("tab20")
     handles = []
-    floor = min((r["rms_error"] for r in rows if r["method"] != "Exact" and r["rms_error"] > 0),
-                default=1e-8) / 5
+    floor = (
+        min(
+            (r["rms_error"] for r in rows if r["method"] != "Exact" and r["rms_error"] > 0),
+            default=1e-8,
+        )
+        / 5
+    )
     off_scale = []
     for name in methods:
         pts = sorted((r for r in rows if r["method"] == name), key=lambda r: -r["h"])
         if all(p["rms_error"] < floor for p in pts):
-            off_scale.append((name, min(p["rms_error"] for p in pts),
-                              max(p["rms_error"] for p in pts)))
+            off_scale.append(
+                (name, min(p["rms_error"] for p in pts), max(p["rms_error"] for p in pts))
+            )
             continue
         i = groups.index(_group(name)) % 20
         color = cmap((2 * i) % 20 + (2 * i) // 20)
         style = "--" if "VBT" in name else (":" if "scan" in name else "-")
-        (line,) = ax.plot([p["time_median_s"] for p in pts], [p["rms_error"] for p in pts],
-                          style, color=color, label=name)
+        (line,) = ax.plot(
+            [p["time_median_s"] for p in pts],
+            [p["rms_error"] for p in pts],
+            style,
+            color=color,
+            label=name,
+        )
         handles.append(line)
         for p in pts:
-            ax.plot(p["time_median_s"], p["rms_error"], markers[hs.index(p["h"]) % len(markers)],
-                    color=color, ms=6)
+            ax.plot(
+                p["time_median_s"],
+                p["rms_error"],
+                markers[hs.index(p["h"]) % len(markers)],
+                color=color,
+                ms=6,
+            )
     ax.axhline(TARGET, color="grey", lw=0.8, ls="-.")
-    ax.text(min(r["time_median_s"] for r in rows), TARGET * 1.15,
-            f"RMS {TARGET:g}", fontsize=7, color="grey")
+    ax.text(
+        min(r["time_median_s"] for r in rows),
+        TARGET * 1.15,
+        f"RMS {TARGET:g}",
+        fontsize=7,
+        color="grey",
+    )
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_ylim(bottom=floor)
     ax.set_xlabel(f"run time for {n_samples} samples to T = 1 [s] (median, compile excluded)")
     ax.set_ylabel("RMS error at T = 1 vs exact solution")
-    title = ("Stochastic rigid body, paper's setup (c = 0.2), float64, "
-             f"{n_samples} samples: work-precision")
+    title = (
+        "Stochastic rigid body, paper's setup (c = 0.2), float64, "
+        f"{n_samples} samples: work-precision"
+    )
     if fastest_row is not None:
-        title += (f"\nfastest to RMS {TARGET:g} in this range of h (Exact excluded): "
-                  f"{fastest_row['method']}, {fastest_row['seconds'] * 1e3:.0f} ms")
+        title += (
+            f"\nfastest to RMS {TARGET:g} in this range of h (Exact excluded): "
+            f"{fastest_row['method']}, {fastest_row['seconds'] * 1e3:.0f} ms"
+        )
     if off_scale:
-        title += "\n" + "; ".join(f"{n}: RMS {lo:.0e} to {hi:.0e} (round-off), off scale"
-                                   for n, lo, hi in off_scale)
+        title += "\n" + "; ".join(
+            f"{n}: RMS {lo:.0e} to {hi:.0e} (round-off), off scale" for n, lo, hi in off_scale
+        )
     ax.set_title(title, fontsize=9)
-    leg1 = ax.legend(handles=handles, fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0),
-                     title="method (dashed: diffrax's own VBT paths)", title_fontsize=7)
+    leg1 = ax.legend(
+        handles=handles,
+        fontsize=7,
+        loc="upper left",
+        bbox_to_anchor=(1.01, 1.0),
+        title="method (dashed: diffrax's own VBT paths)",
+        title_fontsize=7,
+    )
     ax.add_artist(leg1)
     h_handles = [ax.plot([], [], markers[j % len(markers)], color="k")[0] for j in range(len(hs))]
-    leg2 = ax.legend(h_handles, [f"h = 2^{round(math.log2(h))}" for h in hs], fontsize=7,
-                     loc="lower left", bbox_to_anchor=(1.01, 0.0), title="step size",
-                     title_fontsize=7)
+    leg2 = ax.legend(
+        h_handles,
+        [f"h = 2^{round(math.log2(h))}" for h in hs],
+        fontsize=7,
+        loc="lower left",
+        bbox_to_anchor=(1.01, 0.0),
+        title="step size",
+        title_fontsize=7,
+    )
     ax.grid(True, which="both", alpha=0.3)
     fig.savefig(path, dpi=120, bbox_inches="tight", bbox_extra_artists=[leg1, leg2])
     plt.close(fig)
@@ -345,22 +397,30 @@ def plot(rows, path, n_samples, fastest_row):
 
 def parse(argv):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--fast", action="store_true",
-                   help="tiny size for the test suite: 40 samples, h = 2^-3, 2^-4, a subset "
-                        "of the methods")
+    p.add_argument(
+        "--fast",
+        action="store_true",
+        help="tiny size for the test suite: 40 samples, h = 2^-3, 2^-4, a subset of the methods",
+    )
     p.add_argument("--out", default=_common.DEFAULT_OUT, help="output folder")
     p.add_argument("--samples", type=int, default=None, help="number of samples (500)")
     p.add_argument("--kmin", type=int, default=None, help="largest step 2^-kmin (3)")
     p.add_argument("--kmax", type=int, default=None, help="smallest step 2^-kmax (10)")
-    p.add_argument("--methods", default=None,
-                   help="comma-separated method names (default: all available)")
+    p.add_argument(
+        "--methods", default=None, help="comma-separated method names (default: all available)"
+    )
     p.add_argument("--no-diffrax", action="store_true", help="skip the diffrax methods")
     p.add_argument("--repeats", type=int, default=3, help="timed calls per point, at least")
-    p.add_argument("--cost-repeats", type=int, default=None,
-                   help="interleaved repeats of the per-sample-step cost table (7)")
+    p.add_argument(
+        "--cost-repeats",
+        type=int,
+        default=None,
+        help="interleaved repeats of the per-sample-step cost table (7)",
+    )
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--replot", action="store_true",
-                   help="only redraw the PNG from OUT/work_precision.csv")
+    p.add_argument(
+        "--replot", action="store_true", help="only redraw the PNG from OUT/work_precision.csv"
+    )
     return p.parse_args(argv)
 
 
@@ -373,8 +433,7 @@ def replot(out):
         for key in ("h", "rms_error", "time_median_s"):
             r[key] = float(r[key])
     _, _, best_integrator = fastest(rows)
-    plot(rows, os.path.join(out, "work_precision.png"), int(rows[0]["n_samples"]),
-         best_integrator)
+    plot(rows, os.path.join(out, "work_precision.png"), int(rows[0]["n_samples"]), best_integrator)
     return 0
 
 
@@ -391,8 +450,7 @@ def main(argv=None):
         names = [m.strip() for m in args.methods.split(",") if m.strip()]
         unknown = set(names) - set(all_method_names(True))
         if unknown:
-            raise SystemExit(f"unknown methods {sorted(unknown)}; known: "
-                             f"{all_method_names(True)}")
+            raise SystemExit(f"unknown methods {sorted(unknown)}; known: {all_method_names(True)}")
     else:
         names = FAST_METHODS if fast else all_method_names(True)
     if not with_diffrax:
@@ -404,25 +462,28 @@ def main(argv=None):
 
     model, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
     ks = list(range(kmin, kmax + 1))
-    h_fine, n_fine = 2.0 ** -kmax, 2 ** kmax
+    h_fine, n_fine = 2.0**-kmax, 2**kmax
     fine = sj.brownian_increments(jax.random.key(args.seed), n_fine, h_fine, n_samples=n_samples)
     data = {
         "fine": fine,
         "coarse": lambda n: fine.reshape(n_samples, n, n_fine // n).sum(axis=2),
-        "cumulative": jnp.concatenate([jnp.zeros((n_samples, 1), fine.dtype),
-                                       jnp.cumsum(fine, axis=1)], axis=1),
+        "cumulative": jnp.concatenate(
+            [jnp.zeros((n_samples, 1), fine.dtype), jnp.cumsum(fine, axis=1)], axis=1
+        ),
         "vbt_keys": jax.random.split(jax.random.key(args.seed + 1), n_samples),
     }
     refs = references(model, y0, data, h_fine, with_diffrax)
     info = _common.machine_info()
-    print(f"work-precision: {n_samples} samples, h = 2^-{kmin} ... 2^-{kmax}, "
-          f"{info['cpu_model']} ({info['cpu_count']} cores), jax {info['jax']}, "
-          f"diffrax {info['diffrax']}")
+    print(
+        f"work-precision: {n_samples} samples, h = 2^-{kmin} ... 2^-{kmax}, "
+        f"{info['cpu_model']} ({info['cpu_count']} cores), jax {info['jax']}, "
+        f"diffrax {info['diffrax']}"
+    )
 
     rows, finals, compiled = [], {}, {}
     for name in names:
         for k in ks:
-            h, n_steps = 2.0 ** -k, 2 ** k
+            h, n_steps = 2.0**-k, 2**k
             fn, fn_args, ref_key = build(name, model, y0, h, n_steps, h_fine, data)
             exe, t_compile = _common.compile_timed(fn, *fn_args)
             t_med, t_min, n_rep, ys = _common.time_call(exe, *fn_args, repeats=args.repeats)
@@ -436,23 +497,40 @@ def main(argv=None):
             se = float(e2.std(ddof=1) / math.sqrt(n_samples) / (2 * rms)) if rms > 0 else 0.0
             norm0 = float(jnp.linalg.norm(y0))
             casimir = float(jnp.max(jnp.abs(jnp.linalg.norm(ys, axis=-1) - norm0))) / norm0
-            row = {"method": name, "brownian": {"shared": "shared increments", "vbt": "VBT",
-                                                "vbt-levy": "VBT + space-time Levy area"}[ref_key],
-                   "h": h, "log2_h": -k, "n_steps": n_steps, "n_samples": n_samples,
-                   "rms_error": rms, "rms_stderr": se, "time_median_s": t_med,
-                   "time_min_s": t_min, "n_repeats": n_rep, "compile_s": t_compile,
-                   "max_rel_casimir_error": casimir, "finite": bool(np.all(np.isfinite(ys))),
-                   "n_failed": n_failed}
+            row = {
+                "method": name,
+                "brownian": {
+                    "shared": "shared increments",
+                    "vbt": "VBT",
+                    "vbt-levy": "VBT + space-time Levy area",
+                }[ref_key],
+                "h": h,
+                "log2_h": -k,
+                "n_steps": n_steps,
+                "n_samples": n_samples,
+                "rms_error": rms,
+                "rms_stderr": se,
+                "time_median_s": t_med,
+                "time_min_s": t_min,
+                "n_repeats": n_rep,
+                "compile_s": t_compile,
+                "max_rel_casimir_error": casimir,
+                "finite": bool(np.all(np.isfinite(ys))),
+                "n_failed": n_failed,
+            }
             rows.append(row)
-            print(f"  {name:44s} h=2^-{k:<2d} rms {rms:.3e} ± {se:.1e}  run {t_med * 1e3:9.2f} ms"
-                  f" (min {t_min * 1e3:8.2f}, n={n_rep:2d})  compile {t_compile:5.2f} s"
-                  + (f"  FAILED SAMPLES: {n_failed}" if n_failed else ""))
+            print(
+                f"  {name:44s} h=2^-{k:<2d} rms {rms:.3e} ± {se:.1e}  run {t_med * 1e3:9.2f} ms"
+                f" (min {t_min * 1e3:8.2f}, n={n_rep:2d})  compile {t_compile:5.2f} s"
+                + (f"  FAILED SAMPLES: {n_failed}" if n_failed else "")
+            )
 
     # ---- per sample-step cost: LiePoisson vs diffrax Heun on the same increments ---------
     k_cost = min(9, kmax)
-    h_cost, n_cost = 2.0 ** -k_cost, 2 ** k_cost
-    cost_names = ["LiePoisson"] + (["diffrax Heun (shared dW)"] if with_diffrax else []) \
-        + [SCAN_HEUN]
+    h_cost, n_cost = 2.0**-k_cost, 2**k_cost
+    cost_names = (
+        ["LiePoisson"] + (["diffrax Heun (shared dW)"] if with_diffrax else []) + [SCAN_HEUN]
+    )
     cost_repeats = args.cost_repeats or (3 if fast else 7)
     cost_exes = {}
     for name in cost_names:
@@ -471,13 +549,21 @@ def main(argv=None):
             samples[name].append(t_med)
     ref_name = "diffrax Heun (shared dW)" if with_diffrax else SCAN_HEUN
     per_step = {name: float(np.median(samples[name])) / (n_samples * n_cost) for name in cost_names}
-    cost_rows = [{"method": name, "n_samples": n_samples, "n_steps": n_cost, "h": h_cost,
-                  "median_s": float(np.median(samples[name])),
-                  "min_s": float(np.min(samples[name])), "n_repeats": cost_repeats,
-                  "ns_per_sample_step": per_step[name] * 1e9,
-                  f"ratio_to_{ref_name.split(' (')[0].replace(' ', '_')}":
-                      per_step[name] / per_step[ref_name]}
-                 for name in cost_names]
+    cost_rows = [
+        {
+            "method": name,
+            "n_samples": n_samples,
+            "n_steps": n_cost,
+            "h": h_cost,
+            "median_s": float(np.median(samples[name])),
+            "min_s": float(np.min(samples[name])),
+            "n_repeats": cost_repeats,
+            "ns_per_sample_step": per_step[name] * 1e9,
+            f"ratio_to_{ref_name.split(' (')[0].replace(' ', '_')}": per_step[name]
+            / per_step[ref_name],
+        }
+        for name in cost_names
+    ]
     heun_check = None
     if with_diffrax:
         ya = cost_exes["diffrax Heun (shared dW)"][0](*cost_exes["diffrax Heun (shared dW)"][1])
@@ -487,37 +573,60 @@ def main(argv=None):
     table, best, best_integrator = fastest(rows)
     _common.write_csv(os.path.join(args.out, "work_precision.csv"), rows)
     _common.write_csv(os.path.join(args.out, "per_step_cost.csv"), cost_rows)
-    _common.write_json(os.path.join(args.out, "work_precision.json"), {
-        "machine": info, "n_samples": n_samples, "h": [2.0 ** -k for k in ks],
-        "target_rms": TARGET, "points": rows, "per_step_cost": cost_rows,
-        "per_step_ratio_LiePoisson_to_reference": per_step["LiePoisson"] / per_step[ref_name],
-        "per_step_reference": ref_name,
-        "max_abs_diff_diffrax_heun_vs_scan_heun": heun_check,
-        "time_to_target": table, "fastest": best, "fastest_integrator": best_integrator,
-        "note": "noisy numbers from a shared 2-core machine; medians of repeated calls",
-    })
+    _common.write_json(
+        os.path.join(args.out, "work_precision.json"),
+        {
+            "machine": info,
+            "n_samples": n_samples,
+            "h": [2.0**-k for k in ks],
+            "target_rms": TARGET,
+            "points": rows,
+            "per_step_cost": cost_rows,
+            "per_step_ratio_LiePoisson_to_reference": per_step["LiePoisson"] / per_step[ref_name],
+            "per_step_reference": ref_name,
+            "max_abs_diff_diffrax_heun_vs_scan_heun": heun_check,
+            "time_to_target": table,
+            "fastest": best,
+            "fastest_integrator": best_integrator,
+            "note": "noisy numbers from a shared 2-core machine; medians of repeated calls",
+        },
+    )
     plot(rows, os.path.join(args.out, "work_precision.png"), n_samples, best_integrator)
 
-    print(f"\nper sample-step cost, {n_samples} samples x {n_cost} steps (h = 2^-{k_cost}), "
-          f"same increments, {cost_repeats} interleaved repeats:")
+    print(
+        f"\nper sample-step cost, {n_samples} samples x {n_cost} steps (h = 2^-{k_cost}), "
+        f"same increments, {cost_repeats} interleaved repeats:"
+    )
     for r in cost_rows:
-        print(f"  {r['method']:28s} {r['ns_per_sample_step']:8.1f} ns/sample-step "
-              f"(median {r['median_s'] * 1e3:.2f} ms)  x{per_step[r['method']] / per_step[ref_name]:.2f}"
-              f" of {ref_name}")
+        print(
+            f"  {r['method']:28s} {r['ns_per_sample_step']:8.1f} ns/sample-step "
+            f"(median {r['median_s'] * 1e3:.2f} ms)  x{per_step[r['method']] / per_step[ref_name]:.2f}"
+            f" of {ref_name}"
+        )
     if heun_check is not None:
-        print(f"  diffrax Heun vs lax.scan Heun on the same increments: max |diff| = "
-              f"{heun_check:.1e}")
+        print(
+            f"  diffrax Heun vs lax.scan Heun on the same increments: max |diff| = {heun_check:.1e}"
+        )
     print(f"\ntime to reach RMS error {TARGET:g} (log-log interpolation):")
-    for r in sorted(table, key=lambda r: (r["how"] not in ("interpolated", "coarsest h"),
-                                          r["seconds"] if r["seconds"] is not None else math.inf)):
+    for r in sorted(
+        table,
+        key=lambda r: (
+            r["how"] not in ("interpolated", "coarsest h"),
+            r["seconds"] if r["seconds"] is not None else math.inf,
+        ),
+    ):
         sec = "-" if r["seconds"] is None else f"{r['seconds'] * 1e3:.2f} ms"
         print(f"  {r['method']:44s} {sec:>12s}  ({r['how']})")
     if best is not None:
-        print(f"fastest to {TARGET:g}: {best['method']} ({best['seconds'] * 1e3:.2f} ms, "
-              f"{best['how']})")
+        print(
+            f"fastest to {TARGET:g}: {best['method']} ({best['seconds'] * 1e3:.2f} ms, "
+            f"{best['how']})"
+        )
     if best_integrator is not None:
-        print(f"fastest time-discretising integrator (Exact excluded): "
-              f"{best_integrator['method']} ({best_integrator['seconds'] * 1e3:.2f} ms)")
+        print(
+            f"fastest time-discretising integrator (Exact excluded): "
+            f"{best_integrator['method']} ({best_integrator['seconds'] * 1e3:.2f} ms)"
+        )
     else:
         print(f"no time-discretising integrator reached {TARGET:g} in this range of h")
     print(f"wrote {args.out}/work_precision.{{csv,json,png}} and per_step_cost.csv")

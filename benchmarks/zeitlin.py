@@ -68,8 +68,11 @@ def initial(N, degrees=range(1, 5), seed=0):
     return z.shr2mat(om, N)
 
 
-METHODS = {"IsospectralMidpoint": sj.IsospectralMidpoint(), "Midpoint": sj.Midpoint(),
-           "Heun": sj.Heun()}
+METHODS = {
+    "IsospectralMidpoint": sj.IsospectralMidpoint(),
+    "Midpoint": sj.Midpoint(),
+    "Heun": sj.Heun(),
+}
 
 
 def _integrate(model, y0, method):
@@ -80,8 +83,16 @@ def iterations(model, w0, method, n_steps):
     """Solver updates per step (all attempts) and the steps redone as substeps, one path."""
     if isinstance(method, sj.Heun):
         return 0.0, 0
-    sol = sj.simulate(model, w0, t1=n_steps * H, dt=H, n_samples=1, key=jax.random.key(0),
-                      method=method, newton_stats=True)
+    sol = sj.simulate(
+        model,
+        w0,
+        t1=n_steps * H,
+        dt=H,
+        n_samples=1,
+        key=jax.random.key(0),
+        method=method,
+        newton_stats=True,
+    )
     return float(sol.stats["newton_iterations_mean"]), int(sol.stats["n_retried_steps"])
 
 
@@ -100,15 +111,29 @@ def cost(ns):
                 y = y[0] if size > 1 else y
                 if size == ENSEMBLE:  # (the same path for both sizes)
                     its, retried = iterations(model, w0, method, n_steps)
-                rows.append(dict(N=N, method=name, samples=size, steps=n_steps,
-                                 ms_per_sample_step=1e3 * med / (size * n_steps),
-                                 ms_per_step=1e3 * med / n_steps, compile_s=compile_s,
-                                 repeats=reps, iterations=its, retried_steps=retried,
-                                 tol=None if isinstance(method, sj.Heun) else TOL,
-                                 vs_quflow=None, diff_vs_quflow=None,
-                                 final=np.asarray(y)))
-                print(f"N={N:3d} {name:20s} x{size:2d}: {rows[-1]['ms_per_sample_step']:9.3f} "
-                      f"ms/sample-step, compile {compile_s:5.2f} s", flush=True)
+                rows.append(
+                    dict(
+                        N=N,
+                        method=name,
+                        samples=size,
+                        steps=n_steps,
+                        ms_per_sample_step=1e3 * med / (size * n_steps),
+                        ms_per_step=1e3 * med / n_steps,
+                        compile_s=compile_s,
+                        repeats=reps,
+                        iterations=its,
+                        retried_steps=retried,
+                        tol=None if isinstance(method, sj.Heun) else TOL,
+                        vs_quflow=None,
+                        diff_vs_quflow=None,
+                        final=np.asarray(y),
+                    )
+                )
+                print(
+                    f"N={N:3d} {name:20s} x{size:2d}: {rows[-1]['ms_per_sample_step']:9.3f} "
+                    f"ms/sample-step, compile {compile_s:5.2f} s",
+                    flush=True,
+                )
         if qf is not None:
             w = np.array(w0)
             qf.isomp(w.copy(), H, steps=1)  # compile Numba's kernels
@@ -125,16 +150,30 @@ def cost(ns):
             # comparison of final states, the same run solved to round-off)
             w = np.array(w0)
             qf.isomp(w, H, steps=n_steps, tol=1e-13, maxit=100)
-            rows.append(dict(N=N, method="quflow isomp", samples=1, steps=n_steps,
-                             ms_per_sample_step=1e3 * med / n_steps,
-                             ms_per_step=1e3 * med / n_steps, compile_s=None,
-                             repeats=len(times), iterations=stats["iterations"],
-                             retried_steps=None,
-                             maxit_reached=stats.get("number_of_maxit"),
-                             tol=stats.get("tol_auto"), vs_quflow=1.0, diff_vs_quflow=0.0,
-                             final=w))
-            print(f"N={N:3d} quflow isomp           x 1: "
-                  f"{rows[-1]['ms_per_sample_step']:9.3f} ms/step", flush=True)
+            rows.append(
+                dict(
+                    N=N,
+                    method="quflow isomp",
+                    samples=1,
+                    steps=n_steps,
+                    ms_per_sample_step=1e3 * med / n_steps,
+                    ms_per_step=1e3 * med / n_steps,
+                    compile_s=None,
+                    repeats=len(times),
+                    iterations=stats["iterations"],
+                    retried_steps=None,
+                    maxit_reached=stats.get("number_of_maxit"),
+                    tol=stats.get("tol_auto"),
+                    vs_quflow=1.0,
+                    diff_vs_quflow=0.0,
+                    final=w,
+                )
+            )
+            print(
+                f"N={N:3d} quflow isomp           x 1: "
+                f"{rows[-1]['ms_per_sample_step']:9.3f} ms/step",
+                flush=True,
+            )
             for r in rows:
                 if r["N"] == N and r["method"] != "quflow isomp":
                     r["vs_quflow"] = r["ms_per_sample_step"] / rows[-1]["ms_per_sample_step"]
@@ -187,32 +226,46 @@ def scale(ns, dtypes, budget_s, members, member_ns, write):
             w0 = initial(N).astype(dtype)
             real = jnp.finfo(dtype).dtype
             row = dict(N=N, dtype=jnp.dtype(dtype).name, h=0.64 / N)
-            parts = {f"poisson_{r}_ms": (lambda w, r=r: z.solve_poisson(w, route=r), (w0,))
-                     for r in z.ROUTES}
+            parts = {
+                f"poisson_{r}_ms": (lambda w, r=r: z.solve_poisson(w, route=r), (w0,))
+                for r in z.ROUTES
+            }
             rng = np.random.default_rng(N)
-            a, b = (jnp.asarray(rng.normal(size=(N, N)) + 1j * rng.normal(size=(N, N)), dtype)
-                    for _ in range(2))
+            a, b = (
+                jnp.asarray(rng.normal(size=(N, N)) + 1j * rng.normal(size=(N, N)), dtype)
+                for _ in range(2)
+            )
             parts["two_products_ms"] = (_products, (a, b))
             parts["two_complex_products_ms"] = (_complex_products, (a, b))
             model = sj.EulerZeitlin(N, dtype=dtype)
-            step = lambda w, d: sj.integrate(model, w, d, 0.64 / N, throw=False,  # noqa: E731
-                                             method=sj.IsospectralMidpoint())
+            step = lambda w, d: sj.integrate(
+                model,
+                w,
+                d,
+                0.64 / N,
+                throw=False,
+                method=sj.IsospectralMidpoint(),
+            )
             parts["step_ms"] = (step, (w0, jnp.zeros((1, 1), real)))
-            ensemble = jax.vmap(lambda w, d: sj.integrate(  # noqa: E731
-                model, w, d, 0.64 / N, throw=False, method=sj.IsospectralMidpoint()))
+            ensemble = jax.vmap(
+                lambda w, d: sj.integrate(
+                    model, w, d, 0.64 / N, throw=False, method=sj.IsospectralMidpoint()
+                )
+            )
             scales = jnp.asarray(1.0 + 0.01 * np.arange(members), real)[:, None, None]
             # 8 transport noises with their Lévy areas, one step (the area term's cost)
-            noisy = sj.EulerZeitlin(N, noise=sj.salt_noise(
-                0.05 * z.shr2mat(np.eye(N * N)[1:9], N)), dtype=dtype)
-            dW8, A8 = sj.brownian_increments(jax.random.key(N), 1, 0.64 / N, n_noises=8,
-                                             levy_area=True)
-            areas = lambda w, d, a: sj.integrate(  # noqa: E731
-                noisy, w, d, 0.64 / N, levy_area=a, throw=False,
-                method=sj.IsospectralMidpoint())
+            noisy = sj.EulerZeitlin(
+                N, noise=sj.salt_noise(0.05 * z.shr2mat(np.eye(N * N)[1:9], N)), dtype=dtype
+            )
+            dW8, A8 = sj.brownian_increments(
+                jax.random.key(N), 1, 0.64 / N, n_noises=8, levy_area=True
+            )
+            areas = lambda w, d, a: sj.integrate(
+                noisy, w, d, 0.64 / N, levy_area=a, throw=False, method=sj.IsospectralMidpoint()
+            )
             parts["step_8_areas_ms"] = (areas, (w0, dW8.astype(real), A8.astype(real)))
             if N in member_ns:
-                parts["ensemble_ms"] = (ensemble, (scales * w0,
-                                                   jnp.zeros((members, 4, 1), real)))
+                parts["ensemble_ms"] = (ensemble, (scales * w0, jnp.zeros((members, 4, 1), real)))
             for name, (fn, args) in parts.items():
                 if (name, dtype) in over:
                     row[name] = None
@@ -223,12 +276,19 @@ def scale(ns, dtypes, budget_s, members, member_ns, write):
                 if compile_s + 4 * med > budget_s:
                     over.add((name, dtype))
             ensemble_ms = row.pop("ensemble_ms", None)  # (4 steps of each member)
-            row["ms_per_member_step"] = (None if ensemble_ms is None
-                                         else ensemble_ms / (4 * members))
+            row["ms_per_member_step"] = None if ensemble_ms is None else ensemble_ms / (4 * members)
             if row["step_ms"] is not None:
-                sol = sj.simulate(model, w0, t1=0.64 / N, dt=0.64 / N, n_samples=1,
-                                  key=jax.random.key(0), method=sj.IsospectralMidpoint(),
-                                  newton_stats=True, throw=False)
+                sol = sj.simulate(
+                    model,
+                    w0,
+                    t1=0.64 / N,
+                    dt=0.64 / N,
+                    n_samples=1,
+                    key=jax.random.key(0),
+                    method=sj.IsospectralMidpoint(),
+                    newton_stats=True,
+                    throw=False,
+                )
                 row["updates"] = float(sol.stats["newton_iterations_mean"])
                 final = 2 if sj.IsospectralMidpoint()._cayley(dtype) else 1
                 row["products"] = 2 * row["updates"] + final
@@ -242,8 +302,12 @@ def scale(ns, dtypes, budget_s, members, member_ns, write):
                 row["step_vs_quflow"] = row["step_ms"] / row["quflow_ms"]
             rows.append(row)
             write(rows)
-            print("  ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
-                            for k, v in row.items()), flush=True)
+            print(
+                "  ".join(
+                    f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items()
+                ),
+                flush=True,
+            )
     return rows
 
 
@@ -259,19 +323,38 @@ def conservation(N, n_steps):
     e0 = float(z.energy(w0))
     for name, method, dtype in runs:
         model = sj.EulerZeitlin(N, dtype=dtype)
-        sol = sj.simulate(model, w0, t1=n_steps * H, dt=H, n_samples=1, key=jax.random.key(0),
-                          method=method, save_every=n_steps // 10)
+        sol = sj.simulate(
+            model,
+            w0,
+            t1=n_steps * H,
+            dt=H,
+            n_samples=1,
+            key=jax.random.key(0),
+            method=method,
+            save_every=n_steps // 10,
+        )
         if int(sol.stats["n_failed"]):
             raise RuntimeError(f"{name}: the path failed; its frozen state is not data.")
         ws = sol.ys[0].astype(jnp.complex128)
         c = np.asarray(model.algebra.casimirs(ws))
         rel = np.max(np.abs(c - c0), axis=0) / np.abs(c0)
-        rows.append(dict(method=name, dtype=jnp.dtype(dtype).name, N=N, steps=n_steps,
-                         tr_w2=rel[0], tr_w3=rel[1], tr_w4=rel[2],
-                         energy=float(np.max(np.abs(np.asarray(z.energy(ws)) - e0))) / e0))
-        print(f"conservation {name:20s} {jnp.dtype(dtype).name:10s}: tr W^2 {rel[0]:.1e}, "
-              f"tr W^3 {rel[1]:.1e}, tr W^4 {rel[2]:.1e}, energy {rows[-1]['energy']:.1e}",
-              flush=True)
+        rows.append(
+            dict(
+                method=name,
+                dtype=jnp.dtype(dtype).name,
+                N=N,
+                steps=n_steps,
+                tr_w2=rel[0],
+                tr_w3=rel[1],
+                tr_w4=rel[2],
+                energy=float(np.max(np.abs(np.asarray(z.energy(ws)) - e0))) / e0,
+            )
+        )
+        print(
+            f"conservation {name:20s} {jnp.dtype(dtype).name:10s}: tr W^2 {rel[0]:.1e}, "
+            f"tr W^3 {rel[1]:.1e}, tr W^4 {rel[2]:.1e}, energy {rows[-1]['energy']:.1e}",
+            flush=True,
+        )
     return rows
 
 
@@ -285,22 +368,27 @@ def check_quflow():
         out[f"N={N}"] = dict(
             shr2mat=float(np.max(np.abs(wq - np.asarray(z.shr2mat(om, N))))),
             mat2shr=float(np.max(np.abs(qf.mat2shr(wq) - np.asarray(z.mat2shr(wq))))),
-            solve_poisson=float(np.max(np.abs(qf.solve_poisson(wq)
-                                              - np.asarray(z.solve_poisson(wq))))),
+            solve_poisson=float(
+                np.max(np.abs(qf.solve_poisson(wq) - np.asarray(z.solve_poisson(wq))))
+            ),
             energy=abs(qf.energy_euler(wq) - float(z.energy(wq))) / qf.energy_euler(wq),
-            enstrophy=abs(qf.enstrophy(wq) - float(z.enstrophy(wq))) / qf.enstrophy(wq))
+            enstrophy=abs(qf.enstrophy(wq) - float(z.enstrophy(wq))) / qf.enstrophy(wq),
+        )
     N, t = 16, 2.0
     w0 = np.asarray(initial(N))
-    ref = np.asarray(sj.deterministic_flow(sj.EulerZeitlin(N), w0, np.array([t]),
-                                           max_step=2.0 ** -10)[0])
+    ref = np.asarray(
+        sj.deterministic_flow(sj.EulerZeitlin(N), w0, np.array([t]), max_step=2.0**-10)[0]
+    )
     errs = []
     for h in (0.01, 0.005, 0.0025):
         w = w0.copy()
         qf.isomp(w, h, steps=round(t / h))
         errs.append(float(np.max(np.abs(w - ref))))
-    out["isomp_vs_flow"] = dict(h=[0.01, 0.005, 0.0025], max_error=errs,
-                                order=float(np.polyfit(np.log([0.01, 0.005, 0.0025]),
-                                                       np.log(errs), 1)[0]))
+    out["isomp_vs_flow"] = dict(
+        h=[0.01, 0.005, 0.0025],
+        max_error=errs,
+        order=float(np.polyfit(np.log([0.01, 0.005, 0.0025]), np.log(errs), 1)[0]),
+    )
     print("quflow check:", out, flush=True)
     return out
 
@@ -315,11 +403,23 @@ def figure(path, rows):
             if not pts:
                 continue
             label = f"{name}" + (f", ensemble of {size}" if size > 1 else ", one state")
-            ax1.loglog([r["N"] for r in pts], [r["ms_per_sample_step"] for r in pts], style,
-                       color=colors(i), label=label, base=2)
+            ax1.loglog(
+                [r["N"] for r in pts],
+                [r["ms_per_sample_step"] for r in pts],
+                style,
+                color=colors(i),
+                label=label,
+                base=2,
+            )
             if pts[0]["compile_s"] is not None:
-                ax2.semilogx([r["N"] for r in pts], [r["compile_s"] for r in pts], style,
-                             color=colors(i), label=label, base=2)
+                ax2.semilogx(
+                    [r["N"] for r in pts],
+                    [r["compile_s"] for r in pts],
+                    style,
+                    color=colors(i),
+                    label=label,
+                    base=2,
+                )
     ax1.set_xlabel("N (su(N))")
     ax1.set_ylabel("ms per sample-step")
     ax1.set_title(f"Euler–Zeitlin, h = {H} s: cost per sample-step")
@@ -337,45 +437,86 @@ def figure(path, rows):
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--fast", action="store_true", help="a smoke run: N = 8; 200 steps")
-    p.add_argument("--check-quflow", action="store_true",
-                   help="compare conventions and dynamics with quflow (needs quflow)")
-    p.add_argument("--out", default=_common.DEFAULT_OUT, help="output folder (default: %(default)s)")
-    p.add_argument("--scale", action="store_true",
-                   help="only the Poisson solve's routes, the step and its matrix-product "
-                        "floor against N (64 ... 256; with --gpu 64 ... 2048), complex128 "
-                        "and complex64, into zeitlin_scale.*")
-    p.add_argument("--gpu", action="store_true",
-                   help="with --scale: N = 64 ... 2048 on one GPU and an ensemble of 64 at "
-                        "N = 512, about 8 minutes")
+    p.add_argument(
+        "--check-quflow",
+        action="store_true",
+        help="compare conventions and dynamics with quflow (needs quflow)",
+    )
+    p.add_argument(
+        "--out", default=_common.DEFAULT_OUT, help="output folder (default: %(default)s)"
+    )
+    p.add_argument(
+        "--scale",
+        action="store_true",
+        help="only the Poisson solve's routes, the step and its matrix-product "
+        "floor against N (64 ... 256; with --gpu 64 ... 2048), complex128 "
+        "and complex64, into zeitlin_scale.*",
+    )
+    p.add_argument(
+        "--gpu",
+        action="store_true",
+        help="with --scale: N = 64 ... 2048 on one GPU and an ensemble of 64 at "
+        "N = 512, about 8 minutes",
+    )
     args = p.parse_args(argv)
     os.makedirs(args.out, exist_ok=True)
     info = _common.machine_info()
     info["quflow"] = None if qf is None else getattr(qf, "__version__", "?")
-    print(f"# Euler-Zeitlin: {info['cpu_model']}, {info['cpu_count']} cores, jax {info['jax']}, "
-          f"quflow {info['quflow']}, {info['date']}", flush=True)
+    print(
+        f"# Euler-Zeitlin: {info['cpu_model']}, {info['cpu_count']} cores, jax {info['jax']}, "
+        f"quflow {info['quflow']}, {info['date']}",
+        flush=True,
+    )
     if args.scale:
         ns = (8,) if args.fast else (64, 128, 256, 512, 1024, 2048) if args.gpu else (64, 128, 256)
-        device = (info["cpu_model"] if jax.default_backend() == "cpu"
-                  else jax.devices()[0].device_kind)
+        device = (
+            info["cpu_model"] if jax.default_backend() == "cpu" else jax.devices()[0].device_kind
+        )
 
         def write(rows):  # after every row: a run cut short keeps what it measured
             _common.write_csv(os.path.join(args.out, "zeitlin_scale.csv"), rows)
-            _common.write_json(os.path.join(args.out, "zeitlin_scale.json"),
-                               dict(machine=info, rows=rows))
+            _common.write_json(
+                os.path.join(args.out, "zeitlin_scale.json"), dict(machine=info, rows=rows)
+            )
             with open(os.path.join(args.out, "zeitlin_scale.md"), "w") as fh:
-                fh.write(f"Measured on {device}, jax {info['jax']}, {info['date'][:10]}; one "
-                         f"state, ms; an ensemble, ms per member-step.\n\n")
-                cols = ["N", "dtype", "h", "poisson_sweep_ms", "poisson_scan_ms",
-                        "two_products_ms", "two_complex_products_ms", "step_ms", "updates",
-                        "floor_ms", "step_vs_floor", "quflow_ms", "step_vs_quflow",
-                        "ms_per_member_step", "areas_vs_step"]
-                fh.write(_common.markdown_table([{k: r.get(k) for k in cols} for r in rows],
-                                                cols, {k: ".3g" for k in cols[2:]}))
+                fh.write(
+                    f"Measured on {device}, jax {info['jax']}, {info['date'][:10]}; one "
+                    f"state, ms; an ensemble, ms per member-step.\n\n"
+                )
+                cols = [
+                    "N",
+                    "dtype",
+                    "h",
+                    "poisson_sweep_ms",
+                    "poisson_scan_ms",
+                    "two_products_ms",
+                    "two_complex_products_ms",
+                    "step_ms",
+                    "updates",
+                    "floor_ms",
+                    "step_vs_floor",
+                    "quflow_ms",
+                    "step_vs_quflow",
+                    "ms_per_member_step",
+                    "areas_vs_step",
+                ]
+                fh.write(
+                    _common.markdown_table(
+                        [{k: r.get(k) for k in cols} for r in rows],
+                        cols,
+                        {k: ".3g" for k in cols[2:]},
+                    )
+                )
 
         with jax.default_matmul_precision("highest"):
-            scale(ns, (jnp.complex128, jnp.complex64), budget_s=60.0,
-                  members=64 if args.gpu else 4, member_ns=(512,) if args.gpu else ns,
-                  write=write)
+            scale(
+                ns,
+                (jnp.complex128, jnp.complex64),
+                budget_s=60.0,
+                members=64 if args.gpu else 4,
+                member_ns=(512,) if args.gpu else ns,
+                write=write,
+            )
         return
     if args.check_quflow and qf is None:
         raise SystemExit("--check-quflow needs quflow (install it from its sources).")
@@ -383,21 +524,50 @@ def main(argv=None):
     rows = cost((8,) if args.fast else (16, 32, 64, 128, 256))
     cons = conservation(8 if args.fast else 32, 200 if args.fast else 10_000)
     _common.write_csv(os.path.join(args.out, "zeitlin.csv"), rows)
-    _common.write_json(os.path.join(args.out, "zeitlin.json"),
-                       dict(machine=info, h=H, cost=rows, conservation=cons, quflow_check=checked))
+    _common.write_json(
+        os.path.join(args.out, "zeitlin.json"),
+        dict(machine=info, h=H, cost=rows, conservation=cons, quflow_check=checked),
+    )
     with open(os.path.join(args.out, "zeitlin.md"), "w") as fh:
-        fh.write(f"Measured on {info['cpu_model']} ({info['cpu_count']} cores), jax "
-                 f"{info['jax']}, quflow {info['quflow']}, {info['date'][:10]}; h = {H} s.\n\n")
-        fh.write(_common.markdown_table(
-            rows, ["N", "method", "samples", "ms_per_sample_step", "vs_quflow", "compile_s",
-                   "iterations", "retried_steps", "tol", "maxit_reached", "diff_vs_quflow"],
-            {"ms_per_sample_step": ".3f", "vs_quflow": ".2f", "compile_s": ".2f",
-             "iterations": ".1f", "tol": ".1e", "maxit_reached": ".2f",
-             "diff_vs_quflow": ".1e"}))
+        fh.write(
+            f"Measured on {info['cpu_model']} ({info['cpu_count']} cores), jax "
+            f"{info['jax']}, quflow {info['quflow']}, {info['date'][:10]}; h = {H} s.\n\n"
+        )
+        fh.write(
+            _common.markdown_table(
+                rows,
+                [
+                    "N",
+                    "method",
+                    "samples",
+                    "ms_per_sample_step",
+                    "vs_quflow",
+                    "compile_s",
+                    "iterations",
+                    "retried_steps",
+                    "tol",
+                    "maxit_reached",
+                    "diff_vs_quflow",
+                ],
+                {
+                    "ms_per_sample_step": ".3f",
+                    "vs_quflow": ".2f",
+                    "compile_s": ".2f",
+                    "iterations": ".1f",
+                    "tol": ".1e",
+                    "maxit_reached": ".2f",
+                    "diff_vs_quflow": ".1e",
+                },
+            )
+        )
         fh.write("\nRelative drift over the path\n\n")
-        fh.write(_common.markdown_table(cons, ["method", "dtype", "N", "steps", "tr_w2", "tr_w3",
-                                               "tr_w4", "energy"],
-                                        {k: ".1e" for k in ("tr_w2", "tr_w3", "tr_w4", "energy")}))
+        fh.write(
+            _common.markdown_table(
+                cons,
+                ["method", "dtype", "N", "steps", "tr_w2", "tr_w3", "tr_w4", "energy"],
+                {k: ".1e" for k in ("tr_w2", "tr_w3", "tr_w4", "energy")},
+            )
+        )
     figure(os.path.join(args.out, "zeitlin.png"), rows)
 
 

@@ -8,8 +8,10 @@ samples.
 
 Two processes on one machine, by hand (each with two CPU devices here):
 
-    python examples/multiprocess.py --coordinator localhost:12345 --num-processes 2 --process-id 0 --cpu-devices 2 &
-    python examples/multiprocess.py --coordinator localhost:12345 --num-processes 2 --process-id 1 --cpu-devices 2
+    python examples/multiprocess.py --coordinator localhost:12345 --num-processes 2 \
+        --process-id 0 --cpu-devices 2 &
+    python examples/multiprocess.py --coordinator localhost:12345 --num-processes 2 \
+        --process-id 1 --cpu-devices 2
 
 Under SLURM, one process per node or per GPU (`jax.distributed.initialize()` reads the
 coordinator, the number of processes and each one's id from the job's environment):
@@ -39,12 +41,28 @@ def run(sharding=None):
     import slps_jax as sj
 
     model, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
-    sol = sj.simulate(model, y0, t1=0.5, dt=2.0 ** -6, n_samples=16, key=jax.random.key(1),
-                      save_every=8, sharding=sharding)
-    stats = sj.ensemble_statistics(model, y0, t1=0.5, dt=2.0 ** -6, n_samples=200,
-                                   chunk_size=64, key=jax.random.key(2),
-                                   statistics=("mean", "var"), sharding=sharding,
-                                   progress=False)
+    sol = sj.simulate(
+        model,
+        y0,
+        t1=0.5,
+        dt=2.0**-6,
+        n_samples=16,
+        key=jax.random.key(1),
+        save_every=8,
+        sharding=sharding,
+    )
+    stats = sj.ensemble_statistics(
+        model,
+        y0,
+        t1=0.5,
+        dt=2.0**-6,
+        n_samples=200,
+        chunk_size=64,
+        key=jax.random.key(2),
+        statistics=("mean", "var"),
+        sharding=sharding,
+        progress=False,
+    )
     return sol, stats
 
 
@@ -53,18 +71,23 @@ def main():
     parser.add_argument("--coordinator", help="host:port of process 0 (SLURM: omit)")
     parser.add_argument("--num-processes", type=int)
     parser.add_argument("--process-id", type=int)
-    parser.add_argument("--cpu-devices", type=int,
-                        help="CPU devices per process (to try it out on one machine)")
-    parser.add_argument("--out", type=pathlib.Path,
-                        help="write process-<id>-<axis type>.npz here")
-    parser.add_argument("--axis-types", nargs="+", choices=("explicit", "auto"),
-                        default=["explicit"],
-                        help="the mesh's axis type, each in turn (default: explicit, what "
-                             "jax.make_mesh gives)")
+    parser.add_argument(
+        "--cpu-devices", type=int, help="CPU devices per process (to try it out on one machine)"
+    )
+    parser.add_argument("--out", type=pathlib.Path, help="write process-<id>-<axis type>.npz here")
+    parser.add_argument(
+        "--axis-types",
+        nargs="+",
+        choices=("explicit", "auto"),
+        default=["explicit"],
+        help="the mesh's axis type, each in turn (default: explicit, what jax.make_mesh gives)",
+    )
     args = parser.parse_args()
     if args.cpu_devices:
-        os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "")
-                                   + f" --xla_force_host_platform_device_count={args.cpu_devices}")
+        os.environ["XLA_FLAGS"] = (
+            os.environ.get("XLA_FLAGS", "")
+            + f" --xla_force_host_platform_device_count={args.cpu_devices}"
+        )
 
     import jax
     import numpy as np
@@ -72,8 +95,11 @@ def main():
     from jax.sharding import AxisType, NamedSharding, PartitionSpec
 
     jax.config.update("jax_enable_x64", True)
-    jax.distributed.initialize(coordinator_address=args.coordinator,
-                               num_processes=args.num_processes, process_id=args.process_id)
+    jax.distributed.initialize(
+        coordinator_address=args.coordinator,
+        num_processes=args.num_processes,
+        process_id=args.process_id,
+    )
     me = jax.process_index()
     for kind in args.axis_types:
         axis_type = AxisType.Explicit if kind == "explicit" else AxisType.Auto
@@ -82,17 +108,24 @@ def main():
 
         mine = sorted(s.index[0].start for s in sol.ys.addressable_shards)
         ys = multihost_utils.process_allgather(sol.ys, tiled=True)
-        print(f"process {me} of {jax.process_count()}: {len(jax.local_devices())} of "
-              f"{len(jax.devices())} devices, {kind} mesh axes, samples from {mine} in "
-              f"{sol.ys.shape[0]}; {stats.n} samples' mean final state {stats.mean[-1]}",
-              flush=True)
+        print(
+            f"process {me} of {jax.process_count()}: {len(jax.local_devices())} of "
+            f"{len(jax.devices())} devices, {kind} mesh axes, samples from {mine} in "
+            f"{sol.ys.shape[0]}; {stats.n} samples' mean final state {stats.mean[-1]}",
+            flush=True,
+        )
         if args.out is not None:
             args.out.mkdir(parents=True, exist_ok=True)
-            np.savez(args.out / f"process-{me}-{kind}.npz", ys=ys,
-                     fail_step=multihost_utils.process_allgather(sol.fail_step, tiled=True),
-                     n_failed=int(sol.stats["n_failed"]), n=stats.n, mean=stats.mean,
-                     var=stats.var,
-                     n_local=sum(s.data.shape[0] for s in sol.ys.addressable_shards))
+            np.savez(
+                args.out / f"process-{me}-{kind}.npz",
+                ys=ys,
+                fail_step=multihost_utils.process_allgather(sol.fail_step, tiled=True),
+                n_failed=int(sol.stats["n_failed"]),
+                n=stats.n,
+                mean=stats.mean,
+                var=stats.var,
+                n_local=sum(s.data.shape[0] for s in sol.ys.addressable_shards),
+            )
     jax.distributed.shutdown()
 
 

@@ -20,39 +20,58 @@ The library in four layers:
 """
 
 # System
-from ._algebra import AbstractAlgebra as AbstractAlgebra, SO3 as SO3, so as so, su as su
-from ._model import (PAPER_Y0 as PAPER_Y0, GeneralisedRigidBody as GeneralisedRigidBody,
-                     RigidBody as RigidBody)
-from ._system import LiePoissonSystem as LiePoissonSystem
+from . import so3 as so3
+from . import zeitlin as zeitlin
+from ._algebra import SO3 as SO3
+from ._algebra import AbstractAlgebra as AbstractAlgebra
+from ._algebra import so as so
+from ._algebra import su as su
+
+# Studies
+from ._calibrate import CalibrationResult as CalibrationResult
+from ._calibrate import calibrate as calibrate
+from ._calibrate import moments as moments
+from ._convergence import ConvergenceResult as ConvergenceResult
+from ._convergence import WeakConvergenceResult as WeakConvergenceResult
+from ._convergence import strong_convergence as strong_convergence
+from ._convergence import weak_convergence as weak_convergence
 from ._euler_zeitlin import EulerZeitlin as EulerZeitlin
-from ._noise_hamiltonians import random_inertia_noise as random_inertia_noise, salt_noise as salt_noise
+from ._exact import exact_flow as exact_flow
+from ._exact import exact_solution as exact_solution
+from ._flow import deterministic_flow as deterministic_flow
+
+# Driver
+from ._integrate import integrate as integrate
+from ._integrate import simulate as simulate
 
 # Methods
-from ._methods.base import (AbstractMethod as AbstractMethod, StepInfo as StepInfo,
-                           StrongOrders as StrongOrders)
+from ._methods.base import AbstractMethod as AbstractMethod
+from ._methods.base import StepInfo as StepInfo
+from ._methods.base import StrongOrders as StrongOrders
 from ._methods.euler_maruyama import EulerMaruyama as EulerMaruyama
 from ._methods.exact import Exact as Exact
 from ._methods.heun import Heun as Heun
 from ._methods.isospectral import IsospectralMidpoint as IsospectralMidpoint
 from ._methods.lie_poisson import LiePoisson as LiePoisson
-from ._methods.lie_poisson_sym import LiePoissonSym2 as LiePoissonSym2, LiePoissonSym4 as LiePoissonSym4
+from ._methods.lie_poisson_sym import LiePoissonSym2 as LiePoissonSym2
+from ._methods.lie_poisson_sym import LiePoissonSym4 as LiePoissonSym4
 from ._methods.midpoint import Midpoint as Midpoint
 from ._methods.milstein import Milstein as Milstein
-from ._methods.strang import SaltSplitting as SaltSplitting, Strang as Strang, Strang4 as Strang4
-
-# Driver
-from ._integrate import integrate as integrate, simulate as simulate
+from ._methods.strang import SaltSplitting as SaltSplitting
+from ._methods.strang import Strang as Strang
+from ._methods.strang import Strang4 as Strang4
+from ._model import PAPER_Y0 as PAPER_Y0
+from ._model import GeneralisedRigidBody as GeneralisedRigidBody
+from ._model import RigidBody as RigidBody
+from ._noise import BrownianStep as BrownianStep
+from ._noise import brownian_increments as brownian_increments
+from ._noise_hamiltonians import random_inertia_noise as random_inertia_noise
+from ._noise_hamiltonians import salt_noise as salt_noise
 from ._plan import default_method as default_method
-from ._noise import BrownianStep as BrownianStep, brownian_increments as brownian_increments
-from ._solution import RESULTS as RESULTS, Solution as Solution
-from ._stream import EnsembleStatistics as EnsembleStatistics, ensemble_statistics as ensemble_statistics
-
-# Studies
-from ._calibrate import CalibrationResult as CalibrationResult, calibrate as calibrate, moments as moments
-from ._convergence import (ConvergenceResult as ConvergenceResult, WeakConvergenceResult as WeakConvergenceResult,
-                           strong_convergence as strong_convergence, weak_convergence as weak_convergence)
-from ._exact import exact_flow as exact_flow, exact_solution as exact_solution
-from ._flow import deterministic_flow as deterministic_flow
-from . import so3 as so3, zeitlin as zeitlin
+from ._solution import RESULTS as RESULTS
+from ._solution import Solution as Solution
+from ._stream import EnsembleStatistics as EnsembleStatistics
+from ._stream import ensemble_statistics as ensemble_statistics
+from ._system import LiePoissonSystem as LiePoissonSystem
 
 __version__ = "0.1.0"

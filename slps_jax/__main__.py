@@ -38,47 +38,72 @@ def summary(n_samples=500, fast=False, seed=0):
     model, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
     key = jax.random.key(seed)
     levels = range(5, 8) if fast else range(5, 10)
-    dts = [2.0 ** -k for k in levels]
+    dts = [2.0**-k for k in levels]
     methods = _methods()
-    say(f"slps-jax {sj.__version__}, jax {jax.__version__} on {jax.default_backend()}, "
-        f"dtype {y0.dtype}")
-    say(f"Stochastic rigid body: I = {np.round(np.asarray(model.inertia), 6)}, "
-        f"c = {float(model.c)}, y0 = {sj.PAPER_Y0}\n")
+    say(
+        f"slps-jax {sj.__version__}, jax {jax.__version__} on {jax.default_backend()}, "
+        f"dtype {y0.dtype}"
+    )
+    say(
+        f"Stochastic rigid body: I = {np.round(np.asarray(model.inertia), 6)}, "
+        f"c = {float(model.c)}, y0 = {sj.PAPER_Y0}\n"
+    )
 
-    say(f"Strong errors: {len(methods)} methods x {len(dts)} step sizes, {n_samples} samples "
-        f"(compiling and running) ...")
+    say(
+        f"Strong errors: {len(methods)} methods x {len(dts)} step sizes, {n_samples} samples "
+        f"(compiling and running) ..."
+    )
     start = time.perf_counter()
-    conv = sj.strong_convergence(model, y0, t1=1.0, dts=dts, n_samples=n_samples, key=key,
-                                 methods=methods)
-    say(f"Strong error at T = 1 against the exact solution phi_(T + cW(T))(y0), "
-        f"{n_samples} samples ({time.perf_counter() - start:.1f} s):\n")
+    conv = sj.strong_convergence(
+        model, y0, t1=1.0, dts=dts, n_samples=n_samples, key=key, methods=methods
+    )
+    say(
+        f"Strong error at T = 1 against the exact solution phi_(T + cW(T))(y0), "
+        f"{n_samples} samples ({time.perf_counter() - start:.1f} s):\n"
+    )
     say(conv.table())
 
     n_steps, dt = (1000, 0.01) if fast else (10_000, 0.01)
     n_inv = 20 if fast else 100
-    say(f"Invariants after {n_steps} steps of h = {dt} (T = {n_steps * dt:g}), "
-        f"{n_inv} samples, max over samples:\n")
+    say(
+        f"Invariants after {n_steps} steps of h = {dt} (T = {n_steps * dt:g}), "
+        f"{n_inv} samples, max over samples:\n"
+    )
     say("| method | rel. Casimir drift | rel. energy drift | seconds |\n|---|---|---|---|")
     c0, h0 = float(model.casimir(y0)), float(model.hamiltonian(y0))
     for name, method in methods.items():
         start = time.perf_counter()
-        sol = sj.simulate(model, y0, t1=n_steps * dt, dt=dt, n_samples=n_inv, key=key,
-                          method=method, throw=False)
+        sol = sj.simulate(
+            model, y0, t1=n_steps * dt, dt=dt, n_samples=n_inv, key=key, method=method, throw=False
+        )
         y_end = sol.ys[:, -1]
         dc = float(jnp.max(jnp.abs(model.casimir(y_end) / c0 - 1)))
         dh = float(jnp.max(jnp.abs(model.hamiltonian(y_end) / h0 - 1)))
         say(f"| {name} | {dc:.2e} | {dh:.2e} | {time.perf_counter() - start:.1f} |")
 
     say(f"\nNewton solves of scheme (42), T = 1, {n_samples} samples:\n")
-    say("| h | mean iterations | max iterations | max residual | failed samples |\n"
-        "|---|---|---|---|---|")
+    say(
+        "| h | mean iterations | max iterations | max residual | failed samples |\n"
+        "|---|---|---|---|---|"
+    )
     for dt in dts:
-        sol = sj.simulate(model, y0, t1=1.0, dt=dt, n_samples=n_samples, key=key,
-                          method=sj.LiePoisson(), newton_stats=True, throw=False)
+        sol = sj.simulate(
+            model,
+            y0,
+            t1=1.0,
+            dt=dt,
+            n_samples=n_samples,
+            key=key,
+            method=sj.LiePoisson(),
+            newton_stats=True,
+            throw=False,
+        )
         s = sol.stats
-        say(f"| 2^{np.log2(dt):.0f} | {float(s['newton_iterations_mean']):.2f} | "
+        say(
+            f"| 2^{np.log2(dt):.0f} | {float(s['newton_iterations_mean']):.2f} | "
             f"{int(s['newton_iterations_max'])} | {float(s['residual_max']):.1e} | "
-            f"{int(s['n_failed'])} |")
+            f"{int(s['n_failed'])} |"
+        )
     return conv
 
 
@@ -131,31 +156,56 @@ def _unwritable(folder):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(prog="slps-jax", description=DESCRIPTION,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="slps-jax",
+        description=DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     sub = parser.add_subparsers(dest="command", required=True, metavar="{paper,summary}")
     p_paper = sub.add_parser(
-        "paper", help="reproduce the paper's Figures 4.1-4.4",
-        description="Reproduce Figures 4.1-4.4 of Liu & Wang with the paper's parameters.")
-    p_paper.add_argument("--out", default=None,
-                         help="output folder (default: paper-output, or paper-output-fast "
-                              "with --fast, so a quick look never overwrites a full run)")
+        "paper",
+        help="reproduce the paper's Figures 4.1-4.4",
+        description="Reproduce Figures 4.1-4.4 of Liu & Wang with the paper's parameters.",
+    )
+    p_paper.add_argument(
+        "--out",
+        default=None,
+        help="output folder (default: paper-output, or paper-output-fast "
+        "with --fast, so a quick look never overwrites a full run)",
+    )
     p_sum = sub.add_parser(
-        "summary", help="the paper's setup: orders, invariants, Newton statistics",
-        description="The paper's setup end to end, printed as Markdown tables.")
-    p_sum.add_argument("--samples", type=int, default=None,
-                       help="Brownian samples (default: 500, or 100 with --fast)")
+        "summary",
+        help="the paper's setup: orders, invariants, Newton statistics",
+        description="The paper's setup end to end, printed as Markdown tables.",
+    )
+    p_sum.add_argument(
+        "--samples",
+        type=int,
+        default=None,
+        help="Brownian samples (default: 500, or 100 with --fast)",
+    )
     for p in (p_paper, p_sum):
-        p.add_argument("--fast", action="store_true",
-                       help="a small, quick run (100 samples, fewer step sizes)")
-        p.add_argument("--seed", type=int, default=0,
-                       help="seed of the Brownian samples, jax.random.key(SEED) (default 0)")
-        p.add_argument("--no-cache", action="store_true",
-                       help="compile everything anew: no persistent compilation cache")
+        p.add_argument(
+            "--fast", action="store_true", help="a small, quick run (100 samples, fewer step sizes)"
+        )
+        p.add_argument(
+            "--seed",
+            type=int,
+            default=0,
+            help="seed of the Brownian samples, jax.random.key(SEED) (default 0)",
+        )
+        p.add_argument(
+            "--no-cache",
+            action="store_true",
+            help="compile everything anew: no persistent compilation cache",
+        )
     args = parser.parse_args(argv)
     if args.command == "paper":
-        out = args.out if args.out is not None else (
-            "paper-output-fast" if args.fast else "paper-output")
+        out = (
+            args.out
+            if args.out is not None
+            else ("paper-output-fast" if args.fast else "paper-output")
+        )
         problem = _unwritable(out)  # before any work: one line, as for a bad option
         if problem:
             print(f"slps-jax paper: error: --out {out}: {problem}", file=sys.stderr)

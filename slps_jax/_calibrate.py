@@ -23,7 +23,7 @@ from ._plan import check_levy_option, check_method
 
 def moments(ys):
     """Default statistic: the mean of `y` and of `y**2` over the ensemble, shape `(6,)`."""
-    return jnp.concatenate([jnp.mean(ys, axis=0), jnp.mean(ys ** 2, axis=0)])
+    return jnp.concatenate([jnp.mean(ys, axis=0), jnp.mean(ys**2, axis=0)])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -70,14 +70,22 @@ class _Parameters:
     def of(cls, init):
         inertia = [f"I_{i + 1}" for i in range(3)]
         if init.noise is None:
-            return cls((*inertia, "c"), jnp.concatenate([jnp.log(init.inertia),
-                                                          jnp.log(init.c)[None]]),
-                       np.ones(4, bool), None, ())
+            return cls(
+                (*inertia, "c"),
+                jnp.concatenate([jnp.log(init.inertia), jnp.log(init.c)[None]]),
+                np.ones(4, bool),
+                None,
+                (),
+            )
         param, name = init.noise.parameter, init.noise.parameter_name
         entries = [f"{name}[{', '.join(map(str, i))}]" for i in np.ndindex(param.shape)]
-        return cls((*inertia, *entries),
-                   jnp.concatenate([jnp.log(init.inertia), jnp.ravel(param)]),
-                   np.arange(3 + len(entries)) < 3, type(init.noise), tuple(param.shape))
+        return cls(
+            (*inertia, *entries),
+            jnp.concatenate([jnp.log(init.inertia), jnp.ravel(param)]),
+            np.arange(3 + len(entries)) < 3,
+            type(init.noise),
+            tuple(param.shape),
+        )
 
     def model(self, theta):
         return _model(theta, self.family, self.shape)
@@ -127,11 +135,21 @@ class _Fit:
         """The weighted residuals of the statistics at the free parameters `theta`, and (aux)
         the number of failed samples (raised by `calibrate`, with its own advice)."""
         model = _model(self.full(theta, theta_all), self.family, self.shape)
-        sol = simulate_unreported(model, self.y0, t1=self.t1, dt=self.dt,
-                                  n_samples=self.n_samples, key=key, method=self.method,
-                                  save_every=self.every, truncate_k=self.truncate_k,
-                                  newton_stats=False, retry_substeps=self.retry_substeps,
-                                  sharding=None, levy_area=self.levy_area)
+        sol = simulate_unreported(
+            model,
+            self.y0,
+            t1=self.t1,
+            dt=self.dt,
+            n_samples=self.n_samples,
+            key=key,
+            method=self.method,
+            save_every=self.every,
+            truncate_k=self.truncate_k,
+            newton_stats=False,
+            retry_substeps=self.retry_substeps,
+            sharding=None,
+            levy_area=self.levy_area,
+        )
         stats = jax.vmap(self.statistic, in_axes=1)(sol.ys[:, np.asarray(self.saved)])
         return ((stats - observed) * weight).ravel(), jnp.sum(sol.fail_step >= 0)
 
@@ -141,6 +159,7 @@ def _residuals_and_jacobian(fit, theta, theta_all, observed, weight, key):
     """`(J, (r, n_failed))`: the residuals' Jacobian (forward mode), the residuals and the
     number of failed samples, in one program (compiled once for a fit's settings and shapes,
     where eagerly its operations would compile one by one)."""
+
     def residuals_aux(theta):
         r, n_failed = fit.residuals(theta, theta_all, observed, weight, key)
         return r, (r, n_failed)
@@ -148,10 +167,28 @@ def _residuals_and_jacobian(fit, theta, theta_all, observed, weight, key):
     return jax.jacfwd(residuals_aux, has_aux=True)(theta)
 
 
-def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
-              observed_stderr=None, observed_n_samples=None, fixed=(), method="auto",
-              optimizer=None, steps=50, truncate_k=4, retry_substeps=4, rtol=1e-10,
-              progress=True, levy_area="auto"):
+def calibrate(
+    observed,
+    y0,
+    *,
+    ts,
+    dt,
+    n_samples,
+    key,
+    init,
+    statistic=moments,
+    observed_stderr=None,
+    observed_n_samples=None,
+    fixed=(),
+    method="auto",
+    optimizer=None,
+    steps=50,
+    truncate_k=4,
+    retry_substeps=4,
+    rtol=1e-10,
+    progress=True,
+    levy_area="auto",
+):
     r"""Fit `inertia` and the noise (`c`, or a noise family's parameters) of a `RigidBody` to
     observed ensemble statistics.
 
@@ -220,8 +257,10 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
     if init.noise is None and not float(init.c) > 0:
         raise ValueError(f"init.c must be positive (c is fitted on a log scale), got {init.c}.")
     if init.noise is not None and not isinstance(init.noise, _ParameterNoise):
-        raise TypeError("calibrate fits the parameters of a noise family (salt_noise, "
-                        "random_inertia_noise); a noise given as a function has none.")
+        raise TypeError(
+            "calibrate fits the parameters of a noise family (salt_noise, "
+            "random_inertia_noise); a noise given as a function has none."
+        )
     params = _Parameters.of(init)
     all_names = params.names
     ts = np.asarray(ts, float)
@@ -233,10 +272,14 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
     every = math.gcd(*idx.tolist())
     observed = jnp.asarray(observed)
     if observed.ndim != 2 or observed.shape[0] != len(ts):
-        raise ValueError(f"observed must have shape (len(ts), k) = ({len(ts)}, k), got "
-                         f"{observed.shape}.")
-    weight = (jnp.ones_like(observed) if observed_stderr is None
-              else 1.0 / jnp.asarray(observed_stderr, observed.dtype))
+        raise ValueError(
+            f"observed must have shape (len(ts), k) = ({len(ts)}, k), got {observed.shape}."
+        )
+    weight = (
+        jnp.ones_like(observed)
+        if observed_stderr is None
+        else 1.0 / jnp.asarray(observed_stderr, observed.dtype)
+    )
     if weight.shape != observed.shape or not bool(jnp.all(jnp.isfinite(weight) & (weight > 0))):
         raise ValueError("observed_stderr must be positive and have the shape of observed.")
     key = _noise.check_key(key)
@@ -247,10 +290,22 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
     names = [n for n in all_names if n not in fixed]
     theta_all = params.theta
     method = check_method(method, init)
-    fit = _Fit(params.family, params.shape, tuple(np.flatnonzero(free).tolist()),
-               _as_tuple(y0), float(ts[-1]), dt, n_samples, every,
-               tuple((idx // every).tolist()), method, truncate_k, retry_substeps,
-               check_levy_option(levy_area, method, init), statistic)
+    fit = _Fit(
+        params.family,
+        params.shape,
+        tuple(np.flatnonzero(free).tolist()),
+        _as_tuple(y0),
+        float(ts[-1]),
+        dt,
+        n_samples,
+        every,
+        tuple((idx // every).tolist()),
+        method,
+        truncate_k,
+        retry_substeps,
+        check_levy_option(levy_area, method, init),
+        statistic,
+    )
 
     def full(theta):
         return fit.full(theta, theta_all)
@@ -264,12 +319,17 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
     def check(n_failed, theta, where):
         n_failed = int(n_failed)
         if n_failed > 0:
-            raise RuntimeError(message(
-                "calibrate", n_failed, n_samples,
-                f"The fit stops {where}, at {params.describe(full(theta))}: failed samples "
-                f"are frozen at their last good state and never used as data; an init or "
-                f"y0 away from the failing region may help too.",
-                retried=retry_substeps is not None))
+            raise RuntimeError(
+                message(
+                    "calibrate",
+                    n_failed,
+                    n_samples,
+                    f"The fit stops {where}, at {params.describe(full(theta))}: failed samples "
+                    f"are frozen at their last good state and never used as data; an init or "
+                    f"y0 away from the failing region may help too.",
+                    retried=retry_substeps is not None,
+                )
+            )
 
     theta = theta_all[free]
     # One program for the residuals and their Jacobian: at init (the identifiability check),
@@ -281,19 +341,36 @@ def calibrate(observed, y0, *, ts, dt, n_samples, key, init, statistic=moments,
 
     def report(i, theta, value):
         if progress:
-            print(f"calibrate: step {i + 1:3d}  loss {value:.6e}  "
-                  f"{params.describe(full(theta))}", file=sys.stderr)
+            print(
+                f"calibrate: step {i + 1:3d}  loss {value:.6e}  {params.describe(full(theta))}",
+                file=sys.stderr,
+            )
 
     if optimizer is None:
         dtype = theta.dtype
         theta, history, jac = _levenberg_marquardt(
-            lambda t: jacobian(jnp.asarray(t, dtype)), theta, jac, r, steps=steps, rtol=rtol,
+            lambda t: jacobian(jnp.asarray(t, dtype)),
+            theta,
+            jac,
+            r,
+            steps=steps,
+            rtol=rtol,
             eps=float(jnp.finfo(dtype).eps),
-            accept=lambda n, t, i: check(n, t, f"after optimiser step {i}"), report=report)
+            accept=lambda n, t, i: check(n, t, f"after optimiser step {i}"),
+            report=report,
+        )
         theta = jnp.asarray(theta, dtype)
     else:
-        theta, history, jac = _optax_fit(optimizer, residuals, jacobian, theta, steps=steps,
-                                         rtol=rtol, check=check, report=report)
+        theta, history, jac = _optax_fit(
+            optimizer,
+            residuals,
+            jacobian,
+            theta,
+            steps=steps,
+            rtol=rtol,
+            check=check,
+            report=report,
+        )
 
     model = params.model(full(theta))
     stderr = None
@@ -333,8 +410,10 @@ def _levenberg_marquardt(evaluate, theta, jac, r, *, steps, rtol, eps, accept, r
     for i in range(steps):
         a, g = jac.T @ jac, jac.T @ r
         if not np.all(np.isfinite(g)):
-            raise FloatingPointError("calibrate: the Jacobian of the statistics is not finite "
-                                     "at an accepted iterate (try a smaller dt).")
+            raise FloatingPointError(
+                "calibrate: the Jacobian of the statistics is not finite "
+                "at an accepted iterate (try a smaller dt)."
+            )
         if not np.max(np.abs(g)) > 0:
             break  # a stationary point
         d = np.maximum(np.diag(a), 1e-12 * max(np.max(np.diag(a)), 1e-300))
@@ -350,7 +429,7 @@ def _levenberg_marquardt(evaluate, theta, jac, r, *, steps, rtol, eps, accept, r
             if np.isfinite(new_loss) and gain > 0:
                 break
             mu, nu = mu * nu, 2.0 * nu
-            if nu > 2.0 ** 40:  # every shorter step fails to decrease the loss: converged
+            if nu > 2.0**40:  # every shorter step fails to decrease the loss: converged
                 return theta, np.asarray(history), jac
         theta, jac, r = theta + step, np.asarray(new_jac, np.float64), new_r
         accept(n_failed, theta, i)
@@ -391,8 +470,9 @@ def _optax_fit(optimizer, residuals, evaluate, theta, *, steps, rtol, check, rep
 
     # Strong types from the start: optax's initial state has weakly typed scalars that the
     # first update makes strong, which would compile `opt_step` a second time.
-    state = jax.tree_util.tree_map(lambda x: jnp.array(x, dtype=jnp.result_type(x)),
-                                   opt.init(theta))
+    state = jax.tree_util.tree_map(
+        lambda x: jnp.array(x, dtype=jnp.result_type(x)), opt.init(theta)
+    )
     history, converged = [], False
     for i in range(steps):
         new_theta, state, value, n_failed = opt_step(theta, state)
@@ -416,12 +496,14 @@ def _check_identifiable(jac, names, inertia):
     their Jacobian at the start."""
     jac = np.asarray(jac)
     if not np.all(np.isfinite(jac)):
-        raise ValueError("calibrate: the statistics' Jacobian at init is not finite; "
-                         "the initial model fails to simulate (try a smaller dt).")
+        raise ValueError(
+            "calibrate: the statistics' Jacobian at init is not finite; "
+            "the initial model fails to simulate (try a smaller dt)."
+        )
     n = jac.shape[1]
     _, sv, vt = np.linalg.svd(jac, full_matrices=True)
     sv_full = np.zeros(n)
-    sv_full[:min(n, len(sv))] = sv[:n]
+    sv_full[: min(n, len(sv))] = sv[:n]
     if sv_full[0] == 0 or sv_full[-1] <= 1e-4 * sv_full[0]:
         null = vt[-1]
         combo = " ".join(f"{w:+.2f} log {nm}" for w, nm in zip(null, names) if abs(w) > 0.05)
@@ -432,12 +514,15 @@ def _check_identifiable(jac, names, inertia):
             shift = np.zeros(n)
             shift[moments] = inertia
             if abs(np.dot(null, shift)) > 0.9 * np.linalg.norm(shift):
-                why = (" This is the exact symmetry of the rigid body: adding a constant to "
-                       "every 1/I_i adds a multiple of the Casimir to H and does not change the "
-                       "motion. Hold one moment fixed, e.g. fixed=('I_3',).")
+                why = (
+                    " This is the exact symmetry of the rigid body: adding a constant to "
+                    "every 1/I_i adds a multiple of the Casimir to H and does not change the "
+                    "motion. Hold one moment fixed, e.g. fixed=('I_3',)."
+                )
         raise ValueError(
             "calibrate: the parameters are not identifiable from these statistics: changing "
             f"{combo} leaves them (almost) unchanged (singular values of their Jacobian: "
             f"{np.array2string(sv_full, precision=3)}).{why} Otherwise observe more times or "
-            "other statistics (the Casimir |y| is conserved and says nothing).")
+            "other statistics (the Casimir |y| is conserved and says nothing)."
+        )
     return sv_full

@@ -49,8 +49,10 @@ def numeric_array(name, x, allow_complex=False):
     except (TypeError, ValueError) as err:
         raise TypeError(f"{name} must be {what}, got {x!r} ({err}).") from None
     # (a key array has an extended dtype, which NumPy cannot describe)
-    if jax.dtypes.issubdtype(arr.dtype, jax.dtypes.extended) or \
-            np.dtype(arr.dtype).kind not in kinds:
+    if (
+        jax.dtypes.issubdtype(arr.dtype, jax.dtypes.extended)
+        or np.dtype(arr.dtype).kind not in kinds
+    ):
         raise TypeError(f"{name} must be {what}, got dtype {arr.dtype}.")
     return arr
 
@@ -82,8 +84,11 @@ def check_positive(name, x):
 
 def check_count(name, n, minimum=1):
     if not is_int(n) or n < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {n!r}"
-                         + (" (a float: pass int(...))" if isinstance(n, float) else "") + ".")
+        raise ValueError(
+            f"{name} must be an integer >= {minimum}, got {n!r}"
+            + (" (a float: pass int(...))" if isinstance(n, float) else "")
+            + "."
+        )
     return int(n)
 
 
@@ -106,8 +111,10 @@ def check_retry(retry_substeps):
     if retry_substeps is None:
         return None
     if not is_int(retry_substeps) or retry_substeps < 2:
-        raise ValueError(f"retry_substeps must be None or an integer >= 2 (the number of "
-                         f"substeps a failed step is split into), got {retry_substeps!r}.")
+        raise ValueError(
+            f"retry_substeps must be None or an integer >= 2 (the number of "
+            f"substeps a failed step is split into), got {retry_substeps!r}."
+        )
     return int(retry_substeps)
 
 
@@ -121,21 +128,26 @@ def check_grid(caller, t1, dt):
     dt = check_positive("dt", dt)
     t1 = check_positive("t1", t1)
     if dt is None or t1 is None:
-        raise TypeError(f"{caller} needs concrete t1 and dt (they fix the number of steps): "
-                        "call it outside jax.jit, or use integrate inside.")
+        raise TypeError(
+            f"{caller} needs concrete t1 and dt (they fix the number of steps): "
+            "call it outside jax.jit, or use integrate inside."
+        )
     dt, t1 = float(dt), float(t1)
     ratio = t1 / dt
     n_steps = int(round(ratio))
     if n_steps < 1 or abs(ratio - n_steps) > 1e-9 * max(1.0, ratio):
         near = max(1, n_steps)
-        raise ValueError(f"t1={t1} must be a positive multiple of dt={dt} (t1/dt = {ratio}); "
-                         f"for example dt={t1 / near!r}.")
+        raise ValueError(
+            f"t1={t1} must be a positive multiple of dt={dt} (t1/dt = {ratio}); "
+            f"for example dt={t1 / near!r}."
+        )
     return dt, n_steps
 
 
 def is_real(x):
     return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(
-        x, (bool, np.bool_))
+        x, (bool, np.bool_)
+    )
 
 
 def check_options(method):
@@ -149,8 +161,7 @@ def check_options(method):
         if value is None:
             return
         if not is_real(value):
-            raise TypeError(f"{name}: {option} must be a positive number or None, got "
-                            f"{value!r}.")
+            raise TypeError(f"{name}: {option} must be a positive number or None, got {value!r}.")
         if not (math.isfinite(value) and value > 0):
             raise ValueError(f"{name}: {option} must be {value_error}, got {value!r}.")
 
@@ -158,8 +169,7 @@ def check_options(method):
     if getattr(method, "max_iter", None) is not None:
         it = method.max_iter
         if isinstance(it, (bool, np.bool_)) or not isinstance(it, (int, np.integer)) or it < 1:
-            raise ValueError(f"{name}: max_iter must be a positive integer or None, got "
-                             f"{it!r}.")
+            raise ValueError(f"{name}: max_iter must be a positive integer or None, got {it!r}.")
     positive_or_none("scale", "a positive number or None")
     if hasattr(method, "unroll"):
         n = method.unroll

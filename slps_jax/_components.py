@@ -1,8 +1,9 @@
 """so(3) and SO(3) on components: the layer under `slps_jax.so3` and the so(3) fast paths.
 
 Every formula is written once on *components*: a vector is a tuple of three arrays, a matrix
-a tuple of three rows (`vec`, `mat` and their inverses convert from and to arrays). Under `vmap` each component becomes one array over the batch, so the integrators' hot
-loop is element-wise arithmetic on long vectors (structure of arrays) rather than many tiny
+a tuple of three rows (`vec`, `mat` and their inverses convert from and to arrays). Under
+`vmap` each component becomes one array over the batch, so the integrators' hot loop is
+element-wise arithmetic on long vectors (structure of arrays) rather than many tiny
 batched 3x3 products, which XLA executes poorly on CPU.
 """
 
@@ -11,7 +12,6 @@ from __future__ import annotations
 import math
 
 import jax.numpy as jnp
-
 
 
 def vec(x):

@@ -14,15 +14,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _noise
-from ._exact import exact_flow, exact_solution
-from ._flow import deterministic_flow
 from ._checks import check_count, check_positive, check_retry, real_dtype
+from ._exact import exact_flow, exact_solution
 from ._failures import message, summary
+from ._flow import deterministic_flow
 from ._integrate import ensemble_dynamic_jit
-from ._plan import check_levy_option, check_method, check_model, check_y0
-from ._system import NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
 from ._methods.base import AbstractMethod
 from ._methods.midpoint import Midpoint
+from ._plan import check_levy_option, check_method, check_model, check_y0
+from ._system import NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
 
 
 @dataclasses.dataclass(frozen=True)
@@ -56,21 +56,30 @@ class ConvergenceResult:
         names = list(self.errors)
         head = "| h | " + " | ".join(names) + " |\n|---|" + "---|" * len(names) + "\n"
         rows = "".join(
-            f"| 2^{math.log2(h):.0f} | " + " | ".join(
-                f"{self.errors[n][i]:.3e} ± {self.stderr[n][i]:.1e}" for n in names) + " |\n"
-            for i, h in enumerate(self.dts))
-        order = "| order | " + " | ".join(
-            order_text(self.order[n], self.order_stderr[n]) for n in names) + " |\n"
-        ref = (f"\nReference's own error (RMS): {self.reference_error:.1e}\n"
-               if self.reference_error > 0 else "")
+            f"| 2^{math.log2(h):.0f} | "
+            + " | ".join(f"{self.errors[n][i]:.3e} ± {self.stderr[n][i]:.1e}" for n in names)
+            + " |\n"
+            for i, h in enumerate(self.dts)
+        )
+        order = (
+            "| order | "
+            + " | ".join(order_text(self.order[n], self.order_stderr[n]) for n in names)
+            + " |\n"
+        )
+        ref = (
+            f"\nReference's own error (RMS): {self.reference_error:.1e}\n"
+            if self.reference_error > 0
+            else ""
+        )
         return head + rows + order + ref
 
 
 @functools.partial(jax.jit, static_argnames=("n_fine",))
 def _brownian_endpoints(keys, fine_dt, bound, n_fine):
     """$W(t_1)$ of each sample: its `n_fine` fine steps joined into one (`_noise`)."""
-    return jax.vmap(lambda key: _noise.draw_joined(key, 0, n_fine, fine_dt, bound,
-                                                   fine_dt.dtype, 1).dW[0])(keys)
+    return jax.vmap(
+        lambda key: _noise.draw_joined(key, 0, n_fine, fine_dt, bound, fine_dt.dtype, 1).dW[0]
+    )(keys)
 
 
 @jax.jit
@@ -123,11 +132,28 @@ def _warn_single_precision(caller, dtype):
             f"{caller} runs in {jnp.dtype(dtype).name}: its round-off floor is about {eps:.1e} "
             f"per step (errors below about {100 * eps:.0e} are not resolved, and fitted orders "
             f"near it are wrong). For accuracy work enable float64 before creating any array: "
-            f"jax.config.update(\"jax_enable_x64\", True).", UserWarning, stacklevel=4)
+            f'jax.config.update("jax_enable_x64", True).',
+            UserWarning,
+            stacklevel=4,
+        )
 
 
-def _study(caller, model, y0, t1, dts, n_samples, key, methods, reference, reference_dt,
-           reference_factor, truncate_k, retry_substeps, levy_area="auto"):
+def _study(
+    caller,
+    model,
+    y0,
+    t1,
+    dts,
+    n_samples,
+    key,
+    methods,
+    reference,
+    reference_dt,
+    reference_factor,
+    truncate_k,
+    retry_substeps,
+    levy_area="auto",
+):
     """Validate a study's arguments (before anything compiles) and set up its shared paths
     and reference (see `strong_convergence`)."""
     check_model(model)
@@ -160,22 +186,28 @@ def _study(caller, model, y0, t1, dts, n_samples, key, methods, reference, refer
             reference_factor = 16
     is_method = isinstance(reference, AbstractMethod)
     if not (is_method or callable(reference) or named in ("exact", "flow")):
-        raise ValueError(f"reference must be 'exact', 'flow', 'midpoint', a method instance "
-                         f"or a callable flow, got {reference!r}.")
+        raise ValueError(
+            f"reference must be 'exact', 'flow', 'midpoint', a method instance "
+            f"or a callable flow, got {reference!r}."
+        )
     if not is_method and NOISE_PROPORTIONAL_TO_DRIFT not in model.structure:
-        raise ValueError("This system's noise is not proportional to its drift: it has no "
-                         "time-change solution. Pass a method as the reference, for example "
-                         "reference=Midpoint(), computed on the same paths at a fine step.")
+        raise ValueError(
+            "This system's noise is not proportional to its drift: it has no "
+            "time-change solution. Pass a method as the reference, for example "
+            "reference=Midpoint(), computed on the same paths at a fine step."
+        )
     if named == "exact" and RIGID_BODY not in model.structure:
-        raise ValueError("reference='exact' needs a RigidBody (the closed-form flow); for a "
-                         "LiePoissonSystem pass a deterministic flow as reference (a callable) "
-                         "or a method, for example reference=Midpoint().")
+        raise ValueError(
+            "reference='exact' needs a RigidBody (the closed-form flow); for a "
+            "LiePoissonSystem pass a deterministic flow as reference (a callable) "
+            "or a method, for example reference=Midpoint()."
+        )
     if is_method:
         check_method(reference)
         y0 = check_y0(y0, reference, model)
     if named == "flow":
         y0_flow = y0
-        reference = lambda times: deterministic_flow(model, y0_flow, times)  # noqa: E731
+        reference = lambda times: deterministic_flow(model, y0_flow, times)
     if reference_dt is not None and reference_factor is not None:
         raise ValueError("Pass reference_dt or reference_factor, not both.")
     if reference_dt is not None:
@@ -187,8 +219,11 @@ def _study(caller, model, y0, t1, dts, n_samples, key, methods, reference, refer
     key = _noise.check_key(key)
     fine_dt = float(dts[-1])
     if is_method:
-        fine_dt = (float(reference_dt) if reference_dt is not None
-                   else fine_dt / (64 if reference_factor is None else reference_factor))
+        fine_dt = (
+            float(reference_dt)
+            if reference_dt is not None
+            else fine_dt / (64 if reference_factor is None else reference_factor)
+        )
     _noise.check_truncation(fine_dt, truncate_k)
     n_fine = _substeps(float(t1), fine_dt, "t1")
     dtype = real_dtype(y0.dtype)
@@ -203,8 +238,9 @@ def _study(caller, model, y0, t1, dts, n_samples, key, methods, reference, refer
     chosen, default = (levy_area, "auto") if isinstance(levy_area, dict) else ({}, levy_area)
     unknown = sorted(set(chosen) - set(methods))
     if unknown:
-        raise ValueError(f"levy_area names methods {unknown} that are not in methods "
-                         f"({sorted(methods)}).")
+        raise ValueError(
+            f"levy_area names methods {unknown} that are not in methods ({sorted(methods)})."
+        )
     areas = {n: check_levy_option(chosen.get(n, default), m, model) for n, m in methods.items()}
     ref_areas = is_method and check_levy_option(default, reference, model)
     fine_terms = _noise.levy_area_terms(fine_dt, model.n_noises)
@@ -214,8 +250,19 @@ def _study(caller, model, y0, t1, dts, n_samples, key, methods, reference, refer
         (`None` if nothing); with `areas`, the method gets the Lévy areas."""
         s = _substeps(dt, fine_dt, name)
         ys, fail_step, result, _, _ = ensemble_dynamic_jit(
-            method, model, y0, keys, jnp.asarray(dt, dtype), bound, 1, jnp.asarray(n_fine // s),
-            False, jnp.asarray(s), retry=retry, terms=fine_terms if areas else None)
+            method,
+            model,
+            y0,
+            keys,
+            jnp.asarray(dt, dtype),
+            bound,
+            1,
+            jnp.asarray(n_fine // s),
+            False,
+            jnp.asarray(s),
+            retry=retry,
+            terms=fine_terms if areas else None,
+        )
         found = summary(fail_step, result)
         why = None if found is None else f"{found[0]} at dt={dt:g} ({found[3]})"
         return ys[:, -1], np.asarray(fail_step) >= 0, why
@@ -225,20 +272,28 @@ def _study(caller, model, y0, t1, dts, n_samples, key, methods, reference, refer
     if is_method:
         y_ref, ref_failed, ref_why = final_states(reference, fine_dt, "reference_dt", ref_areas)
         # (at twice its step: possible when that divides t1)
-        half, half_failed, _ = (final_states(reference, 2 * fine_dt, "reference_dt", ref_areas)
-                                if n_fine % 2 == 0 else (None, None, None))
+        half, half_failed, _ = (
+            final_states(reference, 2 * fine_dt, "reference_dt", ref_areas)
+            if n_fine % 2 == 0
+            else (None, None, None)
+        )
         if half is not None:
             ref_failed = ref_failed | half_failed
-        reference_error = (math.nan if half is None or ref_failed.all() else float(jnp.sqrt(
-            jnp.mean(model.algebra.norm_sq(half - y_ref)[~ref_failed]))))
+        reference_error = (
+            math.nan
+            if half is None or ref_failed.all()
+            else float(jnp.sqrt(jnp.mean(model.algebra.norm_sq(half - y_ref)[~ref_failed])))
+        )
     elif callable(reference):
         # The time change: y(t1) = phi_{t1 + c W(t1)}(y0) for the deterministic flow phi.
         w_t = _brownian_endpoints(keys, jnp.asarray(fine_dt, dtype), bound, n_fine)
         times = float(t1) + np.asarray(model.c) * np.asarray(w_t)
         y_ref = np.asarray(reference(times), dtype=np.float64)
         if y_ref.shape != (n_samples, *model.algebra.shape):
-            raise ValueError(f"reference(times) must return shape "
-                             f"{(n_samples, *model.algebra.shape)}, got {y_ref.shape}.")
+            raise ValueError(
+                f"reference(times) must return shape "
+                f"{(n_samples, *model.algebra.shape)}, got {y_ref.shape}."
+            )
         y_ref = jnp.asarray(y_ref, dtype)
         reference_error = math.nan
     else:
@@ -247,8 +302,23 @@ def _study(caller, model, y0, t1, dts, n_samples, key, methods, reference, refer
         reference_error = 0.0
 
     kind = "method" if is_method else "flow" if callable(reference) else "exact"
-    return _Study(caller, dts, methods, final_states, y_ref, reference_error, int(n_samples),
-                  y0, t1, kind, half, ref_failed, ref_why, areas, retry is not None)
+    return _Study(
+        caller,
+        dts,
+        methods,
+        final_states,
+        y_ref,
+        reference_error,
+        int(n_samples),
+        y0,
+        t1,
+        kind,
+        half,
+        ref_failed,
+        ref_why,
+        areas,
+        retry is not None,
+    )
 
 
 def _runs(st, name, method):
@@ -261,22 +331,48 @@ def _runs(st, name, method):
     failed = st.ref_failed | np.any([f for _, f, _ in runs], axis=0)
     n_failed = int(failed.sum())
     if n_failed:
-        why = "; ".join(w for w in [st.ref_why and f"reference {st.ref_why}"]
-                        + [w for _, _, w in runs] if w)
+        why = "; ".join(
+            w for w in [st.ref_why and f"reference {st.ref_why}"] + [w for _, _, w in runs] if w
+        )
         if st.n_samples - n_failed < 2:
-            raise RuntimeError(f"{st.caller}: {name} failed on {n_failed} of {st.n_samples} "
-                               f"samples ({why}): nothing left to estimate from. Use "
-                               f"smaller dts.")
-        warnings.warn(message(f"{st.caller} ({name})", n_failed, st.n_samples,
-                              f"They are left out of {name}'s estimates at every step size "
-                              f"(n_failed), so that its errors stay paired.", why=why,
-                              retried=st.retried), RuntimeWarning, stacklevel=3)
+            raise RuntimeError(
+                f"{st.caller}: {name} failed on {n_failed} of {st.n_samples} "
+                f"samples ({why}): nothing left to estimate from. Use "
+                f"smaller dts."
+            )
+        warnings.warn(
+            message(
+                f"{st.caller} ({name})",
+                n_failed,
+                st.n_samples,
+                f"They are left out of {name}'s estimates at every step size "
+                f"(n_failed), so that its errors stay paired.",
+                why=why,
+                retried=st.retried,
+            ),
+            RuntimeWarning,
+            stacklevel=3,
+        )
     return np.stack([np.asarray(y) for y, _, _ in runs]), ~failed
 
 
-def strong_convergence(model, y0, *, t1, dts, n_samples, key, methods, reference="exact",
-                       reference_dt=None, reference_factor=None, truncate_k=4,
-                       n_bootstrap=200, retry_substeps=4, levy_area="auto"):
+def strong_convergence(
+    model,
+    y0,
+    *,
+    t1,
+    dts,
+    n_samples,
+    key,
+    methods,
+    reference="exact",
+    reference_dt=None,
+    reference_factor=None,
+    truncate_k=4,
+    n_bootstrap=200,
+    retry_substeps=4,
+    levy_area="auto",
+):
     r"""Root-mean-square error at `t1` of each method at each step size, on shared paths.
 
     Every step size integrates the same Brownian paths: a coarse increment is the sum of the
@@ -330,8 +426,22 @@ def strong_convergence(model, y0, *, t1, dts, n_samples, key, methods, reference
     well below the errors you fit.
     """
     n_bootstrap = check_count("n_bootstrap", n_bootstrap, minimum=2)
-    st = _study("strong_convergence", model, y0, t1, dts, n_samples, key, methods, reference,
-                reference_dt, reference_factor, truncate_k, retry_substeps, levy_area)
+    st = _study(
+        "strong_convergence",
+        model,
+        y0,
+        t1,
+        dts,
+        n_samples,
+        key,
+        methods,
+        reference,
+        reference_dt,
+        reference_factor,
+        truncate_k,
+        retry_substeps,
+        levy_area,
+    )
     dts, y_ref = st.dts, st.y_ref
     errors, stderr, order, order_se, seconds, n_failed = {}, {}, {}, {}, {}, {}
     log_h = np.log(dts)
@@ -348,8 +458,9 @@ def strong_convergence(model, y0, *, t1, dts, n_samples, key, methods, reference
         order[name] = float(np.polyfit(log_h, np.log(errors[name]), 1)[0])
         slopes = [np.polyfit(log_h, 0.5 * np.log(e2[b].mean(0)), 1)[0] for b in boot]
         order_se[name] = float(np.std(slopes, ddof=1))
-    return ConvergenceResult(dts, errors, stderr, order, order_se, seconds,
-                             st.reference_error, n_failed)
+    return ConvergenceResult(
+        dts, errors, stderr, order, order_se, seconds, st.reference_error, n_failed
+    )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -387,15 +498,22 @@ class WeakConvergenceResult:
         observable component) and the fitted orders."""
         cols = [(n, j) for n in self.bias for j in range(self.bias[n].shape[1])]
         label = {(n, j): n if self.bias[n].shape[1] == 1 else f"{n}[{j}]" for n, j in cols}
-        head = ("| h | " + " | ".join(label[c] for c in cols) + " |\n|---|"
-                + "---|" * len(cols) + "\n")
+        head = (
+            "| h | " + " | ".join(label[c] for c in cols) + " |\n|---|" + "---|" * len(cols) + "\n"
+        )
         rows = "".join(
-            f"| 2^{math.log2(h):.0f} | " + " | ".join(
-                f"{abs(self.bias[n][i, j]):.2e} ± {self.ci[n][i, j]:.1e}" for n, j in cols)
-            + " |\n" for i, h in enumerate(self.dts))
-        order = "| order | " + " | ".join(
-            f"{self.order[n][j]:.2f}" if self.resolved(n)[j] else "unresolved"
-            for n, j in cols) + " |\n"
+            f"| 2^{math.log2(h):.0f} | "
+            + " | ".join(f"{abs(self.bias[n][i, j]):.2e} ± {self.ci[n][i, j]:.1e}" for n, j in cols)
+            + " |\n"
+            for i, h in enumerate(self.dts)
+        )
+        order = (
+            "| order | "
+            + " | ".join(
+                f"{self.order[n][j]:.2f}" if self.resolved(n)[j] else "unresolved" for n, j in cols
+            )
+            + " |\n"
+        )
         return head + rows + order
 
     def resolved(self, name):
@@ -405,10 +523,25 @@ class WeakConvergenceResult:
         return np.all(np.abs(self.bias[name]) > self.ci[name], axis=0)
 
 
-def weak_convergence(model, y0, *, t1, dts, n_samples, key, methods, observable,
-                     reference="exact", reference_dt=None, reference_factor=None,
-                     truncate_k=4, confidence=0.95, n_nodes=64, retry_substeps=4,
-                     levy_area="auto"):
+def weak_convergence(
+    model,
+    y0,
+    *,
+    t1,
+    dts,
+    n_samples,
+    key,
+    methods,
+    observable,
+    reference="exact",
+    reference_dt=None,
+    reference_factor=None,
+    truncate_k=4,
+    confidence=0.95,
+    n_nodes=64,
+    retry_substeps=4,
+    levy_area="auto",
+):
     r"""Weak error $|E_h[g(y_N)] - E[g(y(t_1))]|$ of each method at each step size, for an
     observable $g$ you choose, on shared paths, with confidence intervals and fitted orders.
 
@@ -432,20 +565,36 @@ def weak_convergence(model, y0, *, t1, dts, n_samples, key, methods, observable,
     **Returns:** a `WeakConvergenceResult`.
     """
     if not callable(observable):
-        raise TypeError(f"observable must be a function g(y) -> scalar or shape (m,), got "
-                        f"{type(observable).__name__}.")
+        raise TypeError(
+            f"observable must be a function g(y) -> scalar or shape (m,), got "
+            f"{type(observable).__name__}."
+        )
     if not (isinstance(confidence, (float, int)) and 0 < confidence < 1):
         raise ValueError(f"confidence must lie strictly between 0 and 1, got {confidence!r}.")
     n_nodes = check_count("n_nodes", n_nodes, minimum=2)
     check_model(model)
     g = jax.jit(jax.vmap(lambda y: jnp.atleast_1d(observable(y))))
-    shape = jax.eval_shape(g, jax.ShapeDtypeStruct((2, *model.algebra.shape),
-                                                    model.dtype)).shape
+    shape = jax.eval_shape(g, jax.ShapeDtypeStruct((2, *model.algebra.shape), model.dtype)).shape
     if len(shape) != 2:
-        raise ValueError(f"observable(y) must return a scalar or shape (m,), got shape "
-                         f"{shape[1:]}.")
-    st = _study("weak_convergence", model, y0, t1, dts, n_samples, key, methods, reference,
-                reference_dt, reference_factor, truncate_k, retry_substeps, levy_area)
+        raise ValueError(
+            f"observable(y) must return a scalar or shape (m,), got shape {shape[1:]}."
+        )
+    st = _study(
+        "weak_convergence",
+        model,
+        y0,
+        t1,
+        dts,
+        n_samples,
+        key,
+        methods,
+        reference,
+        reference_dt,
+        reference_factor,
+        truncate_k,
+        retry_substeps,
+        levy_area,
+    )
     z = statistics.NormalDist().inv_cdf(0.5 + confidence / 2)
     g_ref = np.asarray(g(st.y_ref))
     if st.kind == "exact":
@@ -459,8 +608,7 @@ def weak_convergence(model, y0, *, t1, dts, n_samples, key, methods, observable,
         reference_mean = g_ref[good].mean(0)
         reference_error = np.full(shape[1], np.nan)
         if st.y_ref_coarse is not None:
-            reference_error = np.abs(
-                (np.asarray(g(st.y_ref_coarse)) - g_ref)[good].mean(0))
+            reference_error = np.abs((np.asarray(g(st.y_ref_coarse)) - g_ref)[good].mean(0))
 
     bias, ci, order, seconds, n_failed = {}, {}, {}, {}, {}
     log_h = np.log(st.dts)
@@ -472,11 +620,15 @@ def weak_convergence(model, y0, *, t1, dts, n_samples, key, methods, observable,
         n, n_failed[name] = diffs.shape[1], st.n_samples - diffs.shape[1]
         bias[name] = diffs.mean(1)
         ci[name] = z * diffs.std(1, ddof=1) / math.sqrt(n)
-        order[name] = np.array([
-            np.polyfit(log_h, np.log(np.maximum(np.abs(b), np.finfo(float).tiny)), 1)[0]
-            for b in bias[name].T])
-    return WeakConvergenceResult(st.dts, bias, ci, order, reference_mean, reference_error,
-                                 seconds, n_failed)
+        order[name] = np.array(
+            [
+                np.polyfit(log_h, np.log(np.maximum(np.abs(b), np.finfo(float).tiny)), 1)[0]
+                for b in bias[name].T
+            ]
+        )
+    return WeakConvergenceResult(
+        st.dts, bias, ci, order, reference_mean, reference_error, seconds, n_failed
+    )
 
 
 @jax.jit

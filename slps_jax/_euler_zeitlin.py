@@ -52,16 +52,21 @@ class EulerZeitlin(LiePoissonSystem):
             raise ValueError(f"EulerZeitlin needs an integer N >= 2, got {N!r}.")
         if dtype is not None:
             if jnp.dtype(dtype) not in (jnp.dtype(jnp.complex64), jnp.dtype(jnp.complex128)):
-                raise ValueError(f"EulerZeitlin: dtype must be complex64 or complex128, got "
-                                 f"{dtype!r}.")
+                raise ValueError(
+                    f"EulerZeitlin: dtype must be complex64 or complex128, got {dtype!r}."
+                )
             real = jnp.finfo(dtype).dtype
             if noise is None:
                 c = jnp.asarray(0.0 if c is None else c).astype(real)
             else:
                 noise = jax.tree_util.tree_map(
-                    lambda x: x.astype(dtype if jnp.iscomplexobj(x) else real)
-                    if hasattr(x, "dtype") and jnp.issubdtype(x.dtype, jnp.inexact) else x,
-                    noise)
+                    lambda x: (
+                        x.astype(dtype if jnp.iscomplexobj(x) else real)
+                        if hasattr(x, "dtype") and jnp.issubdtype(x.dtype, jnp.inexact)
+                        else x
+                    ),
+                    noise,
+                )
         super().__init__(_euler_hamiltonian, None, c=c, noise=noise, algebra=su(int(N)))
 
     @property

@@ -144,13 +144,16 @@ def _reduced_flow(b, z, t):
     s, c, d = _ellipj(-q * p * t, m, m1)
     w = z1 / p  # = dn(u0) in (0, 1]
     delta = c * c + (s * w) ** 2  # = 1 − m sn² sn²(u0), with no cancellation
-    ell = jnp.stack(
-        [
-            z1 * d - s * c * z2 * z3 * g23 / (q * p),
-            z2 * c * d + s * z3 * rho * w,
-            z3 * c - s * d * z2 * w / rho,
-        ]
-    ) / delta
+    ell = (
+        jnp.stack(
+            [
+                z1 * d - s * c * z2 * z3 * g23 / (q * p),
+                z2 * c * d + s * z3 * rho * w,
+                z3 * c - s * d * z2 * w / rho,
+            ]
+        )
+        / delta
+    )
 
     return jnp.where(in_plane, rot, jnp.where(saddle, lin, ell))
 
@@ -167,8 +170,10 @@ def _check_real(name, x, shape, hint=""):
 
 def _check_flow_args(model, y0, t, need_c=False):
     if not hasattr(model, "inertia") or (need_c and not hasattr(model, "c")):
-        raise TypeError(f"model must have `inertia`{' and `c`' if need_c else ''} (for example "
-                        f"a RigidBody), got {type(model).__name__}.")
+        raise TypeError(
+            f"model must have `inertia`{' and `c`' if need_c else ''} (for example "
+            f"a RigidBody), got {type(model).__name__}."
+        )
     inertia = _check_real("model.inertia", model.inertia, (3,))
     if not isinstance(inertia, jax.core.Tracer) and not np.all(np.asarray(inertia) > 0):
         raise ValueError(f"model.inertia must be positive, got {np.asarray(inertia)}.")

@@ -17,8 +17,10 @@ import numpy as np
 from ._sharding import gather
 from ._solution import RESULTS
 
-ADVICE = ("A smaller dt usually helps (or LiePoisson(scale=...) near |y| = 1, or a method "
-          "without Newton solves such as Strang()).")
+ADVICE = (
+    "A smaller dt usually helps (or LiePoisson(scale=...) near |y| = 1, or a method "
+    "without Newton solves such as Strang())."
+)
 
 
 def summary(fail_step, result):
@@ -39,14 +41,20 @@ def message(caller, n_failed, n, consequence, *, why=None, first=None, retried=T
     """`caller: k of n samples failed (first at step j): why, even split into substeps.
     <consequence> ADVICE`."""
     at = "" if first is None else f" (first at step {first})"
-    return (f"{caller}: {n_failed} of {n} samples failed{at}"
-            + ("" if why is None else f": {why}") + f"{_even(retried)}. {consequence} {ADVICE}")
+    return (
+        f"{caller}: {n_failed} of {n} samples failed{at}"
+        + ("" if why is None else f": {why}")
+        + f"{_even(retried)}. {consequence} {ADVICE}"
+    )
 
 
 def _even(retried):
-    return (", even split into substeps (retry_substeps)" if retried else
-            " (retry_substeps=None: failing steps were not split into substeps; the "
-            "default, 4, splits them)")
+    return (
+        ", even split into substeps (retry_substeps)"
+        if retried
+        else " (retry_substeps=None: failing steps were not split into substeps; the "
+        "default, 4, splits them)"
+    )
 
 
 def _path_message(caller, fail_step, result, retried):
@@ -56,12 +64,22 @@ def _path_message(caller, fail_step, result, retried):
     n_failed, n, first, why = found
     if caller == "integrate":
         which = f" (first failure; {n_failed} of {n} paths failed)" if n > 1 else ""
-        return (f"integrate: step {first} could not be solved{which}: {why}"
-                f"{_even(retried)}. The path is frozen at its last good state from "
-                f"there on. Pass throw=False to return it anyway. {ADVICE}")
-    return message(caller, n_failed, n, "They are frozen at their last good state: leave "
-                   "them out with Solution.ok (Solution.result and fail_step say why and "
-                   "where).", why=why, first=first, retried=retried)
+        return (
+            f"integrate: step {first} could not be solved{which}: {why}"
+            f"{_even(retried)}. The path is frozen at its last good state from "
+            f"there on. Pass throw=False to return it anyway. {ADVICE}"
+        )
+    return message(
+        caller,
+        n_failed,
+        n,
+        "They are frozen at their last good state: leave "
+        "them out with Solution.ok (Solution.result and fail_step say why and "
+        "where).",
+        why=why,
+        first=first,
+        retried=retried,
+    )
 
 
 def _report_now(caller, throw, retried, fail_step, result):
@@ -69,8 +87,9 @@ def _report_now(caller, throw, retried, fail_step, result):
     if msg is None:
         return
     if throw:
-        raise RuntimeError(msg + (" Pass throw=False to get the other samples."
-                                  if caller != "integrate" else ""))
+        raise RuntimeError(
+            msg + (" Pass throw=False to get the other samples." if caller != "integrate" else "")
+        )
     warnings.warn(msg, RuntimeWarning, stacklevel=4)
 
 
@@ -86,8 +105,9 @@ def _reporter(caller, throw, retried):
 
     @jax.custom_batching.custom_vmap
     def report_traced(fail_step, result):
-        jax.debug.callback(functools.partial(_report_now, caller, throw, retried),
-                           fail_step, result)
+        jax.debug.callback(
+            functools.partial(_report_now, caller, throw, retried), fail_step, result
+        )
         return fail_step
 
     @report_traced.def_vmap

@@ -32,7 +32,7 @@ def _rk4(model, y0, times, n_steps):
     return jax.vmap(one)(times)
 
 
-def deterministic_flow(model, y0, times, *, max_step=2.0 ** -10):
+def deterministic_flow(model, y0, times, *, max_step=2.0**-10):
     r"""$\varphi_t(y_0)$, the flow of the drift $\dot y = B(y)\nabla H_0(y)$, at each of
     `times` (negative times run it backwards).
 

@@ -11,14 +11,21 @@ import numpy as np
 
 from . import _noise
 from ._batching import batched_like
-from ._checks import (check_positive, check_retry, check_save_every, check_throw, concrete,
-                      real_array, real_dtype)
+from ._checks import (
+    check_positive,
+    check_retry,
+    check_save_every,
+    check_throw,
+    concrete,
+    real_array,
+    real_dtype,
+)
 from ._failures import report
+from ._methods.base import finite_result
 from ._plan import check_levy_area, check_method, check_model, check_y0, plan_ensemble
+from ._retry import robust_step
 from ._sharding import as_given, automatic, sharded_keys
 from ._solution import RESULTS, Solution
-from ._methods.base import finite_result
-from ._retry import robust_step
 
 
 def _highest_precision(fn):
@@ -26,10 +33,12 @@ def _highest_precision(fn):
     default for float32 and complex64 is TF32 (a relative error of 3e-4 in a product),
     which would break the Casimirs in single precision; on the CPU and in float64 it is
     what runs anyway."""
+
     @functools.wraps(fn)
     def traced(*args, **kwargs):
         with jax.default_matmul_precision("highest"):
             return fn(*args, **kwargs)
+
     return traced
 
 
@@ -53,8 +62,9 @@ def _step(method, model, dt, carry, dW, live, *, want_stats, retry):
     if retry is None or not method.can_fail:
         # A failed sample idles at its last good state: with dt = dW = 0 every method's
         # step is trivial, so it costs no Newton iterations.
-        y_new, info = method.step(model, y, jnp.where(act, dt, 0.0).astype(dtype),
-                                  _noise.where(act, dW))
+        y_new, info = method.step(
+            model, y, jnp.where(act, dt, 0.0).astype(dtype), _noise.where(act, dW)
+        )
         code = finite_result(y_new, info.result)
         it = jnp.where(act, info.iterations, 0)
         res = jnp.where(act & (code == RESULTS.successful), info.residual, 0.0)
@@ -93,8 +103,15 @@ def _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats, retry=No
         return _time_change_path(method, model, y0, dt, draw, n_blocks, block_len, acc0, like)
     # (the step counter stays unbatched: every sample is at the same step)
     y0, result0, fail0, n_retried0, acc0 = batched_like(
-        (y0, jnp.array(RESULTS.successful, jnp.int32), jnp.array(-1, jnp.int32),
-         jnp.array(0, jnp.int32), acc0), like)
+        (
+            y0,
+            jnp.array(RESULTS.successful, jnp.int32),
+            jnp.array(-1, jnp.int32),
+            jnp.array(0, jnp.int32),
+            acc0,
+        ),
+        like,
+    )
     carry0 = (y0, result0, fail0, jnp.array(0, jnp.int32), n_retried0, acc0)
 
     def steps(carry, length, n_live):
@@ -106,15 +123,21 @@ def _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats, retry=No
         n0 = carry[3]
         dWs = jax.vmap(lambda j: draw(n0 + j))(jnp.arange(length, dtype=n0.dtype))
         return jax.lax.fori_loop(
-            0, length, lambda i, c: _step(method, model, dt, c, _index(dWs, i), i < n_live,
-                                          want_stats=want_stats, retry=retry), carry)
+            0,
+            length,
+            lambda i, c: _step(
+                method, model, dt, c, _index(dWs, i), i < n_live, want_stats=want_stats, retry=retry
+            ),
+            carry,
+        )
 
     def block(carry, _):
         carry = _checkpointed_loop(steps, block_len, carry)
         return carry, carry[0]
 
-    (_, result, fail_step, _, n_retried, acc), ys = jax.lax.scan(block, carry0, None,
-                                                                  length=n_blocks)
+    (_, result, fail_step, _, n_retried, acc), ys = jax.lax.scan(
+        block, carry0, None, length=n_blocks
+    )
     return ys, fail_step, result, n_retried, acc
 
 
@@ -140,14 +163,19 @@ def _time_change_path(method, model, y0, dt, draw, n_blocks, block_len, acc0, li
         return (y, n), y
 
     _, ys = jax.lax.scan(block, (y0, jnp.array(0, jnp.int32)), None, length=n_blocks)
-    return (ys, jnp.array(-1, jnp.int32), jnp.array(RESULTS.successful, jnp.int32),
-            jnp.array(0, jnp.int32), acc0)
+    return (
+        ys,
+        jnp.array(-1, jnp.int32),
+        jnp.array(RESULTS.successful, jnp.int32),
+        jnp.array(0, jnp.int32),
+        acc0,
+    )
 
 
 _DRAW_BLOCK = 32  # most steps whose increments are drawn together (memory per sample)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _layout(n):
     """`(n_chunks, m, b)`: `n` steps as `n_chunks` chunks of `m` draw blocks of `b` steps.
 
@@ -188,7 +216,8 @@ def _checkpointed_loop(steps, n, carry):
     if not isinstance(n, int):
         n_blocks = (n + _DRAW_BLOCK - 1) // _DRAW_BLOCK
         return jax.lax.fori_loop(
-            0, n_blocks, lambda k, c: steps(c, _DRAW_BLOCK, n - k * _DRAW_BLOCK), carry)
+            0, n_blocks, lambda k, c: steps(c, _DRAW_BLOCK, n - k * _DRAW_BLOCK), carry
+        )
     n_chunks, m, b = _layout(n)
 
     def chunk(i, c):
@@ -206,13 +235,34 @@ def _index(noise, i):
 
 @functools.partial(jax.jit, static_argnames=("method", "save_every", "want_stats", "retry"))
 def _integrate_jit(method, model, y0, noise, dt, save_every, want_stats, retry=None):
-    return _path(method, model, y0, dt, lambda n: _index(noise, n),
-                 noise.dW.shape[0] // save_every, save_every, want_stats, retry,
-                 like=(y0, noise))
+    return _path(
+        method,
+        model,
+        y0,
+        dt,
+        lambda n: _index(noise, n),
+        noise.dW.shape[0] // save_every,
+        save_every,
+        want_stats,
+        retry,
+        like=(y0, noise),
+    )
 
 
-def ensemble(method, model, y0, keys, dt, bound, n_blocks, block_len, want_stats,
-             substeps=1, retry=None, terms=None):
+def ensemble(
+    method,
+    model,
+    y0,
+    keys,
+    dt,
+    bound,
+    n_blocks,
+    block_len,
+    want_stats,
+    substeps=1,
+    retry=None,
+    terms=None,
+):
     """Each sample draws its steps' noise from its key (`_noise.draw`; with `terms`, the
     series length of the fine step's area sampler, also the Lévy areas). With
     `substeps = m > 1`, step `n`'s noise joins the fine steps `n m, ..., n m + m - 1` of size
@@ -223,28 +273,52 @@ def ensemble(method, model, y0, keys, dt, bound, n_blocks, block_len, want_stats
 
     def one(key):
         def draw(n):
-            return _noise.draw_joined(key, n, substeps, fine_dt, bound, dtype, model.n_noises,
-                                      terms)
+            return _noise.draw_joined(
+                key, n, substeps, fine_dt, bound, dtype, model.n_noises, terms
+            )
 
-        return _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats, retry,
-                     like=jax.random.key_data(key))
+        return _path(
+            method,
+            model,
+            y0,
+            dt,
+            draw,
+            n_blocks,
+            block_len,
+            want_stats,
+            retry,
+            like=jax.random.key_data(key),
+        )
 
     return jax.vmap(one)(keys)
 
 
-ensemble_jit = jax.jit(ensemble, static_argnames=("method", "n_blocks", "block_len",
-                                                  "want_stats", "substeps", "retry", "terms"))
+ensemble_jit = jax.jit(
+    ensemble,
+    static_argnames=("method", "n_blocks", "block_len", "want_stats", "substeps", "retry", "terms"),
+)
 # Step count and substeps traced: one compilation for every step size of a study.
-ensemble_dynamic_jit = jax.jit(ensemble, static_argnames=("method", "n_blocks", "want_stats",
-                                                          "retry", "terms"))
+ensemble_dynamic_jit = jax.jit(
+    ensemble, static_argnames=("method", "n_blocks", "want_stats", "retry", "terms")
+)
 
 
 # --------------------------------------------------------------------------------------
 # Public API.
 
 
-def integrate(model, y0, dW, dt, *, levy_area=None, method="auto", save_every=None,
-              throw=True, retry_substeps=4):
+def integrate(
+    model,
+    y0,
+    dW,
+    dt,
+    *,
+    levy_area=None,
+    method="auto",
+    save_every=None,
+    throw=True,
+    retry_substeps=4,
+):
     r"""Integrate one path of $dy = f(y)(dt + c \circ dW)$ with the given increments.
 
     Uses `dW` exactly as given (no truncation). Works under `jax.jit`, `jax.vmap` and
@@ -289,8 +363,10 @@ def integrate(model, y0, dW, dt, *, levy_area=None, method="auto", save_every=No
     if dW.ndim != 2 or dW.shape[0] < 1 or dW.shape[1] != s:
         raise ValueError(
             f"dW must have shape (n_steps, {s}) (one column per noise"
-            + ("; (n_steps,) for one noise" if s == 1 else "") + f"), got shape {dW.shape}"
-            + ("; for several paths use jax.vmap over integrate." if dW.ndim >= 2 else "."))
+            + ("; (n_steps,) for one noise" if s == 1 else "")
+            + f"), got shape {dW.shape}"
+            + ("; for several paths use jax.vmap over integrate." if dW.ndim >= 2 else ".")
+        )
     dt_np = check_positive("dt", dt)
     dW_np = concrete(dW)
     if dW_np is not None and not np.all(np.isfinite(dW_np)):
@@ -311,9 +387,23 @@ def integrate(model, y0, dW, dt, *, levy_area=None, method="auto", save_every=No
     return jnp.concatenate([y0[None], ys], axis=0)
 
 
-def simulate(model, y0, *, t1, dt, n_samples, key, method="auto", save_every=None,
-             truncate_k=4, newton_stats=False, throw=False, retry_substeps=4, sharding=None,
-             levy_area="auto"):
+def simulate(
+    model,
+    y0,
+    *,
+    t1,
+    dt,
+    n_samples,
+    key,
+    method="auto",
+    save_every=None,
+    truncate_k=4,
+    newton_stats=False,
+    throw=False,
+    retry_substeps=4,
+    sharding=None,
+    levy_area="auto",
+):
     r"""Simulate an ensemble of paths of $dy = f(y)(dt + c \circ dW)$ on $[0, t_1]$.
 
     Sample `i` draws its increments from `fold_in(key, i)` inside the time loop, truncated as
@@ -360,38 +450,99 @@ def simulate(model, y0, *, t1, dt, n_samples, key, method="auto", save_every=Non
     **Returns:** a `Solution`.
     """
     check_throw(throw)
-    sol = simulate_unreported(model, y0, t1=t1, dt=dt, n_samples=n_samples, key=key,
-                              method=method, save_every=save_every, truncate_k=truncate_k,
-                              newton_stats=newton_stats, retry_substeps=retry_substeps,
-                              sharding=sharding, levy_area=levy_area)
+    sol = simulate_unreported(
+        model,
+        y0,
+        t1=t1,
+        dt=dt,
+        n_samples=n_samples,
+        key=key,
+        method=method,
+        save_every=save_every,
+        truncate_k=truncate_k,
+        newton_stats=newton_stats,
+        retry_substeps=retry_substeps,
+        sharding=sharding,
+        levy_area=levy_area,
+    )
     report("simulate", throw, retry_substeps is not None, sol.fail_step, sol.result)
     return sol
 
 
-def simulate_unreported(model, y0, *, t1, dt, n_samples, key, method, save_every, truncate_k,
-                        newton_stats, retry_substeps, sharding, levy_area="auto"):
+def simulate_unreported(
+    model,
+    y0,
+    *,
+    t1,
+    dt,
+    n_samples,
+    key,
+    method,
+    save_every,
+    truncate_k,
+    newton_stats,
+    retry_substeps,
+    sharding,
+    levy_area="auto",
+):
     """`simulate` without the failure report (for callers that report failures their own
     way, such as `calibrate`)."""
-    p = plan_ensemble("simulate", model, y0, t1=t1, dt=dt, n_samples=n_samples, key=key,
-                      method=method, save_every=save_every, truncate_k=truncate_k,
-                      retry_substeps=retry_substeps, sharding=sharding, levy_area=levy_area)
+    p = plan_ensemble(
+        "simulate",
+        model,
+        y0,
+        t1=t1,
+        dt=dt,
+        n_samples=n_samples,
+        key=key,
+        method=method,
+        save_every=save_every,
+        truncate_k=truncate_k,
+        retry_substeps=retry_substeps,
+        sharding=sharding,
+        levy_area=levy_area,
+    )
     method, y0, dt, n_steps, k, dtype = p.method, p.y0, p.dt, p.n_steps, p.save_every, p.dtype
     with automatic(p.sharding, (model, y0, p.key)) as (sharding, (model, y0, key)):
-        keys = (_noise.sample_keys(key, p.n_samples) if sharding is None
-                else sharded_keys(key, p.n_samples, sharding))
+        keys = (
+            _noise.sample_keys(key, p.n_samples)
+            if sharding is None
+            else sharded_keys(key, p.n_samples, sharding)
+        )
         ys, fail_step, result, n_retried, acc = ensemble_jit(
-            method, model, y0, keys, jnp.asarray(dt, dtype), jnp.asarray(p.bound, dtype),
-            n_steps // k, k, bool(newton_stats), retry=p.retry, terms=p.terms)
-        sol = _solution(y0, ys, fail_step, result, n_retried, acc, jnp.asarray(dt, dtype),
-                        jnp.asarray([n_steps * dt], dtype), n_steps=n_steps,
-                        save_every=None if save_every is None else k,
-                        retried=p.retry is not None, newton_stats=bool(newton_stats))
+            method,
+            model,
+            y0,
+            keys,
+            jnp.asarray(dt, dtype),
+            jnp.asarray(p.bound, dtype),
+            n_steps // k,
+            k,
+            bool(newton_stats),
+            retry=p.retry,
+            terms=p.terms,
+        )
+        sol = _solution(
+            y0,
+            ys,
+            fail_step,
+            result,
+            n_retried,
+            acc,
+            jnp.asarray(dt, dtype),
+            jnp.asarray([n_steps * dt], dtype),
+            n_steps=n_steps,
+            save_every=None if save_every is None else k,
+            retried=p.retry is not None,
+            newton_stats=bool(newton_stats),
+        )
     return as_given(sol, p.sharding)
 
 
 @functools.partial(jax.jit, static_argnames=("n_steps", "save_every", "retried", "newton_stats"))
-def _solution(y0, ys, fail_step, result, n_retried, acc, dt, t1, *, n_steps, save_every,
-              retried, newton_stats):
+def _solution(
+    y0, ys, fail_step, result, n_retried, acc, dt, t1, *, n_steps, save_every, retried, newton_stats
+):
     """`simulate`'s `Solution` from the ensemble's outputs: one program, not one for each of
     these operations at every new shape."""
     if save_every is None:
@@ -406,5 +557,4 @@ def _solution(y0, ys, fail_step, result, n_retried, acc, dt, t1, *, n_steps, sav
         stats["newton_iterations_mean"] = jnp.sum(acc[0]) / (fail_step.shape[0] * n_steps)
         stats["newton_iterations_max"] = jnp.max(acc[1])
         stats["residual_max"] = jnp.max(acc[2])
-    return Solution(ts=ts, ys=ys, result=result.astype(jnp.int8), fail_step=fail_step,
-                    stats=stats)
+    return Solution(ts=ts, ys=ys, result=result.astype(jnp.int8), fail_step=fail_step, stats=stats)

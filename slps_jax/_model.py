@@ -8,14 +8,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _components, so3
-from ._checks import concrete, float_dtype, real_array
+from . import _components
 from ._algebra import so
+from ._checks import concrete, float_dtype, real_array
 from ._system import QUADRATIC, RIGID_BODY, LiePoissonSystem, _noise_or_c
 
 
 def _rigid_body_hamiltonian(y, inertia):
-    return 0.5 * jnp.sum(y ** 2 / inertia, axis=-1)
+    return 0.5 * jnp.sum(y**2 / inertia, axis=-1)
 
 
 @jax.tree_util.register_pytree_node_class
@@ -40,8 +40,8 @@ class RigidBody(LiePoissonSystem):
       (for example `salt_noise(chi)`); their `params` are the inertia.
 
     The model's floating dtype (`model.dtype`: the promoted dtype of `inertia`, `c` and the
-    noise's parameters, at least the default float) is the dtype of every computation with it: `simulate` and `integrate` cast `y0`
-    and the increments to it. For float32 work pass float32 `inertia`.
+    noise's parameters, at least the default float) is the dtype of every computation with it:
+    `simulate` and `integrate` cast `y0` and the increments to it. For float32 work pass float32 `inertia`.
 
     Raises `ValueError` naming the argument if a concrete value is invalid. Traced values
     (inside `jit` or `grad`) are not checked.
@@ -59,7 +59,8 @@ class RigidBody(LiePoissonSystem):
             raise ValueError(f"inertia must be finite and positive, got {i_np}.")
         self.c, self.noise = _noise_or_c(c, noise, inertia, [inertia])
         self.inertia = inertia.astype(
-            float_dtype(inertia, *jax.tree_util.tree_leaves((self.c, self.noise))))
+            float_dtype(inertia, *jax.tree_util.tree_leaves((self.c, self.noise)))
+        )
 
     @classmethod
     def paper(cls):
@@ -79,8 +80,9 @@ class RigidBody(LiePoissonSystem):
         return obj
 
     def __repr__(self):
-        return (f"RigidBody(inertia={self.inertia!r}, "
-                + (f"c={self.c!r})" if self.noise is None else f"noise={self.noise!r})"))
+        return f"RigidBody(inertia={self.inertia!r}, " + (
+            f"c={self.c!r})" if self.noise is None else f"noise={self.noise!r})"
+        )
 
     @property
     def structure(self):
@@ -117,7 +119,7 @@ PAPER_Y0 = (0.7, 0.7, 0.0)
 
 
 def _generalised_rigid_body_hamiltonian(y, j):
-    return 0.25 * jnp.sum(y ** 2 / (j[..., :, None] + j[..., None, :]), axis=(-2, -1))
+    return 0.25 * jnp.sum(y**2 / (j[..., :, None] + j[..., None, :]), axis=(-2, -1))
 
 
 @jax.tree_util.register_pytree_node_class
@@ -163,8 +165,9 @@ class GeneralisedRigidBody(LiePoissonSystem):
         return obj
 
     def __repr__(self):
-        return (f"GeneralisedRigidBody(j={self.j!r}, "
-                + (f"c={self.c!r})" if self.noise is None else f"noise={self.noise!r})"))
+        return f"GeneralisedRigidBody(j={self.j!r}, " + (
+            f"c={self.c!r})" if self.noise is None else f"noise={self.noise!r})"
+        )
 
     @property
     def structure(self):

@@ -56,15 +56,14 @@ def solve_linear(jac, r):
     return tuple(x[..., i] for i in range(n))
 
 
-def newton(fn, x0, *, tol, max_iter, active=True, admissible=None, continuation=0,
-           unroll=0):
+def newton(fn, x0, *, tol, max_iter, active=True, admissible=None, continuation=0, unroll=0):
     """Newton's method for `fn(x) = 0` from `x0`, for any number `n` of unknowns.
 
     **Arguments:**
 
     - `fn(x) -> (r, J)`: the residual (`n` components) and its Jacobian (`n` rows of `n`);
-      with `continuation > 0`, `fn(x, lam) -> (r, J)` for a family of problems whose member `lam = 1` is the one
-      to solve and whose member `lam = 0` has the root `x0`. `J` may also be a function
+      with `continuation > 0`, `fn(x, lam) -> (r, J)` for a family of problems whose member
+      `lam = 1` is the one to solve and whose member `lam = 0` has the root `x0`. `J` may also be a function
       `J(r) -> dx` that solves with it (a factorisation computed once, a fixed-point map).
     - `x0`: the start, `n` components; or one array of shape `(n,)` (then `r` is an array,
       `J` an `(n, n)` array or a function, and `x` of the result an array): for many
@@ -93,22 +92,36 @@ def newton(fn, x0, *, tol, max_iter, active=True, admissible=None, continuation=
     """
     if not isinstance(x0, tuple):  # one array of unknowns: a tuple of one component
         inner = fn
-        fn = lambda x, *lam: _as_component(*inner(x[0], *lam))  # noqa: E731
+        fn = lambda x, *lam: _as_component(*inner(x[0], *lam))
         admissible_array = admissible
         admissible = None if admissible is None else (lambda x: admissible_array(x[0]))
-        s = newton(fn, (x0,), tol=tol, max_iter=max_iter, active=active, admissible=admissible,
-                   continuation=continuation, unroll=unroll)
+        s = newton(
+            fn,
+            (x0,),
+            tol=tol,
+            max_iter=max_iter,
+            active=active,
+            admissible=admissible,
+            continuation=continuation,
+            unroll=unroll,
+        )
         return s._replace(x=s.x[0])
     dtype = x0[0].dtype
     zero = jnp.zeros((), jnp.int32)
-    init = NewtonState(x0, zero, jnp.asarray(jnp.inf, dtype),
-                       jnp.where(active, _RUNNING, RESULTS.outside_domain).astype(jnp.int32),
-                       zero, zero, zero)
+    init = NewtonState(
+        x0,
+        zero,
+        jnp.asarray(jnp.inf, dtype),
+        jnp.where(active, _RUNNING, RESULTS.outside_domain).astype(jnp.int32),
+        zero,
+        zero,
+        zero,
+    )
     init = batched_like(init, (x0, active))  # (one pass over `fn` under vmap: `_batching`)
 
     def evaluate(s):
         if continuation:
-            return fn(s.x, (s.stage + 1).astype(dtype) / (2 ** s.level).astype(dtype))
+            return fn(s.x, (s.stage + 1).astype(dtype) / (2**s.level).astype(dtype))
         return fn(s.x)
 
     def test(s, rnorm):
@@ -116,22 +129,30 @@ def newton(fn, x0, *, tol, max_iter, active=True, admissible=None, continuation=
         small = rnorm <= tol
         result = jnp.select(
             [small & inside, small, ~jnp.isfinite(rnorm), s.updates >= max_iter],
-            [RESULTS.successful, RESULTS.off_branch, RESULTS.nonfinite,
-             RESULTS.max_iterations_reached], _RUNNING).astype(jnp.int32)
+            [
+                RESULTS.successful,
+                RESULTS.off_branch,
+                RESULTS.nonfinite,
+                RESULTS.max_iterations_reached,
+            ],
+            _RUNNING,
+        ).astype(jnp.int32)
         result = jnp.where(s.result == _RUNNING, result, s.result)
         if continuation:
             done = result == RESULTS.successful
             running = s.result == _RUNNING
-            next_stage = running & done & (s.stage + 1 < 2 ** s.level)  # the next member
+            next_stage = running & done & (s.stage + 1 < 2**s.level)  # the next member
             again = running & ~done & (result != _RUNNING) & (s.level < continuation)
             s = s._replace(
                 x=tuple(jnp.where(again, a, b) for a, b in zip(x0, s.x)),
                 stage=jnp.where(next_stage, s.stage + 1, jnp.where(again, 0, s.stage)),
                 level=jnp.where(again, s.level + 1, s.level),
-                updates=jnp.where(next_stage | again, 0, s.updates))
+                updates=jnp.where(next_stage | again, 0, s.updates),
+            )
             result = jnp.where(next_stage | again, _RUNNING, result)
-        return s._replace(residual=jnp.where(s.result == _RUNNING, rnorm, s.residual),
-                          result=result)
+        return s._replace(
+            residual=jnp.where(s.result == _RUNNING, rnorm, s.residual), result=result
+        )
 
     def update(s, r, jac, go):
         delta = jac(r) if callable(jac) else solve_linear(jac, r)
@@ -192,8 +213,11 @@ def implicit_root(residual, solve, safe):
 
     def run(_, __):
         x, ok, aux = solve()
-        x = jnp.where(ok, x, safe) if array else tuple(
-            jnp.where(ok, xi, si) for xi, si in zip(x, safe))
+        x = (
+            jnp.where(ok, x, safe)
+            if array
+            else tuple(jnp.where(ok, xi, si) for xi, si in zip(x, safe))
+        )
         # custom_root wants floating auxiliary outputs; integers and flags travel as floats
         return unvec(x), tuple(jnp.asarray(t, dtype) for t in (ok, *aux))
 
@@ -203,8 +227,9 @@ def implicit_root(residual, solve, safe):
         jac = jax.jacfwd(g)(b)
         if array:
             return jnp.linalg.solve(jac, b)
-        return unvec(solve_linear(tuple(vec(row) for row in
-                                        (jac[..., i, :] for i in range(n))), vec(b)))
+        return unvec(
+            solve_linear(tuple(vec(row) for row in (jac[..., i, :] for i in range(n))), vec(b))
+        )
 
     x, aux = jax.lax.custom_root(f, unvec(safe), run, tangent_solve, has_aux=True)
     aux = jax.lax.stop_gradient(aux)
@@ -219,8 +244,9 @@ def jacobian_mode(jacobian, dim, *, large, largest_newton=10):
     return "newton" if dim <= largest_newton else large
 
 
-def solve_array(residual, x0, safe, *, tol, max_iter, jacobian, active=True, admissible=None,
-                continuation=0):
+def solve_array(
+    residual, x0, safe, *, tol, max_iter, jacobian, active=True, admissible=None, continuation=0
+):
     """A root of `residual(x, lam)` (one array of `n` unknowns, `lam = 1` the problem) by
     `newton` from `x0`, differentiable by the implicit function theorem (`implicit_root`,
     `safe` where a sample failed). With `continuation`, the family `lam` as in `newton`.
@@ -240,16 +266,24 @@ def solve_array(residual, x0, safe, *, tol, max_iter, jacobian, active=True, adm
 
     def solve():
         if jacobian == "newton":
-            fn = lambda x, lam: (residual(x, lam), jac(x, lam))  # noqa: E731
+            fn = lambda x, lam: (residual(x, lam), jac(x, lam))
         elif jacobian == "identity":
-            fn = lambda x, lam: (residual(x, lam), lambda r: r)  # noqa: E731
+            fn = lambda x, lam: (residual(x, lam), lambda r: r)
         else:
             lu = jax.scipy.linalg.lu_factor(jacobian())
-            fn = lambda x, lam: (residual(x, lam),  # noqa: E731
-                                 lambda r: jax.scipy.linalg.lu_solve(lu, r))
-        s = newton(fn if continuation else (lambda x: fn(x, 1.0)), x0, tol=tol,
-                   max_iter=max_iter, active=active, admissible=admissible,
-                   continuation=continuation)
+            fn = lambda x, lam: (
+                residual(x, lam),
+                lambda r: jax.scipy.linalg.lu_solve(lu, r),
+            )
+        s = newton(
+            fn if continuation else (lambda x: fn(x, 1.0)),
+            x0,
+            tol=tol,
+            max_iter=max_iter,
+            active=active,
+            admissible=admissible,
+            continuation=continuation,
+        )
         return s.x, s.result == RESULTS.successful, (s.result, s.iterations, s.residual)
 
     x, _, (result, iterations, res) = implicit_root(lambda x: residual(x, 1.0), solve, safe)

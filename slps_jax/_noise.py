@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import NamedTuple, Optional
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -35,7 +35,7 @@ class BrownianStep(NamedTuple):
     """
 
     dW: jax.Array
-    area: Optional[jax.Array] = None
+    area: jax.Array | None = None
 
 
 def as_step(noise):
@@ -89,8 +89,9 @@ def coarsen(dW, area, m):
 
 def zero_step(n_noises, dtype, levy_area):
     """The noise of a step of length 0 (the start of `join`)."""
-    return BrownianStep(jnp.zeros((n_noises,), dtype),
-                        jnp.zeros((n_noises, n_noises), dtype) if levy_area else None)
+    return BrownianStep(
+        jnp.zeros((n_noises,), dtype), jnp.zeros((n_noises, n_noises), dtype) if levy_area else None
+    )
 
 
 def check_key(key, name="key"):
@@ -102,15 +103,16 @@ def check_key(key, name="key"):
         raise TypeError(f"{name} must be a JAX PRNG key, got {key!r}: pass jax.random.key(seed).")
     if isinstance(key, (int, np.integer)):
         raise TypeError(
-            f"{name} must be a JAX PRNG key, got the integer {key!r}: "
-            f"pass jax.random.key({key!r})."
+            f"{name} must be a JAX PRNG key, got the integer {key!r}: pass jax.random.key({key!r})."
         )
     if not hasattr(key, "dtype") or not hasattr(key, "shape"):
         raise TypeError(f"{name} must be a JAX PRNG key (jax.random.key(seed)), got {type(key)}.")
     if jax.dtypes.issubdtype(key.dtype, jax.dtypes.prng_key):
         if key.shape != ():
-            raise ValueError(f"{name} must be a single key, got a key array of shape {key.shape}: "
-                             f"pass one key, for example {name}[0].")
+            raise ValueError(
+                f"{name} must be a single key, got a key array of shape {key.shape}: "
+                f"pass one key, for example {name}[0]."
+            )
         return key
     if key.dtype == jnp.uint32 and key.shape == (2,):
         return jax.random.wrap_key_data(jnp.asarray(key))
@@ -133,8 +135,10 @@ def check_truncation(dt, truncate_k):
     if truncate_k is None:
         return
     if isinstance(truncate_k, (bool, np.bool_)) or not (
-            isinstance(truncate_k, (int, float, np.integer, np.floating)) and truncate_k > 0
-            and math.isfinite(truncate_k)):
+        isinstance(truncate_k, (int, float, np.integer, np.floating))
+        and truncate_k > 0
+        and math.isfinite(truncate_k)
+    ):
         raise ValueError(f"truncate_k must be a positive number or None, got {truncate_k!r}.")
     if dt >= 1.0:
         raise ValueError(
@@ -183,7 +187,7 @@ def levy_area_terms(dt, n_noises):
 
 def _tail(p):
     r"""$\sum_{k > p} 1/k^2 = \pi^2/6 - \sum_{k \le p} 1/k^2$."""
-    return math.pi ** 2 / 6.0 - sum(1.0 / k ** 2 for k in range(1, p + 1))
+    return math.pi**2 / 6.0 - sum(1.0 / k**2 for k in range(1, p + 1))
 
 
 def levy_area(key, dW, dt, bound, terms):
@@ -205,18 +209,17 @@ def levy_area(key, dW, dt, bound, terms):
     """
     s, dtype = dW.shape[0], dW.dtype
     p = int(terms)
-    z = jnp.clip(jax.random.normal(key, (2 * s * p + s + s * (s - 1) // 2,), dtype),
-                 -bound, bound)
+    z = jnp.clip(jax.random.normal(key, (2 * s * p + s + s * (s - 1) // 2,), dtype), -bound, bound)
     xi = dW / jnp.sqrt(dt).astype(dtype)
     k = jnp.arange(1, p + 1, dtype=dtype)
-    x = z[:s * p].reshape(s, p)
-    y = (z[s * p:2 * s * p].reshape(p, s) - math.sqrt(2.0) * xi) / k[:, None]
-    psi = z[2 * s * p:2 * s * p + s]
+    x = z[: s * p].reshape(s, p)
+    y = (z[s * p : 2 * s * p].reshape(p, s) - math.sqrt(2.0) * xi) / k[:, None]
+    psi = z[2 * s * p : 2 * s * p + s]
     a = math.sqrt(2.0 * _tail(p))
     # (elementwise products and sums, not a matmul or a scatter, which under `vmap` over
     # samples and steps become batches of tiny matrices)
     m = jnp.sum(x[:, :, None] * y[None, :, :], axis=1) + a * xi[:, None] * psi[None, :]
-    m = m + a * jnp.sum(z[2 * s * p + s:, None, None] * _upper(s, dtype), axis=0)
+    m = m + a * jnp.sum(z[2 * s * p + s :, None, None] * _upper(s, dtype), axis=0)
     return (dt / (2.0 * math.pi)).astype(dtype) * (m - m.T)
 
 
@@ -248,14 +251,18 @@ def draw_joined(sample_key, n, substeps, fine_dt, bound, dtype, n_noises, terms=
     if isinstance(substeps, int) and substeps == 1:
         return draw(sample_key, n, fine_dt, bound, dtype, n_noises, terms)
     return jax.lax.fori_loop(
-        0, substeps,
-        lambda k, w: join(w, draw(sample_key, n * substeps + k, fine_dt, bound, dtype,
-                                  n_noises, terms)),
-        zero_step(n_noises, dtype, terms is not None))
+        0,
+        substeps,
+        lambda k, w: join(
+            w, draw(sample_key, n * substeps + k, fine_dt, bound, dtype, n_noises, terms)
+        ),
+        zero_step(n_noises, dtype, terms is not None),
+    )
 
 
-def brownian_increments(key, n_steps, dt, *, n_samples=None, truncate_k=4, dtype=None,
-                        n_noises=None, levy_area=False):
+def brownian_increments(
+    key, n_steps, dt, *, n_samples=None, truncate_k=4, dtype=None, n_noises=None, levy_area=False
+):
     """The increments `simulate` uses, materialised: for `integrate`, plots and checks.
 
     **Arguments:**
@@ -292,14 +299,19 @@ def brownian_increments(key, n_steps, dt, *, n_samples=None, truncate_k=4, dtype
             continue
         if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 1:
             raise ValueError(f"{name} must be a positive integer, got {n!r}.")
-    if n_noises is not None and (isinstance(n_noises, (bool, np.bool_))
-                                 or not isinstance(n_noises, (int, np.integer)) or n_noises < 1):
+    if n_noises is not None and (
+        isinstance(n_noises, (bool, np.bool_))
+        or not isinstance(n_noises, (int, np.integer))
+        or n_noises < 1
+    ):
         raise ValueError(f"n_noises must be None or a positive integer, got {n_noises!r}.")
     if not isinstance(levy_area, (bool, np.bool_)):
         raise TypeError(f"levy_area must be True or False, got {levy_area!r}.")
     if levy_area and n_noises is None:
-        raise ValueError("levy_area=True needs n_noises (the system's n_noises): the areas "
-                         "are those of pairs of noises.")
+        raise ValueError(
+            "levy_area=True needs n_noises (the system's n_noises): the areas "
+            "are those of pairs of noises."
+        )
     check_truncation(dt, truncate_k)
     if dtype is None:
         dtype = jnp.result_type(float)
@@ -314,15 +326,22 @@ def brownian_increments(key, n_steps, dt, *, n_samples=None, truncate_k=4, dtype
             raise ValueError("dtype=float64 needs jax.config.update('jax_enable_x64', True).")
     bound = jnp.asarray(truncation_bound(dt, truncate_k), dtype)
     terms = levy_area_terms(dt, n_noises) if levy_area and n_noises > 1 else None
-    return _brownian_paths(key, jnp.asarray(dt, dtype), bound,
-                           n_samples=None if n_samples is None else int(n_samples),
-                           n_steps=int(n_steps),
-                           n_noises=None if n_noises is None else int(n_noises),
-                           levy_area=bool(levy_area), terms=terms, dtype=jnp.dtype(dtype))
+    return _brownian_paths(
+        key,
+        jnp.asarray(dt, dtype),
+        bound,
+        n_samples=None if n_samples is None else int(n_samples),
+        n_steps=int(n_steps),
+        n_noises=None if n_noises is None else int(n_noises),
+        levy_area=bool(levy_area),
+        terms=terms,
+        dtype=jnp.dtype(dtype),
+    )
 
 
-@functools.partial(jax.jit, static_argnames=("n_samples", "n_steps", "n_noises", "levy_area",
-                                             "terms", "dtype"))
+@functools.partial(
+    jax.jit, static_argnames=("n_samples", "n_steps", "n_noises", "levy_area", "terms", "dtype")
+)
 def _brownian_paths(key, dt, bound, *, n_samples, n_steps, n_noises, levy_area, terms, dtype):
     """`brownian_increments` after its checks: one program per shape, not one for each of
     its operations (a new `dt` of the same shape compiles nothing)."""

@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _components, so3
+from . import _components
 from ._checks import concrete, float_dtype, numeric_array
 
 
@@ -53,8 +53,7 @@ class AbstractNoise:
         r"""$G_A(y) = \tfrac12\sum_{q,r} A_{qr}\langle y, [\nabla H_q(y), \nabla H_r(y)]\rangle$
         for the areas `area` (`(s, s)`, antisymmetric): the gradients by JAX."""
         g = algebra.gradient(jax.jacrev(lambda u: self.values(u, params))(y))  # (s, *shape)
-        return 0.5 * algebra.pairing(
-            y, algebra.bracket_sum(g, jnp.tensordot(area, g, axes=1)))
+        return 0.5 * algebra.pairing(y, algebra.bracket_sum(g, jnp.tensordot(area, g, axes=1)))
 
     def area_gradient(self, y, area, params, algebra):
         r"""$\nabla G_A(y)$ (`area_hamiltonian`), by JAX."""
@@ -75,17 +74,21 @@ def _parameter_matrix(name, x, what, matrices=False):
     x = x.astype(float_dtype(x))
     square = matrices and x.ndim == 3 and x.shape[1] == x.shape[2] >= 2
     if not (x.ndim == 2 and x.shape[1] == 3 or square) or x.shape[0] < 1:
-        raise ValueError(f"{name} must have shape (s, 3), one row per noise ({what})"
-                         + (", or (s, n, n), one element of so(n) or su(n) per noise"
-                            if matrices else "") + f", got shape {x.shape}.")
+        raise ValueError(
+            f"{name} must have shape (s, 3), one row per noise ({what})"
+            + (", or (s, n, n), one element of so(n) or su(n) per noise" if matrices else "")
+            + f", got shape {x.shape}."
+        )
     x_np = concrete(x)
     if x_np is not None and not np.all(np.isfinite(x_np)):
         raise ValueError(f"{name} must be finite, got {x_np}.")
     if square and x_np is not None:  # (the algebra's own conditions: `check_algebra`)
         asym = np.max(np.abs(x_np + np.conj(np.swapaxes(x_np, 1, 2))))
         if asym > 1e-12 * max(1.0, float(np.max(np.abs(x_np)))):
-            raise ValueError(f"{name}[r] must be skew-symmetric (so(n)) or skew-Hermitian "
-                             f"(su(n)) matrices; max |{name} + {name}^H| = {asym:.3g}.")
+            raise ValueError(
+                f"{name}[r] must be skew-symmetric (so(n)) or skew-Hermitian "
+                f"(su(n)) matrices; max |{name} + {name}^H| = {asym:.3g}."
+            )
     return x
 
 
@@ -122,7 +125,8 @@ class _ParameterNoise(AbstractNoise):
             raise ValueError(
                 f"{self.builder}: {self.parameter_name} of shape {self.parameter.shape} does not fit "
                 f"the states of {algebra.name}, shape {algebra.shape}: pass shape "
-                f"(s, {', '.join(map(str, algebra.shape))}).")
+                f"(s, {', '.join(map(str, algebra.shape))})."
+            )
         x_np = concrete(self.parameter)
         if self.linear and x_np is not None:  # (its rows are elements of the algebra)
             for r, x in enumerate(x_np):
@@ -194,8 +198,11 @@ class RandomInertiaNoise(_ParameterNoise):
     def gradient_jacobian_components(self, v, w, params):
         d = _weighted(w, self.sigma)
         zero = 0.0 * (v[0] + d[0])
-        return _components.mul(d, v), ((d[0] + zero, zero, zero), (zero, d[1] + zero, zero),
-                                (zero, zero, d[2] + zero))
+        return _components.mul(d, v), (
+            (d[0] + zero, zero, zero),
+            (zero, d[1] + zero, zero),
+            (zero, zero, d[2] + zero),
+        )
 
     def gradient(self, y, w, params, algebra):
         return (w @ self.sigma) * y
@@ -262,15 +269,20 @@ def as_noise(noise, params, dtype, algebra):
         noise.check_algebra(algebra)
         return noise
     if not callable(noise):
-        raise TypeError(f"noise must be a function noise(y, params) -> shape (s,) or a noise "
-                        f"family such as salt_noise(chi), got {type(noise).__name__}.")
+        raise TypeError(
+            f"noise must be a function noise(y, params) -> shape (s,) or a noise "
+            f"family such as salt_noise(chi), got {type(noise).__name__}."
+        )
     try:
-        out = jax.eval_shape(noise, jax.ShapeDtypeStruct(algebra.shape,
-                                                         algebra.state_dtype(dtype)), params)
+        out = jax.eval_shape(
+            noise, jax.ShapeDtypeStruct(algebra.shape, algebra.state_dtype(dtype)), params
+        )
     except Exception as err:  # noqa: BLE001 - reported with the function's name
         raise ValueError(f"noise(y, params) failed on y of shape {algebra.shape}: {err}") from err
     shape = getattr(out, "shape", None)
     if shape is None or len(shape) != 1 or shape[0] < 1:
-        raise ValueError(f"noise(y, params) must return the s noise Hamiltonians, shape (s,) "
-                         f"with s >= 1, got {shape if shape is not None else type(out)}.")
+        raise ValueError(
+            f"noise(y, params) must return the s noise Hamiltonians, shape (s,) "
+            f"with s >= 1, got {shape if shape is not None else type(out)}."
+        )
     return FunctionNoise(noise, int(shape[0]))

@@ -19,10 +19,24 @@ from ._convergence import order_text
 
 def _settings(fast):
     if fast:
-        return dict(n_samples=100, levels=[5, 6, 7], path_t1=5.0, path_dt=1e-2,
-                    drift_t1=20.0, drift_dt=1e-2, sphere_t1=20.0)
-    return dict(n_samples=500, levels=[5, 6, 7, 8, 9], path_t1=10.0, path_dt=1e-2,
-                drift_t1=200.0, drift_dt=1e-2, sphere_t1=50.0)
+        return dict(
+            n_samples=100,
+            levels=[5, 6, 7],
+            path_t1=5.0,
+            path_dt=1e-2,
+            drift_t1=20.0,
+            drift_dt=1e-2,
+            sphere_t1=20.0,
+        )
+    return dict(
+        n_samples=500,
+        levels=[5, 6, 7, 8, 9],
+        path_t1=10.0,
+        path_dt=1e-2,
+        drift_t1=200.0,
+        drift_dt=1e-2,
+        sphere_t1=50.0,
+    )
 
 
 def _path(model, y0, method, dW, dt, every):
@@ -42,8 +56,9 @@ def _exact_paths(model, y0, *parts):
 
     ws = [jnp.concatenate([jnp.zeros(1, dW.dtype), jnp.cumsum(dW)]) for dW, _ in parts]
     ts = [jnp.arange(w.shape[0], dtype=w.dtype) * dt for w, (_, dt) in zip(ws, parts)]
-    ys = jax.vmap(lambda ti, wi: sj.exact_solution(model, y0, ti, wi))(jnp.concatenate(ts),
-                                                                      jnp.concatenate(ws))
+    ys = jax.vmap(lambda ti, wi: sj.exact_solution(model, y0, ti, wi))(
+        jnp.concatenate(ts), jnp.concatenate(ws)
+    )
     return jnp.split(ys, np.cumsum([w.shape[0] for w in ws])[:-1])
 
 
@@ -56,6 +71,7 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
     import numpy as np
 
     import slps_jax as sj
+
     from ._progress import advance, progress_bar
 
     os.makedirs(out_dir, exist_ok=True)
@@ -66,13 +82,26 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
     if hasattr(sj, "Strang"):
         methods["Strang"] = sj.Strang()
     methods["EulerMaruyama"] = sj.EulerMaruyama()
-    colors = {"LiePoisson": "C0", "Midpoint": "C2", "Strang": "C1", "EulerMaruyama": "C3",
-              "exact": "k"}
+    colors = {
+        "LiePoisson": "C0",
+        "Midpoint": "C2",
+        "Strang": "C1",
+        "EulerMaruyama": "C3",
+        "exact": "k",
+    }
     progress = progress_bar(3 + len(methods) + 1, "slps-jax paper", unit="part")
-    results = {"settings": {**cfg, "seed": seed, "inertia": np.asarray(model.inertia).tolist(),
-                            "c": float(model.c), "y0": list(sj.PAPER_Y0),
-                            "truncate_k": 4, "dtype": str(y0.dtype)},
-               "wall_seconds": {}}
+    results = {
+        "settings": {
+            **cfg,
+            "seed": seed,
+            "inertia": np.asarray(model.inertia).tolist(),
+            "c": float(model.c),
+            "y0": list(sj.PAPER_Y0),
+            "truncate_k": 4,
+            "dtype": str(y0.dtype),
+        },
+        "wall_seconds": {},
+    }
     t_start = time.perf_counter()
 
     # Fourteen independent programs: the paths of Figures 4.1-4.3 and the convergence studies
@@ -94,15 +123,25 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
         runs["4.3", name] = (_path, (model, y0, methods[name], dW43, dt43, 1))
     runs["4.1 and 4.3", "exact"] = (_exact_paths, (model, y0, (dW41, dt41), (dW43, dt43)))
     # Figure 4.4: RMS error at T = 1 against h, n_samples samples, exact reference.
-    dts = [2.0 ** -k for k in cfg["levels"]]
+    dts = [2.0**-k for k in cfg["levels"]]
     studies = {name: {name: method} for name, method in methods.items()}
     studies["Exact"] = {"Exact": sj.Exact()}
     pool = concurrent.futures.ThreadPoolExecutor(max_workers=2)
     try:
         futures = {k: pool.submit(fn, *args) for k, (fn, args) in runs.items()}
-        study_futures = {name: pool.submit(sj.strong_convergence, model, y0, t1=1.0, dts=dts,
-                                           n_samples=cfg["n_samples"], key=key, methods=m)
-                         for name, m in studies.items()}
+        study_futures = {
+            name: pool.submit(
+                sj.strong_convergence,
+                model,
+                y0,
+                t1=1.0,
+                dts=dts,
+                n_samples=cfg["n_samples"],
+                key=key,
+                methods=m,
+            )
+            for name, m in studies.items()
+        }
         import matplotlib  # while the pool compiles
 
         matplotlib.use("Agg")
@@ -120,26 +159,47 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
         ts = np.arange(n + 1) * dt
         # the two paths overlap at this scale: a fourth panel shows their distance, per time
         # the largest component's (its maximum is the deviation in the title)
-        fig, axes = plt.subplots(4, 1, figsize=(7, 8), sharex=True, layout="constrained",
-                                 gridspec_kw={"height_ratios": [1, 1, 1, 1.3]})
+        fig, axes = plt.subplots(
+            4,
+            1,
+            figsize=(7, 8),
+            sharex=True,
+            layout="constrained",
+            gridspec_kw={"height_ratios": [1, 1, 1, 1.3]},
+        )
         for i, ax in enumerate(axes[:3]):
-            ax.plot(ts, ye[:, i], color="k", lw=2.2, alpha=0.35,
-                    label=r"exact $\varphi_{t+cW(t)}(y_0)$")
-            ax.plot(ts, ys[:, i], color=colors["LiePoisson"], lw=1.0, ls="--",
-                    label=f"LiePoisson, $h = {dt:g}$")
+            ax.plot(
+                ts, ye[:, i], color="k", lw=2.2, alpha=0.35, label=r"exact $\varphi_{t+cW(t)}(y_0)$"
+            )
+            ax.plot(
+                ts,
+                ys[:, i],
+                color=colors["LiePoisson"],
+                lw=1.0,
+                ls="--",
+                label=f"LiePoisson, $h = {dt:g}$",
+            )
             ax.set_ylabel(f"$y_{i + 1}$")
         dev = np.abs(ys - ye).max(axis=1)
         ax = axes[3]
         ax.semilogy(ts[1:], dev[1:], color=colors["LiePoisson"], lw=0.9)  # 0 at t = 0
         ax.axhline(dev.max(), color="0.5", ls=":", lw=1)
-        ax.text(ts[-1], dev.max(), f"max {dev.max():.1e} ", ha="right", va="bottom", fontsize=8,
-                color="0.3")
+        ax.text(
+            ts[-1],
+            dev.max(),
+            f"max {dev.max():.1e} ",
+            ha="right",
+            va="bottom",
+            fontsize=8,
+            color="0.3",
+        )
         ax.set_ylim(top=4 * dev.max())
         ax.set_ylabel(r"error $\|y_h(t) - y(t)\|_\infty$")
         ax.grid(True, which="major", alpha=0.3)
         ax.set_xlabel("time $t$")
-        axes[0].legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=2, fontsize=9,
-                       frameon=False)
+        axes[0].legend(
+            loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=2, fontsize=9, frameon=False
+        )
         fig.suptitle(f"Fig. 4.1: one sample path (max deviation {dev.max():.1e})")
         fig.savefig(os.path.join(out_dir, "fig4_1_sample_path.png"), dpi=110)
         plt.close(fig)
@@ -154,7 +214,7 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
         c0, h0 = float(model.casimir(y0)), float(model.hamiltonian(y0))
         fig, (ax_c, ax_h) = plt.subplots(1, 2, figsize=(11, 4.5), layout="constrained")
         drift = {}
-        for name, method in methods.items():
+        for name in methods:
             ys = paths["4.2", name]
             dc = np.abs(np.asarray(model.casimir(ys)) / c0 - 1)
             dh = np.abs(np.asarray(model.hamiltonian(ys)) / h0 - 1)
@@ -162,16 +222,26 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
             floor = 1e-17
             ax_c.semilogy(ts, np.maximum(dc, floor), color=colors[name], label=name)
             ax_h.semilogy(ts, np.maximum(dh, floor), color=colors[name], label=name)
-        for ax, what in ((ax_c, "Casimir $|C(y_n)/C(y_0) - 1|$"), (ax_h, "Hamiltonian $|H(y_n)/H(y_0) - 1|$")):
+        for ax, what in (
+            (ax_c, "Casimir $|C(y_n)/C(y_0) - 1|$"),
+            (ax_h, "Hamiltonian $|H(y_n)/H(y_0) - 1|$"),
+        ):
             ax.set_xlabel("time t")
             ax.set_ylabel("relative error")
             ax.set_title(what, fontsize=10)
             ax.set_ylim(2e-18, 1e2)  # the floor 1e-17 inside the frame, not on its edge
             ax.grid(True, which="major", alpha=0.3)
         # one legend for both panels, below them: inside, it covered the curves
-        fig.legend(*ax_c.get_legend_handles_labels(), loc="outside lower center", ncol=len(methods),
-                   fontsize=9, frameon=False)
-        fig.suptitle(f"Fig. 4.2: invariants along one path, h = {dt:g} (values below 1e-17 drawn at 1e-17)")
+        fig.legend(
+            *ax_c.get_legend_handles_labels(),
+            loc="outside lower center",
+            ncol=len(methods),
+            fontsize=9,
+            frameon=False,
+        )
+        fig.suptitle(
+            f"Fig. 4.2: invariants along one path, h = {dt:g} (values below 1e-17 drawn at 1e-17)"
+        )
         fig.savefig(os.path.join(out_dir, "fig4_2_invariants.png"), dpi=110)
         plt.close(fig)
         results["fig4_2"] = {"h": dt, "t1": cfg["drift_t1"], "drift": drift}
@@ -195,9 +265,12 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
             ax.plot(p[:, 0], p[:, 1], p[:, 2], color=colors[name], lw=0.8)
             ax.scatter(*p[-1], color=colors[name], s=18, depthshade=False)  # the final state
             r_end = float(np.linalg.norm(p[-1]))
-            ax.set_title(f"{name}" + ("" if name == "exact" else f", $h = {dt:g}$")
-                         + f"\nfinal $|y|$ = {r_end:.6f}, $|y|/|y_0| - 1$ = {r_end / r0 - 1:.1e}",
-                         fontsize=10)
+            ax.set_title(
+                f"{name}"
+                + ("" if name == "exact" else f", $h = {dt:g}$")
+                + f"\nfinal $|y|$ = {r_end:.6f}, $|y|/|y_0| - 1$ = {r_end / r0 - 1:.1e}",
+                fontsize=10,
+            )
             ax.set_xlabel("$y_1$", labelpad=-4), ax.set_ylabel("$y_2$", labelpad=-4)
             ax.set_zlabel("$y_3$", labelpad=-4)
             for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
@@ -205,11 +278,15 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
                 axis.set_tick_params(labelsize=8, pad=-2)
             ax.set_xlim(-lim, lim), ax.set_ylim(-lim, lim), ax.set_zlim(-lim, lim)
             ax.set_box_aspect((1, 1, 1))  # a sphere looks like one
-        fig.suptitle(f"Fig. 4.3: phase trajectories, $t \\in [0, {cfg['sphere_t1']:g}]$, on the "
-                     f"sphere $|y| = |y_0| = {r0:.6f}$ (dot: the final state)")
+        fig.suptitle(
+            f"Fig. 4.3: phase trajectories, $t \\in [0, {cfg['sphere_t1']:g}]$, on the "
+            f"sphere $|y| = |y_0| = {r0:.6f}$ (dot: the final state)"
+        )
         fig.savefig(os.path.join(out_dir, "fig4_3_phase_sphere.png"), dpi=110)
         plt.close(fig)
-        results["fig4_3"] = {name: {"final_norm": float(np.linalg.norm(p[-1]))} for name, p in paths.items()}
+        results["fig4_3"] = {
+            name: {"final_norm": float(np.linalg.norm(p[-1]))} for name, p in paths.items()
+        }
         results["wall_seconds"]["fig4_3"] = time.perf_counter() - t0
         advance(progress, "Fig 4.3 phase trajectories")
 
@@ -225,30 +302,56 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
         hs = np.asarray(dts)
         for name, res in conv.items():
             e, se = res.errors[name], res.stderr[name]
-            ax.errorbar(hs, e, yerr=2 * se, marker="o", ms=4, capsize=2, color=colors[name],
-                        label=f"{name}: slope {order_text(res.order[name], res.order_stderr[name])}")
+            ax.errorbar(
+                hs,
+                e,
+                yerr=2 * se,
+                marker="o",
+                ms=4,
+                capsize=2,
+                color=colors[name],
+                label=f"{name}: slope {order_text(res.order[name], res.order_stderr[name])}",
+            )
         # the largest bar relative to its error, for the title: at 500 samples most bars are
         # shorter than the markers' radius and cannot be seen (15% at --fast's 100 samples)
         bar = max(float(np.max(2 * res.stderr[n] / res.errors[n])) for n, res in conv.items())
         anchor = conv["LiePoisson"].errors["LiePoisson"][0]
         for slope, ls in ((0.5, ":"), (1.0, "--")):
-            ax.loglog(hs, anchor * 2 * (hs / hs[0]) ** slope, color="0.5", ls=ls, lw=1,
-                      label=f"reference slope {slope:g}")
+            ax.loglog(
+                hs,
+                anchor * 2 * (hs / hs[0]) ** slope,
+                color="0.5",
+                ls=ls,
+                lw=1,
+                label=f"reference slope {slope:g}",
+            )
         ax.set_xscale("log", base=2), ax.set_yscale("log")
         ax.set_xlabel("step size h")
         ax.set_ylabel("RMS error $(E|y_N - y(1)|^2)^{1/2}$ at T = 1")
-        ax.set_title(f"Fig. 4.4: strong convergence, {cfg['n_samples']} samples, reference: exact solution\n"
-                     f"error bars: ±2 standard errors, at most ±{100 * bar:.2g}% of the error\n"
-                     "(a bar not seen is shorter than the marker's radius)", fontsize=10)
+        ax.set_title(
+            f"Fig. 4.4: strong convergence, {cfg['n_samples']} samples, reference: exact solution\n"
+            f"error bars: ±2 standard errors, at most ±{100 * bar:.2g}% of the error\n"
+            "(a bar not seen is shorter than the marker's radius)",
+            fontsize=10,
+        )
         ax.grid(True, which="both", alpha=0.3)
-        fig.legend(loc="outside right upper", fontsize=8)  # beside the axes: inside, it covered points
+        fig.legend(
+            loc="outside right upper", fontsize=8
+        )  # beside the axes: inside, it covered points
         fig.savefig(os.path.join(out_dir, "fig4_4_strong_order.png"), dpi=110)
         plt.close(fig)
         results["fig4_4"] = {
             "dts": dts,
-            "methods": {name: {"rms_error": res.errors[name].tolist(), "stderr": res.stderr[name].tolist(),
-                               "order": res.order[name], "order_stderr": res.order_stderr[name],
-                               "seconds": res.seconds[name]} for name, res in conv.items()},
+            "methods": {
+                name: {
+                    "rms_error": res.errors[name].tolist(),
+                    "stderr": res.stderr[name].tolist(),
+                    "order": res.order[name],
+                    "order_stderr": res.order_stderr[name],
+                    "seconds": res.seconds[name],
+                }
+                for name, res in conv.items()
+            },
             "exact_method_max_rms_error": float(exact_err.errors["Exact"].max()),
         }
         results["wall_seconds"]["fig4_4"] = time.perf_counter() - t0
@@ -279,16 +382,24 @@ def _table(results, names):
         f"path with h = {f42['h']:g}; seconds = the method's convergence runs, compilation included "
         f"(two of the run's programs compile or run at a time).",
         "",
-        "| method | strong order | RMS error at h = " + f"2^{math.log2(f44['dts'][-1]):.0f}"
+        "| method | strong order | RMS error at h = "
+        + f"2^{math.log2(f44['dts'][-1]):.0f}"
         + " | max rel. Casimir drift | max rel. energy drift | seconds |",
         "|---|---|---|---|---|---|",
     ]
     for n in names:
         m = f44["methods"][n]
         d = f42["drift"][n]
-        lines.append(f"| {n} | {order_text(m['order'], m['order_stderr'])} | "
-                     f"{m['rms_error'][-1]:.3e} | {d['casimir_max']:.1e} | {d['energy_max']:.1e} | "
-                     f"{m['seconds']:.1f} |")
-    lines += ["", f"Exact sampler (`Exact`): largest RMS error {f44['exact_method_max_rms_error']:.1e} "
-              "(round-off).", f"Total wall time {results['wall_seconds']['total']:.1f} s.", ""]
+        lines.append(
+            f"| {n} | {order_text(m['order'], m['order_stderr'])} | "
+            f"{m['rms_error'][-1]:.3e} | {d['casimir_max']:.1e} | {d['energy_max']:.1e} | "
+            f"{m['seconds']:.1f} |"
+        )
+    lines += [
+        "",
+        f"Exact sampler (`Exact`): largest RMS error {f44['exact_method_max_rms_error']:.1e} "
+        "(round-off).",
+        f"Total wall time {results['wall_seconds']['total']:.1f} s.",
+        "",
+    ]
     return "\n".join(lines)

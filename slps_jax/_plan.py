@@ -14,9 +14,18 @@ import dataclasses
 import numpy as np
 
 from . import _noise
-from ._checks import (check_count, check_grid, check_retry, check_save_every, concrete,
-                      numeric_array, real_array, real_dtype, check_options)
 from ._algebra import SO3_VECTORS
+from ._checks import (
+    check_count,
+    check_grid,
+    check_options,
+    check_retry,
+    check_save_every,
+    concrete,
+    numeric_array,
+    real_array,
+    real_dtype,
+)
 from ._methods import METHODS, IsospectralMidpoint, Midpoint
 from ._methods.base import AbstractMethod
 from ._sharding import check_sharding
@@ -33,7 +42,8 @@ def check_pair(method, model):
         raise TypeError(
             f"{type(method).__name__} needs a system with the structure "
             f"{', '.join(sorted(missing))}{only}; this {type(model).__name__} does not have "
-            f"it. Methods for this system: {', '.join(works)}.")
+            f"it. Methods for this system: {', '.join(works)}."
+        )
 
 
 def default_method(model):
@@ -53,7 +63,8 @@ def check_method(method, model=None):
         accepted = "an instance" if model is None else "'auto' or an instance"
         raise TypeError(
             f"method must be {accepted} such as Midpoint(), got {method!r}"
-            + (" (a class: call it)" if isinstance(method, type) else "") + "."
+            + (" (a class: call it)" if isinstance(method, type) else "")
+            + "."
         )
     check_options(method)  # again here: a dataclass can be built around its constructor
     return method
@@ -70,13 +81,17 @@ def check_levy_area(area, n_steps, n_noises, method):
     if area is None:
         return None
     if not method.uses_levy_area():
-        raise TypeError(f"{type(method).__name__} does not use Lévy areas (its step sees only "
-                        f"the increments); methods that do: {_area_methods()}.")
+        raise TypeError(
+            f"{type(method).__name__} does not use Lévy areas (its step sees only "
+            f"the increments); methods that do: {_area_methods()}."
+        )
     area = real_array("levy_area", area)
     shape = (n_steps, n_noises, n_noises)
     if area.shape != shape:
-        raise ValueError(f"levy_area must have shape (n_steps, s, s) = {shape}, one "
-                         f"antisymmetric (s, s) matrix per step, got shape {area.shape}.")
+        raise ValueError(
+            f"levy_area must have shape (n_steps, s, s) = {shape}, one "
+            f"antisymmetric (s, s) matrix per step, got shape {area.shape}."
+        )
     a_np = concrete(area)
     if a_np is not None:
         if not np.all(np.isfinite(a_np)):
@@ -84,8 +99,10 @@ def check_levy_area(area, n_steps, n_noises, method):
             raise ValueError(f"levy_area must be finite; steps {bad[:5].tolist()} are not.")
         asym = float(np.max(np.abs(a_np + np.swapaxes(a_np, 1, 2))))
         if asym > 1e-12 * max(1.0, float(np.max(np.abs(a_np)))):
-            raise ValueError(f"levy_area must be antisymmetric, A[n, q, r] = -A[n, r, q]; "
-                             f"max |A + A^T| = {asym:.3g}.")
+            raise ValueError(
+                f"levy_area must be antisymmetric, A[n, q, r] = -A[n, r, q]; "
+                f"max |A + A^T| = {asym:.3g}."
+            )
     return None if n_noises == 1 else area
 
 
@@ -98,8 +115,10 @@ def check_levy_option(levy_area, method, model):
     if not isinstance(levy_area, (bool, np.bool_)):
         raise TypeError(f"levy_area must be 'auto', True or False, got {levy_area!r}.")
     if levy_area and not method.uses_levy_area():
-        raise TypeError(f"levy_area=True: {type(method).__name__} does not use Lévy areas; "
-                        f"methods that do: {_area_methods()}.")
+        raise TypeError(
+            f"levy_area=True: {type(method).__name__} does not use Lévy areas; "
+            f"methods that do: {_area_methods()}."
+        )
     return bool(levy_area) and model.n_noises > 1
 
 
@@ -113,8 +132,8 @@ def check_y0(y0, method, model):
         raise ValueError(
             f"y0 must have shape {shape} (a state of {model.algebra.name}), got shape "
             f"{y0.shape}"
-            + ("; for several initial values use jax.vmap over integrate." if several
-               else "."))
+            + ("; for several initial values use jax.vmap over integrate." if several else ".")
+        )
     y0 = y0.astype(alg.state_dtype(model.dtype))
     y_np = concrete(y0)
     if y_np is not None:
@@ -127,8 +146,9 @@ def check_y0(y0, method, model):
 class EnsemblePlan:
     """The validated arguments of an ensemble run: `y0` cast to the system's dtype, the step
     count, the checked key, `save_every` as a step count `k` (all `n_steps` when `None`),
-    the samples run at a time (`chunk_size`: all of them unless in chunks), the retry, the sharding, the Lévy-area series length `terms` (`None`: no areas) and the
-    truncation bound of the increments."""
+    the samples run at a time (`chunk_size`: all of them unless in chunks), the retry, the
+    sharding, the Lévy-area series length `terms` (`None`: no areas) and the truncation bound
+    of the increments."""
 
     model: LiePoissonSystem
     method: AbstractMethod
@@ -149,8 +169,23 @@ class EnsemblePlan:
         return real_dtype(self.y0.dtype)
 
 
-def plan_ensemble(caller, model, y0, *, t1, dt, n_samples, key, method, save_every,
-                  truncate_k, retry_substeps, sharding, levy_area, chunk_size=None):
+def plan_ensemble(
+    caller,
+    model,
+    y0,
+    *,
+    t1,
+    dt,
+    n_samples,
+    key,
+    method,
+    save_every,
+    truncate_k,
+    retry_substeps,
+    sharding,
+    levy_area,
+    chunk_size=None,
+):
     """Check an ensemble's arguments (the sharding against `chunk_size` when it is run in
     chunks) and return its `EnsemblePlan`."""
     check_model(model)
@@ -162,15 +197,31 @@ def plan_ensemble(caller, model, y0, *, t1, dt, n_samples, key, method, save_eve
         chunk_size = n_samples
         sharding = check_sharding(sharding, n_samples)
     else:
-        if n_samples >= 2 ** 32:
-            raise ValueError(f"n_samples must be below 2^32 (sample indices are uint32), "
-                             f"got {n_samples}.")
+        if n_samples >= 2**32:
+            raise ValueError(
+                f"n_samples must be below 2^32 (sample indices are uint32), got {n_samples}."
+            )
         chunk_size = min(check_count("chunk_size", chunk_size), n_samples)
         sharding = check_sharding(sharding, chunk_size, name="chunk_size")
     key = _noise.check_key(key)
     _noise.check_truncation(dt, truncate_k)
-    terms = (_noise.levy_area_terms(dt, model.n_noises)
-             if check_levy_option(levy_area, method, model) else None)
-    return EnsemblePlan(model, method, y0, dt, n_steps, n_samples, chunk_size, key,
-                        check_save_every(save_every, n_steps), check_retry(retry_substeps),
-                        sharding, terms, _noise.truncation_bound(dt, truncate_k))
+    terms = (
+        _noise.levy_area_terms(dt, model.n_noises)
+        if check_levy_option(levy_area, method, model)
+        else None
+    )
+    return EnsemblePlan(
+        model,
+        method,
+        y0,
+        dt,
+        n_steps,
+        n_samples,
+        chunk_size,
+        key,
+        check_save_every(save_every, n_steps),
+        check_retry(retry_substeps),
+        sharding,
+        terms,
+        _noise.truncation_bound(dt, truncate_k),
+    )

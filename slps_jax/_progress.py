@@ -24,8 +24,14 @@ def progress_bar(total, desc, unit="it"):
         # without ipywidgets, tqdm.auto warns in a notebook and falls back to text
         warnings.simplefilter("ignore")
         from tqdm.auto import tqdm
-    return tqdm(total=total, desc=desc, unit=unit, disable=not interactive(),
-                file=sys.stderr, dynamic_ncols=True)
+    return tqdm(
+        total=total,
+        desc=desc,
+        unit=unit,
+        disable=not interactive(),
+        file=sys.stderr,
+        dynamic_ncols=True,
+    )
 
 
 def advance(bar, label):

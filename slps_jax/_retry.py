@@ -35,8 +35,8 @@ from jax.flatten_util import ravel_pytree
 from . import _noise
 from ._batching import batched_like
 from ._checks import real_dtype
-from ._solution import RESULTS
 from ._methods.base import finite_result
+from ._solution import RESULTS
 
 # A failed step is split into k, k^2, ..., k^RETRY_LEVELS equal parts before giving up.
 RETRY_LEVELS = 3
@@ -54,17 +54,23 @@ def _attempts(method, model, y, dt, dW, act, k, m0, jacobians=False):
     `_jacobian_tools`); else `()`.
     """
     dtype = real_dtype(y.dtype)
-    m_max = k ** RETRY_LEVELS
+    m_max = k**RETRY_LEVELS
     zero_i = jnp.zeros((), jnp.int32)
-    substep, j0, chain = _jacobian_tools(method, model, y, dW) if jacobians else (
-        lambda ys, h, w: (*method.step(model, ys, h, w), ()), (), None)
+    substep, j0, chain = (
+        _jacobian_tools(method, model, y, dW)
+        if jacobians
+        else (lambda ys, h, w: (*method.step(model, ys, h, w), ()), (), None)
+    )
 
     def body(s):
         i, m, yc, code, its, res, going, jac = s
         mf = m.astype(dtype)
         # (dt/m, dW/m, A/m): the step's noise split evenly (`_noise.scale`)
-        y2, info, d = substep(yc, jnp.where(going, dt / mf, 0.0).astype(dtype),
-                              _noise.where(going, _noise.scale(dW, 1.0 / mf)))
+        y2, info, d = substep(
+            yc,
+            jnp.where(going, dt / mf, 0.0).astype(dtype),
+            _noise.where(going, _noise.scale(dW, 1.0 / mf)),
+        )
         c2 = finite_result(y2, info.result)
         ok = going & (c2 == RESULTS.successful)
         fail = going & ~ok
@@ -74,16 +80,30 @@ def _attempts(method, model, y, dt, dW, act, k, m0, jacobians=False):
         i = jnp.where(ok, i + 1, jnp.where(refine, 0, i))
         yc = jnp.where(ok, y2, jnp.where(refine, y, yc))
         if jacobians:  # chained where a substep succeeded, restarted where it is refined
-            jac = jax.tree_util.tree_map(lambda new, start, old: jnp.where(
-                ok, new, jnp.where(refine, start, old)), chain(jac, d, mf), j0, jac)
+            jac = jax.tree_util.tree_map(
+                lambda new, start, old: jnp.where(ok, new, jnp.where(refine, start, old)),
+                chain(jac, d, mf),
+                j0,
+                jac,
+            )
         m = jnp.where(refine, m * k, m)
         code = jnp.where(fail & ~refine, c2, code)
         going = going & ~(fail & ~refine) & (i < m)
         return i, m, yc, code, its, res, going, jac
 
-    init = batched_like((zero_i, jnp.asarray(m0, jnp.int32), y,
-                         jnp.asarray(RESULTS.successful, jnp.int32), zero_i,
-                         jnp.zeros((), dtype), jnp.asarray(act), j0), (y, act))
+    init = batched_like(
+        (
+            zero_i,
+            jnp.asarray(m0, jnp.int32),
+            y,
+            jnp.asarray(RESULTS.successful, jnp.int32),
+            zero_i,
+            jnp.zeros((), dtype),
+            jnp.asarray(act),
+            j0,
+        ),
+        (y, act),
+    )
     _, m, y_next, code, its, res, _, jac = jax.lax.while_loop(lambda s: s[-2], body, init)
     retried = act & ((m > m0) | (code != RESULTS.successful))
     return y_next, code, its, res, retried, jac
@@ -93,8 +113,11 @@ def _inexact_leaves(model):
     """The model's leaves, its tree structure, and the indices of the inexact (differentiable)
     leaves."""
     leaves, treedef = jax.tree_util.tree_flatten(model)
-    return leaves, treedef, [i for i, leaf in enumerate(leaves)
-                             if jnp.issubdtype(jnp.result_type(leaf), jnp.inexact)]
+    return (
+        leaves,
+        treedef,
+        [i for i, leaf in enumerate(leaves) if jnp.issubdtype(jnp.result_type(leaf), jnp.inexact)],
+    )
 
 
 def _real(x):
@@ -134,7 +157,8 @@ def _jacobian_tools(method, model, y, dW):
 
     def substep(ys, h, w):
         (a, b, c, e), (y2, info) = jax.jacfwd(step, argnums=(0, 1, 2, 3), has_aux=True)(
-            _real(ys), h, ravel_pytree(w)[0], [_real(p) for p in p0])
+            _real(ys), h, ravel_pytree(w)[0], [_real(p) for p in p0]
+        )
         return y2, info, (a, b, c, e)
 
     def chain(jac, derivatives, mf):
@@ -142,11 +166,19 @@ def _jacobian_tools(method, model, y, dW):
         a, b, c, e = derivatives
         a = a.reshape(d, d)
         # (h, w) = (dt/m, dW/m): d/d(dt) = (d/dh) / m
-        return (a @ jy, a @ jdt + b.reshape(d) / mf, a @ jdw + c.reshape(d, -1) / mf,
-                [a @ j + ei.reshape(d, -1) for j, ei in zip(jp, e)])
+        return (
+            a @ jy,
+            a @ jdt + b.reshape(d) / mf,
+            a @ jdw + c.reshape(d, -1) / mf,
+            [a @ j + ei.reshape(d, -1) for j, ei in zip(jp, e)],
+        )
 
-    j0 = (jnp.eye(d, dtype=dtype), jnp.zeros(d, dtype), jnp.zeros((d, w0.size), dtype),
-          [jnp.zeros((d, _real(p).size), dtype) for p in p0])
+    j0 = (
+        jnp.eye(d, dtype=dtype),
+        jnp.zeros(d, dtype),
+        jnp.zeros((d, w0.size), dtype),
+        [jnp.zeros((d, _real(p).size), dtype) for p in p0],
+    )
     return substep, j0, chain
 
 
@@ -164,27 +196,39 @@ def _robust_step_jvp(method, k, primals, tangents):
     dtype = real_dtype(y.dtype)
     h, w = jnp.where(act, dt, 0.0).astype(dtype), _noise.where(act, dW)
     (y1, info), (t_y1, _) = jax.jvp(
-        lambda mdl, ys, h, w: method.step(mdl, ys, h, w), (model, y, h, w),
-        (t_model, t_y, jnp.where(act, t_dt, 0.0), _noise.where(act, t_dW)))
+        lambda mdl, ys, h, w: method.step(mdl, ys, h, w),
+        (model, y, h, w),
+        (t_model, t_y, jnp.where(act, t_dt, 0.0), _noise.where(act, t_dW)),
+    )
     code1 = finite_result(y1, info.result)
     need = act & (code1 != RESULTS.successful)
     # Retried samples: the attempts again (a loop that runs only while some sample of the
     # batch needs it), now with the Jacobians of the substeps that succeed.
-    y2, code2, its2, res2, _, (jy, jdt, jdw, jp) = _attempts(method, model, y, dt, dW, need,
-                                                            k, k, jacobians=True)
+    y2, code2, its2, res2, _, (jy, jdt, jdw, jp) = _attempts(
+        method, model, y, dt, dW, need, k, k, jacobians=True
+    )
     leaves, idx = jax.tree_util.tree_leaves(t_model), _inexact_leaves(model)[2]
     t_re = jy @ _real(t_y) + jdt * t_dt + jdw @ ravel_pytree(t_dW)[0]
     for i, j in zip(idx, jp):
         t_re = t_re + j @ _real(leaves[i]).astype(dtype)
     y_next = jnp.where(need, y2, y1)
-    out = (y_next, jnp.where(need, code2, code1),
-           jnp.where(act, info.iterations, 0) + its2,
-           jnp.where(need, res2, jnp.where(act, info.residual, 0.0)).astype(dtype), need)
+    out = (
+        y_next,
+        jnp.where(need, code2, code1),
+        jnp.where(act, info.iterations, 0) + its2,
+        jnp.where(need, res2, jnp.where(act, info.residual, 0.0)).astype(dtype),
+        need,
+    )
     return out, _zero_tangents(out, jnp.where(need, _unreal(t_re, y), t_y1))
 
 
 def _zero_tangents(out, t_y):
     y_next, code, its, res, retried = out
     f0 = jax.dtypes.float0
-    return (t_y, jnp.zeros(code.shape, f0), jnp.zeros(its.shape, f0), jnp.zeros_like(res),
-            jnp.zeros(retried.shape, f0))
+    return (
+        t_y,
+        jnp.zeros(code.shape, f0),
+        jnp.zeros(its.shape, f0),
+        jnp.zeros_like(res),
+        jnp.zeros(retried.shape, f0),
+    )

@@ -55,8 +55,10 @@ def check_sharding(sharding, n_samples, name="n_samples"):
         return None
     if isinstance(sharding, str):
         if sharding != "auto":
-            raise ValueError(f"sharding must be None, 'auto' or a jax.sharding.Sharding, "
-                             f"got the string {sharding!r}.")
+            raise ValueError(
+                f"sharding must be None, 'auto' or a jax.sharding.Sharding, "
+                f"got the string {sharding!r}."
+            )
         sharding = auto_sharding()
         if sharding is None:
             return None
@@ -65,7 +67,8 @@ def check_sharding(sharding, n_samples, name="n_samples"):
             f"sharding must be None, 'auto' or a jax.sharding.Sharding such as "
             f"NamedSharding(jax.make_mesh((jax.device_count(),), ('samples',)), "
             f"PartitionSpec('samples')), "
-            f"got {type(sharding).__name__}.")
+            f"got {type(sharding).__name__}."
+        )
     try:
         shard = sharding.shard_shape((n_samples,))
     except Exception as err:  # noqa: BLE001 - JAX raises ValueError or others by version
@@ -74,10 +77,13 @@ def check_sharding(sharding, n_samples, name="n_samples"):
         raise ValueError(
             f"{name}={n_samples} cannot be split evenly by this sharding over {n_dev} "
             f"devices: use a multiple of the number of shards, for example "
-            f"{lower or upper} or {upper} ({err}).") from None
+            f"{lower or upper} or {upper} ({err})."
+        ) from None
     if len(shard) != 1:
-        raise ValueError(f"sharding must describe a 1-D sample axis, got one for "
-                         f"{sharding.ndim if hasattr(sharding, 'ndim') else '?'} dimensions.")
+        raise ValueError(
+            f"sharding must describe a 1-D sample axis, got one for "
+            f"{sharding.ndim if hasattr(sharding, 'ndim') else '?'} dimensions."
+        )
     return sharding
 
 
@@ -113,12 +119,16 @@ def _relabel(tree, mesh):
         if not isinstance(x, jax.Array) or isinstance(x, jax.core.Tracer):
             return x
         s = x.sharding
-        if (not isinstance(s, NamedSharding) or s.mesh == mesh
-                or s.mesh.axis_names != mesh.axis_names
-                or not np.array_equal(s.mesh.device_ids, mesh.device_ids)):
+        if (
+            not isinstance(s, NamedSharding)
+            or s.mesh == mesh
+            or s.mesh.axis_names != mesh.axis_names
+            or not np.array_equal(s.mesh.device_ids, mesh.device_ids)
+        ):
             return x
         return jax.make_array_from_single_device_arrays(
-            x.shape, NamedSharding(mesh, s.spec), [a.data for a in x.addressable_shards])
+            x.shape, NamedSharding(mesh, s.spec), [a.data for a in x.addressable_shards]
+        )
 
     return jax.tree_util.tree_map(relabel, tree)
 
@@ -130,8 +140,12 @@ def auto_axes(sharding):
     partitioner, and a sharding over auto axes lays the samples out the same way."""
     mesh = getattr(sharding, "mesh", None)
     axis_types = getattr(mesh, "axis_types", None)
-    if (not isinstance(sharding, NamedSharding) or not isinstance(mesh, Mesh)
-            or axis_types is None or all(t == AxisType.Auto for t in axis_types)):
+    if (
+        not isinstance(sharding, NamedSharding)
+        or not isinstance(mesh, Mesh)
+        or axis_types is None
+        or all(t == AxisType.Auto for t in axis_types)
+    ):
         return sharding
     auto = Mesh(mesh.devices, mesh.axis_names, axis_types=(AxisType.Auto,) * len(axis_types))
     return NamedSharding(auto, sharding.spec)

@@ -27,7 +27,7 @@ class RESULTS:
         2: "a non-finite residual or state appeared",
         3: "a Newton iterate left the admissible branch of roots (theta < pi/2)",
         4: "the state is outside the method's domain (|y| >= 1 for the generating-function "
-           "methods)",
+        "methods)",
     }
 
     @classmethod

@@ -80,28 +80,68 @@ def _merge(a, b):
     safe = jnp.maximum(n, 1)
     delta = mb - ma
     mean = ma + delta * nb / safe
-    m2 = m2a + m2b + delta ** 2 * na * nb / safe
-    m3 = (m3a + m3b + delta ** 3 * na * nb * (na - nb) / safe ** 2
-          + 3.0 * delta * (na * m2b - nb * m2a) / safe)
-    m4 = (m4a + m4b + delta ** 4 * na * nb * (na * na - na * nb + nb * nb) / safe ** 3
-          + 6.0 * delta ** 2 * (na * na * m2b + nb * nb * m2a) / safe ** 2
-          + 4.0 * delta * (na * m3b - nb * m3a) / safe)
-    cov = (ca + cb + delta[..., :, None] * delta[..., None, :] * na * nb / safe
-           if not isinstance(ca, tuple) else ())
+    m2 = m2a + m2b + delta**2 * na * nb / safe
+    m3 = (
+        m3a
+        + m3b
+        + delta**3 * na * nb * (na - nb) / safe**2
+        + 3.0 * delta * (na * m2b - nb * m2a) / safe
+    )
+    m4 = (
+        m4a
+        + m4b
+        + delta**4 * na * nb * (na * na - na * nb + nb * nb) / safe**3
+        + 6.0 * delta**2 * (na * na * m2b + nb * nb * m2a) / safe**2
+        + 4.0 * delta * (na * m3b - nb * m3a) / safe
+    )
+    cov = (
+        ca + cb + delta[..., :, None] * delta[..., None, :] * na * nb / safe
+        if not isinstance(ca, tuple)
+        else ()
+    )
     return n, mean, m2, m3, m4, cov
 
 
-@functools.partial(jax.jit, static_argnames=("method", "n_blocks", "block_len", "chunk_size",
-                                             "observable", "want_cov", "retry", "sharding",
-                                             "terms"))
-def _chunk(state, offset, n_samples, method, model, y0, key, dt, bound, n_blocks, block_len,
-           chunk_size, observable, want_cov, retry, sharding, terms):
+@functools.partial(
+    jax.jit,
+    static_argnames=(
+        "method",
+        "n_blocks",
+        "block_len",
+        "chunk_size",
+        "observable",
+        "want_cov",
+        "retry",
+        "sharding",
+        "terms",
+    ),
+)
+def _chunk(
+    state,
+    offset,
+    n_samples,
+    method,
+    model,
+    y0,
+    key,
+    dt,
+    bound,
+    n_blocks,
+    block_len,
+    chunk_size,
+    observable,
+    want_cov,
+    retry,
+    sharding,
+    terms,
+):
     idx = offset + jnp.arange(chunk_size, dtype=jnp.uint32)
     keys = _noise.sample_keys(key, chunk_size, offset)
     if sharding is not None:
         keys = jax.lax.with_sharding_constraint(keys, sharding)
-    ys, fail_step, _, _, _ = ensemble(method, model, y0, keys, dt, bound, n_blocks,
-                                       block_len, False, retry=retry, terms=terms)
+    ys, fail_step, _, _, _ = ensemble(
+        method, model, y0, keys, dt, bound, n_blocks, block_len, False, retry=retry, terms=terms
+    )
     ys = jnp.concatenate([jnp.broadcast_to(y0, (chunk_size, 1, *y0.shape)), ys], axis=1)
     obs = _observe(observable, ys)
     valid = idx < n_samples
@@ -110,10 +150,25 @@ def _chunk(state, offset, n_samples, method, model, y0, key, dt, bound, n_blocks
     return n_failed, _merge(state[1], _chunk_moments(obs, ok, want_cov))
 
 
-def ensemble_statistics(model, y0, *, t1, dt, n_samples, key, chunk_size, method="auto",
-                        save_every=None, statistics=("mean", "var"), observable=None,
-                        truncate_k=4, retry_substeps=4, sharding=None, progress=True,
-                        levy_area="auto"):
+def ensemble_statistics(
+    model,
+    y0,
+    *,
+    t1,
+    dt,
+    n_samples,
+    key,
+    chunk_size,
+    method="auto",
+    save_every=None,
+    statistics=("mean", "var"),
+    observable=None,
+    truncate_k=4,
+    retry_substeps=4,
+    sharding=None,
+    progress=True,
+    levy_area="auto",
+):
     r"""Moments of an ensemble of $dy = f(y)(dt + c \circ dW)$, run in chunks of samples.
 
     The same samples as `simulate(..., n_samples=n_samples, key=key)` (sample `i` draws from
@@ -147,10 +202,22 @@ def ensemble_statistics(model, y0, *, t1, dt, n_samples, key, chunk_size, method
     substeps, `retry_substeps`) are left out of the moments and counted in `n_failed`, with a
     `RuntimeWarning`: the run returns its results, and failures are never used as data.
     """
-    p = plan_ensemble("ensemble_statistics", model, y0, t1=t1, dt=dt, n_samples=n_samples,
-                      key=key, method=method, save_every=save_every, truncate_k=truncate_k,
-                      retry_substeps=retry_substeps, sharding=sharding, levy_area=levy_area,
-                      chunk_size=chunk_size)
+    p = plan_ensemble(
+        "ensemble_statistics",
+        model,
+        y0,
+        t1=t1,
+        dt=dt,
+        n_samples=n_samples,
+        key=key,
+        method=method,
+        save_every=save_every,
+        truncate_k=truncate_k,
+        retry_substeps=retry_substeps,
+        sharding=sharding,
+        levy_area=levy_area,
+        chunk_size=chunk_size,
+    )
     method, y0, dt, n_steps, k = p.method, p.y0, p.dt, p.n_steps, p.save_every
     n_samples = p.n_samples
     chunk_size, dtype = p.chunk_size, p.dtype
@@ -169,28 +236,54 @@ def ensemble_statistics(model, y0, *, t1, dt, n_samples, key, chunk_size, method
         ts = np.array([0.0, n_steps * dt])
     # The zero state: its shapes from an abstract evaluation of one chunk's moments.
     observed = jax.eval_shape(
-        lambda: _observe(observable, jnp.zeros((chunk_size, n_blocks + 1, *y0.shape), y0.dtype)))
-    if any(jnp.issubdtype(x.dtype, jnp.complexfloating)
-           for x in jax.tree_util.tree_leaves(observed)):
+        lambda: _observe(observable, jnp.zeros((chunk_size, n_blocks + 1, *y0.shape), y0.dtype))
+    )
+    if any(
+        jnp.issubdtype(x.dtype, jnp.complexfloating) for x in jax.tree_util.tree_leaves(observed)
+    ):
         raise TypeError(
             "ensemble_statistics takes moments of real numbers; "
-            + ("the states of " + model.algebra.name + " are complex: pass an observable "
-               "giving real numbers, such as the coefficients "
-               "observable=lambda ys: slps_jax.zeitlin.mat2shr(ys), an energy or the Casimirs."
-               if observable is None else "the observable returns complex numbers."))
+            + (
+                "the states of " + model.algebra.name + " are complex: pass an observable "
+                "giving real numbers, such as the coefficients "
+                "observable=lambda ys: slps_jax.zeitlin.mat2shr(ys), an energy or the Casimirs."
+                if observable is None
+                else "the observable returns complex numbers."
+            )
+        )
     shapes = jax.eval_shape(
-        lambda: _chunk_moments(jnp.zeros(observed.shape, observed.dtype),
-                               jnp.ones(chunk_size, bool), want_cov))
+        lambda: _chunk_moments(
+            jnp.zeros(observed.shape, observed.dtype), jnp.ones(chunk_size, bool), want_cov
+        )
+    )
     n_chunks = -(-n_samples // chunk_size)
     bar = progress_bar(n_chunks, "ensemble_statistics", unit="chunk") if progress else None
     with automatic(p.sharding, (model, y0, p.key)) as (sharding, (model, y0, key)):
         zero = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
         state = (jnp.zeros((), jnp.int32), zero)
-        args = (method, model, y0, key, jnp.asarray(dt, dtype), jnp.asarray(p.bound, dtype),
-                n_blocks, k, chunk_size, observable, want_cov, p.retry, sharding, p.terms)
+        args = (
+            method,
+            model,
+            y0,
+            key,
+            jnp.asarray(dt, dtype),
+            jnp.asarray(p.bound, dtype),
+            n_blocks,
+            k,
+            chunk_size,
+            observable,
+            want_cov,
+            p.retry,
+            sharding,
+            p.terms,
+        )
         for c in range(n_chunks):
-            state = _chunk(state, jnp.asarray(c * chunk_size, jnp.uint32),
-                           jnp.asarray(n_samples, jnp.uint32), *args)
+            state = _chunk(
+                state,
+                jnp.asarray(c * chunk_size, jnp.uint32),
+                jnp.asarray(n_samples, jnp.uint32),
+                *args,
+            )
             # One chunk in flight at a time: asynchronous dispatch would otherwise let the
             # next chunk's buffers be allocated before this one's are freed.
             jax.block_until_ready(state)
@@ -202,21 +295,32 @@ def ensemble_statistics(model, y0, *, t1, dt, n_samples, key, chunk_size, method
     n, mean, m2, m3, m4, cov = jax.tree_util.tree_map(np.asarray, state[1])
     n = int(n)
     if n_failed:
-        warnings.warn(message("ensemble_statistics", n_failed, n_samples,
-                              "They are left out of the moments (n_failed).",
-                              retried=p.retry is not None), RuntimeWarning, stacklevel=2)
+        warnings.warn(
+            message(
+                "ensemble_statistics",
+                n_failed,
+                n_samples,
+                "They are left out of the moments (n_failed).",
+                retried=p.retry is not None,
+            ),
+            RuntimeWarning,
+            stacklevel=2,
+        )
     with np.errstate(divide="ignore", invalid="ignore"):
         var = m2 / (n - 1) if n > 1 else np.full_like(m2, np.nan)
         mom2 = m2 / n
         return EnsembleStatistics(
-            ts=ts, n=n, n_failed=n_failed, mean=mean,
+            ts=ts,
+            n=n,
+            n_failed=n_failed,
+            mean=mean,
             var=var if "var" in statistics else None,
             cov=(cov / (n - 1) if n > 1 else np.full_like(cov, np.nan)) if want_cov else None,
-            skewness=(m3 / n) / mom2 ** 1.5 if "skewness" in statistics else None,
-            kurtosis=(m4 / n) / mom2 ** 2 if "kurtosis" in statistics else None,
-            n_chunks=n_chunks)
+            skewness=(m3 / n) / mom2**1.5 if "skewness" in statistics else None,
+            kurtosis=(m4 / n) / mom2**2 if "kurtosis" in statistics else None,
+            n_chunks=n_chunks,
+        )
 
 
 def _observe(observable, ys):
     return ys if observable is None else jax.vmap(observable)(ys)
-

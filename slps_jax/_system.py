@@ -6,12 +6,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _components, so3
-from ._algebra import SO3, SO3_VECTORS, AbstractAlgebra
+from . import _components
+from ._algebra import SO3, AbstractAlgebra
 from ._checks import concrete, float_dtype, real_array, real_dtype
 from ._noise import as_step
 from ._noise_hamiltonians import as_noise
-
 
 # What a system offers, which methods may declare they need (`AbstractMethod.requires`).
 NOISE_PROPORTIONAL_TO_DRIFT = "noise proportional to the drift"  # one noise, H_1 = c H_0
@@ -64,14 +63,18 @@ class LiePoissonSystem:
 
     def __init__(self, hamiltonian, params=None, c=None, noise=None, algebra=SO3):
         if not callable(hamiltonian):
-            raise TypeError(f"hamiltonian must be callable as hamiltonian(y, params), got "
-                            f"{type(hamiltonian).__name__}.")
+            raise TypeError(
+                f"hamiltonian must be callable as hamiltonian(y, params), got "
+                f"{type(hamiltonian).__name__}."
+            )
         if not isinstance(algebra, AbstractAlgebra):
-            raise TypeError(f"algebra must be a Lie algebra of slps_jax (SO3, so(n), su(N)), "
-                            f"got {algebra!r}.")
+            raise TypeError(
+                f"algebra must be a Lie algebra of slps_jax (SO3, so(n), su(N)), got {algebra!r}."
+            )
         params = jax.tree_util.tree_map(jnp.asarray, params)
-        leaves = [x for x in jax.tree_util.tree_leaves(params)
-                  if jnp.issubdtype(x.dtype, jnp.inexact)]
+        leaves = [
+            x for x in jax.tree_util.tree_leaves(params) if jnp.issubdtype(x.dtype, jnp.inexact)
+        ]
         self.hamiltonian_fn = hamiltonian
         self.params = params
         self.algebra = algebra
@@ -89,9 +92,12 @@ class LiePoissonSystem:
 
     def __repr__(self):
         name = getattr(self.hamiltonian_fn, "__name__", repr(self.hamiltonian_fn))
-        return (f"LiePoissonSystem(hamiltonian={name}, params={self.params!r}, "
-                + (f"c={self.c!r}" if self.noise is None else f"noise={self.noise!r}")
-                + ("" if self.algebra is SO3 else f", algebra={self.algebra!r}") + ")")
+        return (
+            f"LiePoissonSystem(hamiltonian={name}, params={self.params!r}, "
+            + (f"c={self.c!r}" if self.noise is None else f"noise={self.noise!r}")
+            + ("" if self.algebra is SO3 else f", algebra={self.algebra!r}")
+            + ")"
+        )
 
     # What the system is.
 
@@ -111,8 +117,11 @@ class LiePoissonSystem:
     @property
     def dtype(self):
         """The floating dtype of every computation with this system."""
-        leaves = [x for x in jax.tree_util.tree_leaves(self)
-                  if hasattr(x, "dtype") and jnp.issubdtype(x.dtype, jnp.inexact)]
+        leaves = [
+            x
+            for x in jax.tree_util.tree_leaves(self)
+            if hasattr(x, "dtype") and jnp.issubdtype(x.dtype, jnp.inexact)
+        ]
         return real_dtype(float_dtype(*leaves))
 
     def _h(self, y):
@@ -130,8 +139,9 @@ class LiePoissonSystem:
         r"""$(H_1(y), \dots, H_s(y))$ over the state axes of `y`, shape `(..., s)`."""
         if self.noise is None:
             return (self.c * self.hamiltonian(y))[..., None]
-        return jnp.vectorize(lambda u: self.noise.values(u, self.params),
-                             signature=self._signature("(s)"))(jnp.asarray(y))
+        return jnp.vectorize(
+            lambda u: self.noise.values(u, self.params), signature=self._signature("(s)")
+        )(jnp.asarray(y))
 
     def casimir(self, y):
         r"""The first Casimir: $C(y) = \tfrac12 |y|^2$ on so(3), $\operatorname{tr}(Y^2)$ on
@@ -141,8 +151,10 @@ class LiePoissonSystem:
     def gradient(self, y):
         r"""$\nabla H_0(y)$ over the state axes of `y` (a skew matrix on so(n), for the
         pairing $\langle X, Y\rangle = \tfrac12\operatorname{tr}X^TY$)."""
-        return jnp.vectorize(lambda u: self.algebra.gradient(jax.grad(self._h)(u)),
-                             signature=self._signature("state"))(jnp.asarray(y))
+        return jnp.vectorize(
+            lambda u: self.algebra.gradient(jax.grad(self._h)(u)),
+            signature=self._signature("state"),
+        )(jnp.asarray(y))
 
     def vector_field(self, y):
         r"""The drift $f_0(y) = B(y)\nabla H_0(y)$: $y \times \nabla H_0(y)$ on so(3),
@@ -218,7 +230,7 @@ class LiePoissonSystem:
     def _area_components(self, v, area, hessian):
         """$\nabla G_A(v)$ on components, and with `hessian` its Jacobian (zero for linear
         noise: the gradient is constant)."""
-        grad = lambda u: self.area_gradient(u, area)  # noqa: E731
+        grad = lambda u: self.area_gradient(u, area)
         if not hessian:
             return _components.vec(grad(_components.unvec(v)))
         if self.noise.linear:
@@ -234,9 +246,15 @@ class LiePoissonSystem:
         noise = as_step(noise)
         if self.noise is None:
             return _components.scale(dt + self.noise_time(noise.dW), self.gradient_components(v))
-        g = _components.add(_components.scale(dt, self.gradient_components(v)),
-                     self.noise.gradient_components(v, noise.dW, self.params))
-        return _components.add(g, self._area_components(v, noise.area, False)) if self._has_area(noise) else g
+        g = _components.add(
+            _components.scale(dt, self.gradient_components(v)),
+            self.noise.gradient_components(v, noise.dW, self.params),
+        )
+        return (
+            _components.add(g, self._area_components(v, noise.area, False))
+            if self._has_area(noise)
+            else g
+        )
 
     def step_gradient_hessian_components(self, v, dt, noise):
         r"""$(\nabla K(v), \nabla^2 K(v))$ on components."""
@@ -246,7 +264,10 @@ class LiePoissonSystem:
             tau = dt + self.noise_time(noise.dW)
             return _components.scale(tau, g), _components.mscale(tau, hess)
         u, ju = self.noise.gradient_jacobian_components(v, noise.dW, self.params)
-        g, hess = _components.add(_components.scale(dt, g), u), _components.madd(_components.mscale(dt, hess), ju)
+        g, hess = (
+            _components.add(_components.scale(dt, g), u),
+            _components.madd(_components.mscale(dt, hess), ju),
+        )
         if self._has_area(noise):
             ga, ha = self._area_components(v, noise.area, True)
             g, hess = _components.add(g, ga), _components.madd(hess, ha)
@@ -261,7 +282,11 @@ class LiePoissonSystem:
         if self.noise is None:
             cdw = self.noise_time(noise.dW)
             g, hess = self.gradient_hessian_components(v)
-            return _components.scale(dt + cdw, g), _components.scale(cdw, g), _components.mscale(cdw, hess)
+            return (
+                _components.scale(dt + cdw, g),
+                _components.scale(cdw, g),
+                _components.mscale(cdw, hess),
+            )
         u, ju = self.noise.gradient_jacobian_components(v, noise.dW, self.params)
         k = _components.add(_components.scale(dt, self.gradient_components(v)), u)
         if self._has_area(noise):
@@ -274,8 +299,10 @@ def _noise_or_c(c, noise, params, leaves, algebra=SO3):
     `c` `None` and `noise` a noise family. Refuses both together and bad values by name."""
     if noise is not None:
         if c is not None:
-            raise ValueError("Pass either c (one noise proportional to the drift, H_1 = c H_0) "
-                             "or noise (the noise Hamiltonians), not both.")
+            raise ValueError(
+                "Pass either c (one noise proportional to the drift, H_1 = c H_0) "
+                "or noise (the noise Hamiltonians), not both."
+            )
         return None, as_noise(noise, params, float_dtype(*leaves), algebra)
     c = real_array("c", 0.0 if c is None else c)
     c = c.astype(float_dtype(c, *leaves))
@@ -291,4 +318,5 @@ def check_model(model):
     if not isinstance(model, LiePoissonSystem):
         raise TypeError(
             f"model must be a RigidBody or a LiePoissonSystem, got {type(model).__name__}: "
-            f"build one with slps_jax.RigidBody(inertia, c).")
+            f"build one with slps_jax.RigidBody(inertia, c)."
+        )

@@ -9,6 +9,7 @@ import jax.numpy as jnp
 
 from . import _components as c
 
+
 def hat(v):
     """The skew matrix of a vector: `hat(v) @ u = v x u`.
 

@@ -57,8 +57,8 @@ def _tridiagonal(N):
     s = (N - 1) / 2
     t = np.arange(N)[None, :]
     m = np.arange(N)[:, None]
-    mu = lambda i: s - i  # noqa: E731
-    a = lambda k: np.sqrt(np.clip(k * (N - k), 0, None))  # noqa: E731
+    mu = lambda i: s - i
+    a = lambda k: np.sqrt(np.clip(k * (N - k), 0, None))
     d = np.where(t + m < N, -2 * s * (s + 1) + 2 * mu(t + m) * mu(t), 1.0)
     e = np.where(t + m + 1 < N, a(t + 1) * a(t + m + 1), 0.0)
     return d, e
@@ -157,6 +157,7 @@ def _elimination_by_entry(N):
 def _linear_recurrence(a, b):
     """`x_t = a_t x_{t-1} + b_t` (`x_{-1} = 0`) along the last axis, by an associative scan:
     O(log N) steps of elementwise work, no sequential loop."""
+
     def combine(earlier, later):
         return later[0] * earlier[0], later[0] * earlier[1] + later[1]
 
@@ -259,8 +260,9 @@ def _basis(N, L):
         if n == 1:
             w = np.ones((1, 1))
         else:  # (the top L - m eigenvalues, ascending: l = L - 1, ..., m)
-            _, w = scipy.linalg.eigh_tridiagonal(d[m, :n], e[m, :n - 1], select="i",
-                                                 select_range=(n - (L - m), n - 1))
+            _, w = scipy.linalg.eigh_tridiagonal(
+                d[m, :n], e[m, : n - 1], select="i", select_range=(n - (L - m), n - 1)
+            )
             w = w[:, ::-1]
         w = w * np.sign(w[-1]) * (-1.0) ** m * math.sqrt(N)
         out.append(w)
@@ -282,7 +284,7 @@ def _table(N, L):
     `N L^2` numbers (8.6 GB in float64 at N = L = 1024)."""
     table = np.zeros((L, N, L))
     for m, w in enumerate(_basis(N, L)):
-        table[m, :N - m, m:] = w
+        table[m, : N - m, m:] = w
     return table
 
 
@@ -290,8 +292,10 @@ def _degrees(n, N):
     """The number of degrees `L` (`L^2 >= n` coefficients), at most `N`."""
     L = math.isqrt(n - 1) + 1 if n else 1
     if L > N:
-        raise ValueError(f"{n} coefficients need degrees up to {L - 1}; su({N}) resolves "
-                         f"degrees below {N} ({N * N} coefficients).")
+        raise ValueError(
+            f"{n} coefficients need degrees up to {L - 1}; su({N}) resolves "
+            f"degrees below {N} ({N * N} coefficients)."
+        )
     return L
 
 

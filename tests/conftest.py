@@ -20,16 +20,22 @@ import tempfile
 # piece instead of several on a thread pool: with both cores busy with the two workers the
 # split only adds work (0.86x the compile time in two concurrent processes, benchmarks/README.md,
 # "The test suite's settings").
-_FLAGS = ("--xla_cpu_use_fusion_emitters=false --xla_backend_optimization_level=0 "
-          "--xla_cpu_parallel_codegen_split_count=1")
+_FLAGS = (
+    "--xla_cpu_use_fusion_emitters=false --xla_backend_optimization_level=0 "
+    "--xla_cpu_parallel_codegen_split_count=1"
+)
 # A jaxlib that no longer knows a flag would abort at start-up, so they are tried first in a
 # subprocess (once: the xdist workers inherit the answer).
 if "SLPS_TESTS_XLA_FLAGS" not in os.environ:
     _env = dict(os.environ, XLA_FLAGS=f"{os.environ.get('XLA_FLAGS', '')} {_FLAGS}".strip())
-    _probe = subprocess.run([sys.executable, "-c", "import jax; jax.numpy.zeros(1).block_until_ready()"],
-                            env=_env, capture_output=True)
-    os.environ["SLPS_TESTS_XLA_FLAGS"] = _env["XLA_FLAGS"] if _probe.returncode == 0 else (
-        os.environ.get("XLA_FLAGS", ""))
+    _probe = subprocess.run(
+        [sys.executable, "-c", "import jax; jax.numpy.zeros(1).block_until_ready()"],
+        env=_env,
+        capture_output=True,
+    )
+    os.environ["SLPS_TESTS_XLA_FLAGS"] = (
+        _env["XLA_FLAGS"] if _probe.returncode == 0 else (os.environ.get("XLA_FLAGS", ""))
+    )
 os.environ["XLA_FLAGS"] = os.environ["SLPS_TESTS_XLA_FLAGS"]
 # One persistent compilation cache for the run, shared by every process of it (the xdist
 # workers, the notebook kernels, the processes the benchmark scripts start and the command
@@ -60,7 +66,7 @@ def paper():
 # tests and modules, and dropped only once a worker holds this much: eager operations on many
 # shapes (the Zeitlin tables at several N, say) each compile a program, and one module's
 # programs alone once took a worker to 1.9 GB.
-_RSS_LIMIT = 1500 * 2 ** 20
+_RSS_LIMIT = 1500 * 2**20
 
 
 @pytest.fixture(autouse=True)

@@ -38,7 +38,7 @@ def coarsen(dW_fine, m):
     if n_fine % m:
         raise ValueError(f"n_fine = {n_fine} is not a multiple of m = {m}")
     d = dW_fine.reshape(*batch, n_fine // m, m, s)
-    S = jnp.cumsum(d, axis=-2) - d                      # the path before piece j (exclusive)
+    S = jnp.cumsum(d, axis=-2) - d  # the path before piece j (exclusive)
     J = jnp.einsum("...jq,...jr->...qr", S, d) + 0.5 * jnp.einsum("...jq,...jr->...qr", d, d)
     A = 0.5 * (J - jnp.swapaxes(J, -1, -2))
     return d.sum(axis=-2), A

@@ -10,8 +10,14 @@ def rigid_body_flow(inertia, y0, t, rtol=1e-13, atol=1e-15):
     y0 = np.asarray(y0, float)
     if t == 0:
         return y0.copy()
-    sol = solve_ivp(lambda _, y: np.cross(y, y / inertia), (0.0, float(t)), y0,
-                    method="DOP853", rtol=rtol, atol=atol)
+    sol = solve_ivp(
+        lambda _, y: np.cross(y, y / inertia),
+        (0.0, float(t)),
+        y0,
+        method="DOP853",
+        rtol=rtol,
+        atol=atol,
+    )
     assert sol.success
     return sol.y[:, -1]
 

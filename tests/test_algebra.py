@@ -64,8 +64,11 @@ def test_gradient_matches_finite_differences_of_the_pairing(alg):
 
     def f(u):
         m = alg.to_matrix(u)
-        return alg.pairing(a, u) ** 2 + jnp.real(jnp.trace(m @ m @ jnp.conj(m).T @ m)) \
+        return (
+            alg.pairing(a, u) ** 2
+            + jnp.real(jnp.trace(m @ m @ jnp.conj(m).T @ m))
             + jnp.sum(jnp.abs(m) ** 3)
+        )
 
     g = alg.gradient(jax.grad(f)(y))
     # a state of the algebra: its own projection
@@ -142,8 +145,10 @@ def test_so_n_sits_in_su_n_with_its_pairing_bracket_and_casimirs(n):
     x, y = (np.asarray(s) for s in _states(so, 2, seed=7))
     _close(su.pairing(x + 0j, y + 0j), so.pairing(x, y))
     _close(su.bracket(x + 0j, y + 0j), so.bracket(x, y))
-    _close(su.gradient(jax.grad(lambda u: su.pairing(u, u ** 3))(x + 0j)),
-           so.gradient(jax.grad(lambda u: so.pairing(u, u ** 3))(x)))
+    _close(
+        su.gradient(jax.grad(lambda u: su.pairing(u, u**3))(x + 0j)),
+        so.gradient(jax.grad(lambda u: so.pairing(u, u**3))(x)),
+    )
     # so(n)'s Casimirs tr Y^{2k} are su(n)'s even ones
     _close(su.casimirs(x + 0j)[0::2][: n // 2], so.casimirs(x))
 
@@ -167,5 +172,5 @@ def test_group_coordinates_span_the_group_algebra(alg):
     q = alg.cayley(0.3 * m)
     _close(q @ np.conj(np.asarray(q)).T, np.eye(alg.matrix_size))
     (y,) = _states(alg, 1, seed=9)
-    _close(alg.group_coordinates(alg.to_matrix(y))[:alg.dim], alg.coordinates(y))
+    _close(alg.group_coordinates(alg.to_matrix(y))[: alg.dim], alg.coordinates(y))
     assert alg.group_dim - alg.dim == (1 if alg.is_complex else 0)

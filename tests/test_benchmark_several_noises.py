@@ -5,7 +5,6 @@ benchmark scripts. Correctness only: no timing is asserted."""
 import json
 
 import pytest
-
 from test_benchmarks import HAVE_DIFFRAX, is_png, run_script
 
 
@@ -21,8 +20,11 @@ def test_several_noises(tmp_path):
     methods = {r["method"] for r in rows}
     assert {"LiePoisson", "Midpoint", "SaltSplitting", "Heun", "lax.scan Heun"} <= methods
     assert ("diffrax Heun" in methods) == HAVE_DIFFRAX
-    heun = {m: [r["rms_error"] for r in rows if r["method"] == m]
-            for m in ("Heun", "lax.scan Heun", "diffrax Heun") if m in methods}
+    heun = {
+        m: [r["rms_error"] for r in rows if r["method"] == m]
+        for m in ("Heun", "lax.scan Heun", "diffrax Heun")
+        if m in methods
+    }
     for errs in heun.values():
         assert errs == pytest.approx(heun["Heun"], rel=1e-9)
     for row in summary["summary"]:
@@ -34,8 +36,10 @@ def test_several_noises(tmp_path):
         elif name != "EulerMaruyama":
             assert 0.3 < row["strong_order"] < 1.0, row
     assert [r["s"] for r in summary["area_costs"]] == [3]
-    assert {r["method"] for r in summary["so4_summary"]} >= {"IsospectralMidpoint + areas",
-                                                             "LiePoisson + areas"}
+    assert {r["method"] for r in summary["so4_summary"]} >= {
+        "IsospectralMidpoint + areas",
+        "LiePoisson + areas",
+    }
     for row in summary["so4_summary"]:
         if "Milstein" not in row["method"]:
             assert row["max_rel_casimir_error"] < 1e-12

@@ -5,7 +5,6 @@ scripts. Correctness only: no timing is asserted."""
 import json
 
 import pytest
-
 from test_benchmarks import HAVE_DIFFRAX, is_png, run_script
 
 
@@ -20,7 +19,9 @@ def test_so_n(tmp_path):
     assert {"LiePoisson chart", "Isospectral identity", "Midpoint", "Heun"} <= methods
     assert ("diffrax Heun" in methods) == HAVE_DIFFRAX
     wp = out["work_precision"]
-    errors = {m: [r["rms_error"] for r in wp if r["method"] == m] for m in {r["method"] for r in wp}}
+    errors = {
+        m: [r["rms_error"] for r in wp if r["method"] == m] for m in {r["method"] for r in wp}
+    }
     for errs in errors.values():
         assert errs[1] < errs[0]
     if HAVE_DIFFRAX:

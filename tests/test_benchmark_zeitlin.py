@@ -5,7 +5,6 @@ benchmark scripts. Correctness only: no timing is asserted."""
 import json
 
 import numpy as np
-
 from test_benchmarks import is_png, run_script
 
 
@@ -41,9 +40,15 @@ def test_zeitlin_scale(tmp_path):
     rows = json.loads((tmp_path / "zeitlin_scale.json").read_text())["rows"]
     assert [r["dtype"] for r in rows] == ["complex128", "complex64"]
     for r in rows:
-        for k in ("poisson_sweep_ms", "poisson_scan_ms", "two_products_ms",
-                  "two_complex_products_ms", "step_ms", "ms_per_member_step",
-                  "step_8_areas_ms"):
+        for k in (
+            "poisson_sweep_ms",
+            "poisson_scan_ms",
+            "two_products_ms",
+            "two_complex_products_ms",
+            "step_ms",
+            "ms_per_member_step",
+            "step_8_areas_ms",
+        ):
             assert r[k] > 0, (k, r)
         assert r["updates"] >= 1 and r["floor_ms"] > 0
     assert (tmp_path / "zeitlin_scale.md").read_text().count("| 8 |") == 2

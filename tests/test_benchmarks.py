@@ -31,8 +31,9 @@ def run_script(name, out, *extra):
     (PYTHONPATH)."""
     saved_path, saved_pythonpath = list(sys.path), os.environ.get("PYTHONPATH")
     sys.path.insert(0, str(BENCH))  # the scripts import _common and one another
-    os.environ["PYTHONPATH"] = os.pathsep.join([str(ROOT)] + [
-        p for p in (saved_pythonpath or "").split(os.pathsep) if p])
+    os.environ["PYTHONPATH"] = os.pathsep.join(
+        [str(ROOT)] + [p for p in (saved_pythonpath or "").split(os.pathsep) if p]
+    )
     try:
         spec = importlib.util.spec_from_file_location(f"benchmark_{Path(name).stem}", BENCH / name)
         script = importlib.util.module_from_spec(spec)
@@ -73,8 +74,15 @@ def work_precision(tmp_path_factory):
     stdout = run_script("work_precision.py", out)
     rows = read_csv(out / "work_precision.csv")
     for r in rows:
-        for key in ("h", "rms_error", "rms_stderr", "time_median_s", "time_min_s", "compile_s",
-                    "max_rel_casimir_error"):
+        for key in (
+            "h",
+            "rms_error",
+            "rms_stderr",
+            "time_median_s",
+            "time_min_s",
+            "compile_s",
+            "max_rel_casimir_error",
+        ):
             r[key] = float(r[key])
     return out, stdout, rows, json.loads((out / "work_precision.json").read_text())
 
@@ -247,13 +255,12 @@ def test_gradients(tmp_path):
     assert growth < 6, mem
 
 
-
 def test_robust_default(tmp_path):
     # The paper's setup at h = 2^-4, 4000 samples of key 0: without the retry of failing
     # steps LiePoisson loses samples (24 at the time of writing); by default none.
     stdout = run_script("robust_default.py", tmp_path)
     rows = json.loads((tmp_path / "robust_default.json").read_text())["rows"]
-    assert [r["dt"] for r in rows] == [2 ** -4]
+    assert [r["dt"] for r in rows] == [2**-4]
     assert rows[0]["failed_no_retry"] > 10 and rows[0]["failed_default"] == 0
     assert "| 2^-4 |" in stdout
 

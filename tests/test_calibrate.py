@@ -29,8 +29,16 @@ FIXED = ("I_1", "I_2", "I_3")
 def simulate(c):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # simulate warns about the failures
-        return sj.simulate(sj.RigidBody(INERTIA, c), Y0, t1=TS[-1], dt=DT, n_samples=N,
-                           key=jax.random.key(KEY), retry_substeps=None, method=sj.LiePoisson())
+        return sj.simulate(
+            sj.RigidBody(INERTIA, c),
+            Y0,
+            t1=TS[-1],
+            dt=DT,
+            n_samples=N,
+            key=jax.random.key(KEY),
+            retry_substeps=None,
+            method=sj.LiePoisson(),
+        )
 
 
 def moments(sol):
@@ -39,9 +47,19 @@ def moments(sol):
 
 
 def fit(observed, c0, **kwargs):
-    return sj.calibrate(observed, Y0, ts=TS, dt=DT, n_samples=N, key=jax.random.key(KEY),
-                        init=sj.RigidBody(INERTIA, c0), fixed=FIXED, progress=False,
-                        retry_substeps=None, **{"method": sj.LiePoisson(), **kwargs})
+    return sj.calibrate(
+        observed,
+        Y0,
+        ts=TS,
+        dt=DT,
+        n_samples=N,
+        key=jax.random.key(KEY),
+        init=sj.RigidBody(INERTIA, c0),
+        fixed=FIXED,
+        progress=False,
+        retry_substeps=None,
+        **{"method": sj.LiePoisson(), **kwargs},
+    )
 
 
 def test_failed_samples_at_init_are_refused():
@@ -65,9 +83,11 @@ def test_failed_samples_during_the_fit_are_refused(optimizer):
     assert int(simulate(0.1).stats["n_failed"]) == 0
     target = simulate(0.5)
     assert int(target.stats["n_failed"]) > 0
-    with pytest.raises(RuntimeError,
-                       match=rf"[1-{N}] of {N} samples failed .*after optimiser step \d+, at "
-                             r"I_1 .*, c "):
+    with pytest.raises(
+        RuntimeError,
+        match=rf"[1-{N}] of {N} samples failed .*after optimiser step \d+, at "
+        r"I_1 .*, c ",
+    ):
         fit(moments(target), 0.1, steps=10, optimizer=optimizer)
 
 
@@ -94,20 +114,32 @@ def test_a_second_fit_with_the_same_settings_compiles_nothing():
 # --------------------------------------------------------------------------------------
 # The default optimiser, Levenberg-Marquardt, on problems with known minimisers (NumPy only).
 
+
 def _lm(residuals, jacobian, x0, steps=100):
     def evaluate(x):
         return jacobian(x), (residuals(x), 0)
 
     x0 = np.asarray(x0, float)
-    return _levenberg_marquardt(evaluate, x0, jacobian(x0), residuals(x0), steps=steps,
-                                rtol=1e-14, eps=np.finfo(float).eps,
-                                accept=lambda *a: None, report=lambda *a: None)
+    return _levenberg_marquardt(
+        evaluate,
+        x0,
+        jacobian(x0),
+        residuals(x0),
+        steps=steps,
+        rtol=1e-14,
+        eps=np.finfo(float).eps,
+        accept=lambda *a: None,
+        report=lambda *a: None,
+    )
 
 
 def test_levenberg_marquardt_finds_rosenbrocks_minimum():
     """Rosenbrock's function as residuals (10 (x_2 - x_1^2), 1 - x_1): zero at (1, 1) only."""
-    x, history, _ = _lm(lambda x: np.array([10 * (x[1] - x[0] ** 2), 1 - x[0]]),
-                        lambda x: np.array([[-20 * x[0], 10.0], [-1.0, 0.0]]), [-1.2, 1.0])
+    x, history, _ = _lm(
+        lambda x: np.array([10 * (x[1] - x[0] ** 2), 1 - x[0]]),
+        lambda x: np.array([[-20 * x[0], 10.0], [-1.0, 0.0]]),
+        [-1.2, 1.0],
+    )
     np.testing.assert_allclose(x, [1.0, 1.0], atol=1e-10)
     assert np.all(np.diff(history) < 0) and history[-1] < 1e-20
 
@@ -127,8 +159,9 @@ def test_levenberg_marquardt_matches_scipy_on_a_curve_fit():
         return np.stack([e, p[0] * t * e, np.ones_like(t)], axis=1)
 
     x, history, jac = _lm(residuals, jacobian, [1.0, -0.5, 0.0])
-    ref = scipy_optimize.least_squares(residuals, [1.0, -0.5, 0.0], jac=jacobian, method="lm",
-                                       xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    ref = scipy_optimize.least_squares(
+        residuals, [1.0, -0.5, 0.0], jac=jacobian, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15
+    )
     np.testing.assert_allclose(x, ref.x, rtol=1e-8)
-    np.testing.assert_allclose(history[-1], 0.5 * np.sum(ref.fun ** 2), rtol=1e-12)
+    np.testing.assert_allclose(history[-1], 0.5 * np.sum(ref.fun**2), rtol=1e-12)
     np.testing.assert_allclose(jac, jacobian(x))

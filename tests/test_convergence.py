@@ -4,9 +4,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from reference import exact_sde_solution, fitted_order
 
 import slps_jax as sj
-from reference import exact_sde_solution, fitted_order
 
 N_SAMPLES = 200
 LEVELS = [5, 6, 7, 8, 9]  # h = 2^-5 ... 2^-9
@@ -23,8 +23,7 @@ class _NoKappa(sj.LiePoisson):
 def study():
     model, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
     h_fine = 2.0 ** -LEVELS[-1]
-    fine = sj.brownian_increments(jax.random.key(42), 2 ** LEVELS[-1], h_fine,
-                                  n_samples=N_SAMPLES)
+    fine = sj.brownian_increments(jax.random.key(42), 2 ** LEVELS[-1], h_fine, n_samples=N_SAMPLES)
     exact = exact_sde_solution(model.inertia, float(model.c), y0, np.asarray(fine.sum(1)), 1.0)
     return model, y0, fine, exact
 
@@ -44,9 +43,10 @@ def _rms_errors(study, method):
     for level in LEVELS:
         factor = 2 ** (LEVELS[-1] - level)
         coarse = fine.reshape(N_SAMPLES, -1, factor).sum(-1)  # the same Brownian paths
-        h = 2.0 ** -level
-        run = jax.jit(jax.vmap(lambda dW: sj.integrate(model, y0, dW, h, method=method,
-                                                       throw=False)))
+        h = 2.0**-level
+        run = jax.jit(
+            jax.vmap(lambda dW: sj.integrate(model, y0, dW, h, method=method, throw=False))
+        )
         y_end = run(coarse)
         errs.append(float(np.sqrt(np.mean(np.sum((np.asarray(y_end) - exact) ** 2, -1)))))
         hs.append(h)

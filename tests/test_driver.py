@@ -50,8 +50,11 @@ def test_simulate_matches_integrate_on_the_same_increments(paper):
     dW1 = sj.brownian_increments(key, 50, 0.01, n_samples=4, n_noises=1)
     assert dW1.shape == (4, 50, 1)
     np.testing.assert_array_equal(dW1[..., 0], dW)
-    np.testing.assert_allclose(sj.integrate(model, y0, dW1[0], 0.01, method=LP),
-                               sj.integrate(model, y0, dW[0], 0.01, method=LP), atol=0)
+    np.testing.assert_allclose(
+        sj.integrate(model, y0, dW1[0], 0.01, method=LP),
+        sj.integrate(model, y0, dW[0], 0.01, method=LP),
+        atol=0,
+    )
     dW3 = sj.brownian_increments(key, 50, 0.01, n_samples=4, n_noises=3)
     assert dW3.shape == (4, 50, 3)
     np.testing.assert_array_equal(dW3[..., 0], dW)
@@ -73,20 +76,29 @@ def test_final_state_only_by_default(paper):
 def test_determinism_and_batch_independence(paper):
     model, y0 = paper
     key = jax.random.key(7)
-    a = sj.simulate(model, y0, t1=0.25, dt=2 ** -6, n_samples=10, key=key, method=LP)
-    b = sj.simulate(model, y0, t1=0.25, dt=2 ** -6, n_samples=10, key=key, method=LP)
-    big = sj.simulate(model, y0, t1=0.25, dt=2 ** -6, n_samples=1000, key=key, method=LP)
+    a = sj.simulate(model, y0, t1=0.25, dt=2**-6, n_samples=10, key=key, method=LP)
+    b = sj.simulate(model, y0, t1=0.25, dt=2**-6, n_samples=10, key=key, method=LP)
+    big = sj.simulate(model, y0, t1=0.25, dt=2**-6, n_samples=1000, key=key, method=LP)
     np.testing.assert_array_equal(a.ys, b.ys)
     np.testing.assert_allclose(big.ys[:10], a.ys, atol=1e-15)
-    other = sj.simulate(model, y0, t1=0.25, dt=2 ** -6, n_samples=10, key=jax.random.key(8), method=LP)
+    other = sj.simulate(
+        model, y0, t1=0.25, dt=2**-6, n_samples=10, key=jax.random.key(8), method=LP
+    )
     assert not np.allclose(other.ys, a.ys)
 
 
 def test_legacy_keys_accepted_and_integers_rejected(paper):
     model, y0 = paper
     a = sj.simulate(model, y0, t1=0.1, dt=0.05, n_samples=2, key=jax.random.PRNGKey(1), method=LP)
-    b = sj.simulate(model, y0, t1=0.1, dt=0.05, n_samples=2,
-                    key=jax.random.wrap_key_data(jax.random.PRNGKey(1)), method=LP)
+    b = sj.simulate(
+        model,
+        y0,
+        t1=0.1,
+        dt=0.05,
+        n_samples=2,
+        key=jax.random.wrap_key_data(jax.random.PRNGKey(1)),
+        method=LP,
+    )
     np.testing.assert_array_equal(a.ys, b.ys)
     with pytest.raises(TypeError, match="jax.random.key"):
         sj.simulate(model, y0, t1=0.1, dt=0.05, n_samples=2, key=1, method=LP)
@@ -94,8 +106,16 @@ def test_legacy_keys_accepted_and_integers_rejected(paper):
 
 def test_newton_stats_only_when_asked(paper):
     model, y0 = paper
-    sol = sj.simulate(model, y0, t1=1.0, dt=2 ** -5, n_samples=100, key=jax.random.key(9),
-                      newton_stats=True, method=LP)
+    sol = sj.simulate(
+        model,
+        y0,
+        t1=1.0,
+        dt=2**-5,
+        n_samples=100,
+        key=jax.random.key(9),
+        newton_stats=True,
+        method=LP,
+    )
     s = sol.stats
     assert 1 <= float(s["newton_iterations_mean"]) <= int(s["newton_iterations_max"]) <= 12
     assert 0 < float(s["residual_max"]) <= 64 * np.finfo(np.float64).eps
@@ -108,8 +128,9 @@ def test_truncation(paper):
     bound = np.sqrt(2 * 0.1 * abs(np.log(h)))
     assert np.max(np.abs(dW)) == pytest.approx(np.sqrt(h) * bound, rel=1e-12)
     raw = sj.brownian_increments(jax.random.key(10), 20_000, h, truncate_k=None)
-    np.testing.assert_allclose(np.clip(raw, -np.sqrt(h) * bound, np.sqrt(h) * bound), dW,
-                               atol=1e-15)
+    np.testing.assert_allclose(
+        np.clip(raw, -np.sqrt(h) * bound, np.sqrt(h) * bound), dW, atol=1e-15
+    )
     assert abs(np.std(raw) / np.sqrt(h) - 1) < 0.03
 
 
@@ -118,16 +139,21 @@ def test_failed_sample_is_flagged_frozen_and_does_not_poison_others(paper):
     y0 = y0 * 0.99
     dW = sj.brownian_increments(jax.random.key(11), 40, 0.01, n_samples=3)
     dW = dW.at[1, 20].set(400.0)  # tau = 80 at step 20: no root on the branch theta < pi/2
-    run = jax.jit(jax.vmap(lambda w: sj.integrate(model, y0, w, 0.01, throw=False,
-                                                  retry_substeps=None, method=LP)))
+    run = jax.jit(
+        jax.vmap(
+            lambda w: sj.integrate(model, y0, w, 0.01, throw=False, retry_substeps=None, method=LP)
+        )
+    )
     out = np.asarray(run(dW))
     assert np.all(np.isfinite(out))
     for i in (0, 2):
-        np.testing.assert_allclose(out[i], sj.integrate(model, y0, dW[i], 0.01, method=LP),
-                                   atol=1e-15)
+        np.testing.assert_allclose(
+            out[i], sj.integrate(model, y0, dW[i], 0.01, method=LP), atol=1e-15
+        )
     # Sample 1 keeps its last good state: the state after steps 0..19.
-    np.testing.assert_allclose(out[1], sj.integrate(model, y0, dW[1, :20], 0.01, method=LP),
-                               atol=1e-15)
+    np.testing.assert_allclose(
+        out[1], sj.integrate(model, y0, dW[1, :20], 0.01, method=LP), atol=1e-15
+    )
     with pytest.raises(RuntimeError, match="step 20"):
         sj.integrate(model, y0, dW[1], 0.01, retry_substeps=None, method=LP)
     # By default that step is redone as 4, 16, 64 substeps: tau/64 = 1.25 has a root.
@@ -140,15 +166,21 @@ def test_vmapped_integrate_raises_once_for_the_batch(paper):
     # jax.debug.callback's own vmap rule would compile one callback per sample.
     model, y0 = paper
     dW = sj.brownian_increments(jax.random.key(11), 40, 0.01, n_samples=6)
-    run = jax.jit(jax.vmap(lambda w: sj.integrate(model, y0 * 0.99, w, 0.01,
-                                                  retry_substeps=None, method=LP)))
+    run = jax.jit(
+        jax.vmap(lambda w: sj.integrate(model, y0 * 0.99, w, 0.01, retry_substeps=None, method=LP))
+    )
     assert run.lower(dW).as_text().count("callback") <= 2  # (the call and its declaration)
     assert np.all(np.isfinite(np.asarray(run(dW))))
     bad = dW.at[1, 20].set(400.0).at[4, 30].set(400.0)
     with pytest.raises(Exception, match=r"step 20 could not be solved \(first failure; 2 of 6"):
         jax.block_until_ready(run(bad))
-    nested = jax.jit(jax.vmap(jax.vmap(lambda w: sj.integrate(model, y0 * 0.99, w, 0.01,
-                                                              retry_substeps=None, method=LP))))
+    nested = jax.jit(
+        jax.vmap(
+            jax.vmap(
+                lambda w: sj.integrate(model, y0 * 0.99, w, 0.01, retry_substeps=None, method=LP)
+            )
+        )
+    )
     with pytest.raises(Exception, match="2 of 6 paths failed"):
         jax.block_until_ready(nested(bad.reshape(2, 3, 40)))
 
@@ -165,8 +197,9 @@ def test_loop_layout_takes_exactly_n_steps(paper, n):
     assert every.shape == (n + 1, 3)
     np.testing.assert_array_equal(final, every[-1])
     with pytest.raises(RuntimeError, match=f"step {n - 1} could not"):
-        sj.integrate(model, y0 * 0.99, dW.at[n - 1].set(400.0), 1.0 / n, retry_substeps=None,
-                     method=LP)
+        sj.integrate(
+            model, y0 * 0.99, dW.at[n - 1].set(400.0), 1.0 / n, retry_substeps=None, method=LP
+        )
 
 
 def test_the_step_is_compiled_once_whatever_the_step_count(paper):
@@ -186,8 +219,9 @@ def test_simulate_reports_failures(paper):
     model, y0 = paper
     # Three Newton updates per parameterisation are too few for some steps at this size.
     method = sj.LiePoisson(max_iter=3)
-    kwargs = dict(t1=1.0, dt=0.05, n_samples=50, key=jax.random.key(12), method=method,
-                  retry_substeps=None)
+    kwargs = dict(
+        t1=1.0, dt=0.05, n_samples=50, key=jax.random.key(12), method=method, retry_substeps=None
+    )
     with pytest.raises(RuntimeError, match="samples failed"):
         sj.simulate(model, y0, throw=True, **kwargs)
     with warnings.catch_warnings(record=True) as caught:
@@ -209,8 +243,11 @@ def test_simulate_reports_failures(paper):
         sj.simulate(model, y0, throw=True, **kwargs)
     # Under jit the failures are traced: throw=True raises when the program runs.
     with pytest.raises(Exception, match="samples failed"):
-        jax.block_until_ready(jax.jit(lambda c: sj.simulate(
-            sj.RigidBody(model.inertia, c), y0, throw=True, **kwargs).ys)(model.c))
+        jax.block_until_ready(
+            jax.jit(
+                lambda c: sj.simulate(sj.RigidBody(model.inertia, c), y0, throw=True, **kwargs).ys
+            )(model.c)
+        )
 
 
 def test_scaling_option_handles_norm_above_one():
@@ -228,16 +265,28 @@ def test_scaling_option_handles_norm_above_one():
 
 def test_float32(paper):
     model32 = sj.RigidBody(np.asarray(sj.RigidBody.paper().inertia, np.float32), 0.2)
-    sol = sj.simulate(model32, sj.PAPER_Y0, t1=1.0, dt=2 ** -5, n_samples=64,
-                      key=jax.random.key(14), newton_stats=True, method=LP)
+    sol = sj.simulate(
+        model32,
+        sj.PAPER_Y0,
+        t1=1.0,
+        dt=2**-5,
+        n_samples=64,
+        key=jax.random.key(14),
+        newton_stats=True,
+        method=LP,
+    )
     assert sol.ys.dtype == jnp.float32
     r = np.linalg.norm(np.asarray(sol.ys[:, -1], np.float64), axis=-1)
     np.testing.assert_allclose(r, np.linalg.norm(sj.PAPER_Y0), rtol=1e-5)
     assert int(sol.stats["n_failed"]) == 0
     # Same increments in both precisions: float32 stays within its round-off of float64.
-    dW = sj.brownian_increments(jax.random.key(14), 32, 2 ** -5, n_samples=8)
-    y32 = jax.vmap(lambda w: sj.integrate(model32, sj.PAPER_Y0, w.astype(jnp.float32), 2 ** -5, method=LP))(dW)
-    y64 = jax.vmap(lambda w: sj.integrate(sj.RigidBody.paper(), sj.PAPER_Y0, w, 2 ** -5, method=LP))(dW)
+    dW = sj.brownian_increments(jax.random.key(14), 32, 2**-5, n_samples=8)
+    y32 = jax.vmap(
+        lambda w: sj.integrate(model32, sj.PAPER_Y0, w.astype(jnp.float32), 2**-5, method=LP)
+    )(dW)
+    y64 = jax.vmap(lambda w: sj.integrate(sj.RigidBody.paper(), sj.PAPER_Y0, w, 2**-5, method=LP))(
+        dW
+    )
     assert y32.dtype == jnp.float32
     assert np.max(np.abs(np.asarray(y32, np.float64) - y64)) < 1e-5
 
@@ -269,14 +318,17 @@ def test_simulate_rejects_bad_input(paper, bad, match):
         sj.simulate(model, y0, **kwargs)
 
 
-@pytest.mark.parametrize("inertia,c,match", [
-    ([1.0, 2.0], 0.2, "inertia"),
-    ([1.0, -2.0, 3.0], 0.2, "inertia"),
-    ([1.0, np.inf, 3.0], 0.2, "inertia"),
-    ([1.0, 0.0, 3.0], 0.2, "inertia"),
-    ([1.0, 2.0, 3.0], np.nan, "c"),
-    ([1.0, 2.0, 3.0], [0.1, 0.2], "c"),
-])
+@pytest.mark.parametrize(
+    "inertia,c,match",
+    [
+        ([1.0, 2.0], 0.2, "inertia"),
+        ([1.0, -2.0, 3.0], 0.2, "inertia"),
+        ([1.0, np.inf, 3.0], 0.2, "inertia"),
+        ([1.0, 0.0, 3.0], 0.2, "inertia"),
+        ([1.0, 2.0, 3.0], np.nan, "c"),
+        ([1.0, 2.0, 3.0], [0.1, 0.2], "c"),
+    ],
+)
 def test_rigid_body_rejects_bad_input(inertia, c, match):
     with pytest.raises(ValueError, match=match):
         sj.RigidBody(inertia, c)
@@ -309,5 +361,7 @@ def test_model_is_a_pytree_and_gradients_reach_it(paper):
 
     g = jax.grad(final_energy, argnums=(0, 1))(model.inertia, model.c)
     eps = 1e-6
-    fd = (final_energy(model.inertia, model.c + eps) - final_energy(model.inertia, model.c - eps)) / (2 * eps)
+    fd = (
+        final_energy(model.inertia, model.c + eps) - final_energy(model.inertia, model.c - eps)
+    ) / (2 * eps)
     np.testing.assert_allclose(g[1], fd, rtol=1e-6)

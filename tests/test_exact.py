@@ -176,8 +176,11 @@ def test_axisymmetric(inertia):
         y0, t = rng.normal(size=3), rng.uniform(-50, 50)
         w = -(1 / inertia[j] - 1 / i_eq) * y0[j] * np.eye(3)[j]  # dy/dt = w x y
         theta, n = np.linalg.norm(w) * t, w / np.linalg.norm(w)
-        rot = (y0 * math.cos(theta) + np.cross(n, y0) * math.sin(theta)
-               + n * (n @ y0) * (1 - math.cos(theta)))
+        rot = (
+            y0 * math.cos(theta)
+            + np.cross(n, y0) * math.sin(theta)
+            + n * (n @ y0) * (1 - math.cos(theta))
+        )
         y = flow_np(inertia, y0, t)
         assert rel_err(y, rot, y0) < 1e-13
         if k == 0:
@@ -372,8 +375,11 @@ def test_float32():
         y = np.asarray(y, float)
         np.testing.assert_allclose(np.linalg.norm(y), np.linalg.norm(y0), rtol=1e-6)
     # The special cases stay finite and right in float32 too.
-    for inertia, y0 in [(SEP_INERTIA, SEP_Y0), ((2.0, 2.0, 0.7), (0.3, -0.8, 0.5)),
-                        ((2.0, 1.3, 0.7), (0.0, 1.0, 0.0))]:
+    for inertia, y0 in [
+        (SEP_INERTIA, SEP_Y0),
+        ((2.0, 2.0, 0.7), (0.3, -0.8, 0.5)),
+        ((2.0, 1.3, 0.7), (0.0, 1.0, 0.0)),
+    ]:
         y = f32(jnp.float32(inertia), jnp.float32(y0), jnp.float32(3.0))
         assert rel_err(y, flow_np(inertia, y0, 3.0), y0) < 1e-5
 
@@ -384,16 +390,23 @@ def test_exact_method_evaluates_the_flow_at_saved_states_only():
     final state the exact solution at their total."""
     model = sj.RigidBody.paper()
     y0 = jnp.asarray(sj.PAPER_Y0)
-    dt = 2.0 ** -6
+    dt = 2.0**-6
     dW = sj.brownian_increments(jax.random.key(3), 256, dt)
     ys = sj.integrate(model, y0, dW, dt, method=sj.Exact(), save_every=64)
     w = np.concatenate([[0.0], np.cumsum(np.asarray(dW))])[::64]
-    expected = np.stack([sj.exact_solution(model, y0, k * 64 * dt, wk)
-                         for k, wk in enumerate(w)])
+    expected = np.stack([sj.exact_solution(model, y0, k * 64 * dt, wk) for k, wk in enumerate(w)])
     np.testing.assert_allclose(ys, expected, atol=1e-13)
     final = sj.integrate(model, y0, dW, dt, method=sj.Exact())
     np.testing.assert_allclose(final, expected[-1], atol=1e-13)
     # simulate's Exact: no failures, no Newton work
-    sol = sj.simulate(model, y0, t1=1.0, dt=dt, n_samples=3, key=jax.random.key(0),
-                      method=sj.Exact(), newton_stats=True)
+    sol = sj.simulate(
+        model,
+        y0,
+        t1=1.0,
+        dt=dt,
+        n_samples=3,
+        key=jax.random.key(0),
+        method=sj.Exact(),
+        newton_stats=True,
+    )
     assert int(sol.stats["n_failed"]) == 0 and int(sol.stats["newton_iterations_max"]) == 0

@@ -9,13 +9,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from reference import fitted_order
 from scipy.integrate import solve_ivp
 
 import slps_jax as sj
 from slps_jax import _components, so3
 from slps_jax._methods.lie_poisson import branch_rotation
 from slps_jax._methods.lie_poisson_sym import sine_chart_in_map_general
-from reference import fitted_order
 
 EPS = 0.5
 RB = sj.RigidBody.paper()
@@ -24,13 +24,13 @@ Y0 = np.array(sj.PAPER_Y0)
 
 
 def rigid(y, inertia):
-    return 0.5 * jnp.sum(y ** 2 / inertia)
+    return 0.5 * jnp.sum(y**2 / inertia)
 
 
 def quartic(y, p):
     """The rigid body plus eps * sum y_i^4: not quadratic, so no Midpoint energy conservation
     and no closed form."""
-    return 0.5 * jnp.sum(y ** 2 / p["inertia"]) + p["eps"] * jnp.sum(y ** 4)
+    return 0.5 * jnp.sum(y**2 / p["inertia"]) + p["eps"] * jnp.sum(y**4)
 
 
 def quartic_model(c=0.2, eps=EPS):
@@ -41,8 +41,14 @@ def quartic_flow(y0, t):
     """phi_t(y0) of dy/dt = y x grad H(y) by DOP853, grad H written by hand."""
     if t == 0:
         return np.asarray(y0, float)
-    sol = solve_ivp(lambda _, y: np.cross(y, y / INERTIA + 4 * EPS * y ** 3), (0.0, float(t)),
-                    np.asarray(y0, float), method="DOP853", rtol=1e-13, atol=1e-15)
+    sol = solve_ivp(
+        lambda _, y: np.cross(y, y / INERTIA + 4 * EPS * y**3),
+        (0.0, float(t)),
+        np.asarray(y0, float),
+        method="DOP853",
+        rtol=1e-13,
+        atol=1e-15,
+    )
     assert sol.success
     return sol.y[:, -1]
 
@@ -53,11 +59,11 @@ def test_model_basics():
     assert len(leaves) == 3  # eps, inertia, c; the function is static
     m2 = jax.tree_util.tree_unflatten(treedef, leaves)
     y = jnp.asarray([0.3, -0.2, 0.5])
-    grad_by_hand = y / RB.inertia + 4 * EPS * y ** 3
+    grad_by_hand = y / RB.inertia + 4 * EPS * y**3
     np.testing.assert_allclose(m2.gradient(y), grad_by_hand, atol=1e-15)
     np.testing.assert_allclose(m.vector_field(y), jnp.cross(y, grad_by_hand), atol=1e-15)
     assert m.hamiltonian(jnp.stack([y, 2 * y])).shape == (2,)
-    np.testing.assert_allclose(m.casimir(y), 0.5 * jnp.sum(y ** 2))
+    np.testing.assert_allclose(m.casimir(y), 0.5 * jnp.sum(y**2))
     with pytest.raises(TypeError, match="callable"):
         sj.LiePoissonSystem(1.0)
     with pytest.raises(ValueError, match="finite"):
@@ -77,7 +83,7 @@ def test_sine_chart_in_map_matches_autodiff_of_the_generating_function(trial):
 
     def residual(v):
         a = _components.unmat(branch_rotation(_components.vec(v))[0])
-        s = lambda b: 0.5 * jnp.trace(b) - tau * quartic(so3.vee(b), m.params)  # noqa: E731
+        s = lambda b: 0.5 * jnp.trace(b) - tau * quartic(so3.vee(b), m.params)
         return so3.vee(-2.0 * so3.skew(a.T @ jax.grad(s)(a))) - y
 
     def fields(u, jacobian):  # the step Hamiltonian K = tau H (dW = 0)
@@ -90,16 +96,18 @@ def test_sine_chart_in_map_matches_autodiff_of_the_generating_function(trial):
     np.testing.assert_allclose(_components.unmat(jac), jax.jacfwd(residual)(v), atol=1e-13)
 
 
-@pytest.mark.parametrize("method", [sj.LiePoissonSym4(), sj.Midpoint(), sj.EulerMaruyama(),
-                                    sj.LiePoisson()],
-                         ids=lambda m: type(m).__name__)
+@pytest.mark.parametrize(
+    "method",
+    [sj.LiePoissonSym4(), sj.Midpoint(), sj.EulerMaruyama(), sj.LiePoisson()],
+    ids=lambda m: type(m).__name__,
+)
 def test_rigid_body_hamiltonian_agrees_with_the_fast_path(method):
     """H = y^T I^{-1} y / 2 as a function: the same numbers as RigidBody (analytic
     derivatives) to round-off. Sym4 runs Sym2 six times, so Sym2 is covered."""
     general = sj.LiePoissonSystem(rigid, RB.inertia, RB.c)
-    dW = sj.brownian_increments(jax.random.key(1), 256, 2.0 ** -6)
-    a = sj.integrate(RB, Y0, dW, 2.0 ** -6, method=method, save_every=64)
-    b = sj.integrate(general, Y0, dW, 2.0 ** -6, method=method, save_every=64)
+    dW = sj.brownian_increments(jax.random.key(1), 256, 2.0**-6)
+    a = sj.integrate(RB, Y0, dW, 2.0**-6, method=method, save_every=64)
+    b = sj.integrate(general, Y0, dW, 2.0**-6, method=method, save_every=64)
     np.testing.assert_allclose(b, a, rtol=0, atol=1e-12)
 
 
@@ -109,15 +117,23 @@ def test_methods_for_the_rigid_body_only_are_refused():
         with pytest.raises(TypeError, match="RigidBody only"):
             sj.integrate(m, Y0, jnp.zeros(4), 0.1, method=method)
     with pytest.raises(ValueError, match="reference='exact' needs a RigidBody"):
-        sj.strong_convergence(m, Y0, t1=1.0, dts=[0.5, 0.25], n_samples=2,
-                              key=jax.random.key(0), methods=sj.LiePoissonSym2())
+        sj.strong_convergence(
+            m,
+            Y0,
+            t1=1.0,
+            dts=[0.5, 0.25],
+            n_samples=2,
+            key=jax.random.key(0),
+            methods=sj.LiePoissonSym2(),
+        )
 
 
 def test_quartic_differs_from_the_rigid_body():
     """The test below would be vacuous if the quartic term did not matter."""
     assert np.linalg.norm(quartic_flow(Y0, 1.0) - quartic_flow(Y0, 0.0)) > 0.3
-    rb = solve_ivp(lambda _, y: np.cross(y, y / INERTIA), (0, 1.0), Y0, method="DOP853",
-                   rtol=1e-13, atol=1e-15).y[:, -1]
+    rb = solve_ivp(
+        lambda _, y: np.cross(y, y / INERTIA), (0, 1.0), Y0, method="DOP853", rtol=1e-13, atol=1e-15
+    ).y[:, -1]
     assert np.linalg.norm(quartic_flow(Y0, 1.0) - rb) > 0.1
 
 
@@ -126,19 +142,34 @@ def quartic_study():
     # 64 samples: the fitted orders' standard errors are at most 0.03 (measured 1.05-1.08,
     # and 2.02 for LiePoissonSym4), far inside the bounds below.
     return sj.strong_convergence(
-        quartic_model(), Y0, t1=1.0, dts=[2.0 ** -k for k in range(5, 10)], n_samples=64,
-        key=jax.random.key(1), reference=lambda ts: np.stack([quartic_flow(Y0, t) for t in ts]),
-        methods={"LiePoissonSym2": sj.LiePoissonSym2(), "LiePoissonSym4": sj.LiePoissonSym4(),
-                 "Midpoint": sj.Midpoint(), "LiePoisson": sj.LiePoisson()},
+        quartic_model(),
+        Y0,
+        t1=1.0,
+        dts=[2.0**-k for k in range(5, 10)],
+        n_samples=64,
+        key=jax.random.key(1),
+        reference=lambda ts: np.stack([quartic_flow(Y0, t) for t in ts]),
+        methods={
+            "LiePoissonSym2": sj.LiePoissonSym2(),
+            "LiePoissonSym4": sj.LiePoissonSym4(),
+            "Midpoint": sj.Midpoint(),
+            "LiePoisson": sj.LiePoisson(),
+        },
         # LiePoisson's full-step in-map has no root on the branch for about a third of the
         # samples' first step at 2^-5 (|y0| = 0.99, near the fold); substeps solve it.
-        retry_substeps=4)
+        retry_substeps=4,
+    )
 
 
-@pytest.mark.parametrize("name,low,high", [("LiePoissonSym2", 0.85, 1.2),
-                                           ("LiePoisson", 0.85, 1.2),
-                                           ("Midpoint", 0.85, 1.2),
-                                           ("LiePoissonSym4", 1.8, 2.5)])
+@pytest.mark.parametrize(
+    "name,low,high",
+    [
+        ("LiePoissonSym2", 0.85, 1.2),
+        ("LiePoisson", 0.85, 1.2),
+        ("Midpoint", 0.85, 1.2),
+        ("LiePoissonSym4", 1.8, 2.5),
+    ],
+)
 def test_quartic_strong_order(quartic_study, name, low, high):
     errs = quartic_study.errors[name]
     order = fitted_order(quartic_study.dts, errs)
@@ -175,13 +206,22 @@ def test_derivatives_reach_params_and_c():
 def test_float32():
     """The general path in float32: |y| to ~1e-6 and close to float64 (measured below)."""
     m64 = quartic_model()
-    m32 = sj.LiePoissonSystem(quartic, {"inertia": np.asarray(INERTIA, np.float32),
-                                        "eps": np.float32(EPS)}, np.float32(0.2))
+    m32 = sj.LiePoissonSystem(
+        quartic,
+        {"inertia": np.asarray(INERTIA, np.float32), "eps": np.float32(EPS)},
+        np.float32(0.2),
+    )
     assert m32.c.dtype == jnp.float32
     dW = sj.brownian_increments(jax.random.key(5), 500, 0.01)
     y64 = sj.integrate(m64, Y0, dW, 0.01, method=sj.LiePoissonSym2(), save_every=100)
-    y32 = sj.integrate(m32, Y0.astype(np.float32), dW.astype(jnp.float32), 0.01,
-                       method=sj.LiePoissonSym2(), save_every=100)
+    y32 = sj.integrate(
+        m32,
+        Y0.astype(np.float32),
+        dW.astype(jnp.float32),
+        0.01,
+        method=sj.LiePoissonSym2(),
+        save_every=100,
+    )
     assert y32.dtype == jnp.float32
     assert np.abs(np.asarray(y32, np.float64) - np.asarray(y64)).max() < 1e-2
     norms = np.linalg.norm(np.asarray(y32, np.float64), axis=-1)

@@ -20,11 +20,12 @@ I_PAPER = np.asarray(sj.RigidBody.paper().inertia)
 METHODS = {"LiePoisson": sj.LiePoisson(), "Midpoint": sj.Midpoint(), "Strang": sj.Strang()}
 
 
-def estimate(params, method, n_samples=16, dt=2.0 ** -5, t1=1.0, key=0):
+def estimate(params, method, n_samples=16, dt=2.0**-5, t1=1.0, key=0):
     """(mean H(y_T), mean y_T) of an ensemble, as one vector, for params = (I_1, I_2, I_3, c)."""
     model = sj.RigidBody(params[:3], params[3])
-    sol = sj.simulate(model, Y0, t1=t1, dt=dt, n_samples=n_samples, key=jax.random.key(key),
-                      method=method)
+    sol = sj.simulate(
+        model, Y0, t1=t1, dt=dt, n_samples=n_samples, key=jax.random.key(key), method=method
+    )
     y_t = sol.ys[:, -1]
     return jnp.concatenate([jnp.mean(model.hamiltonian(y_t))[None], jnp.mean(y_t, axis=0)])
 
@@ -57,8 +58,7 @@ def test_gradient_matches_finite_differences(jacobians):
     # Normwise 1e-6 relative for each statistic (a row: d stat / d (I_1, I_2, I_3, c)).
     for row_ad, row_fd in zip(rev, fd):
         scale = np.max(np.abs(row_fd))
-        np.testing.assert_allclose(row_ad, row_fd, rtol=0, atol=1e-6 * scale + 1e-13,
-                                   err_msg=name)
+        np.testing.assert_allclose(row_ad, row_fd, rtol=0, atol=1e-6 * scale + 1e-13, err_msg=name)
 
 
 def test_forward_and_reverse_mode_agree(jacobians):
@@ -71,7 +71,7 @@ def test_implicit_gradient_equals_gradient_of_unrolled_newton(paper):
     library) against autodiff through 12 plain Newton updates in the sine chart (here)."""
     _, y = paper
     y = 0.9 * y + jnp.array([0.0, 0.0, 0.1])
-    dt, dW = 2.0 ** -4, 0.3
+    dt, dW = 2.0**-4, 0.3
 
     def library(p):
         model = sj.RigidBody(p[:3], p[3])
@@ -110,7 +110,7 @@ def test_gradient_approaches_exact_solution_gradient_as_h_shrinks():
     # compiles in half the time of reverse (test_forward_and_reverse_mode_agree ties them).
     p = jnp.asarray(PARAMS)
     errors = []
-    for dt in [2.0 ** -4, 2.0 ** -6, 2.0 ** -8]:
+    for dt in [2.0**-4, 2.0**-6, 2.0**-8]:
         g_lp = jax.jacfwd(lambda q: lp_estimate(q, dt))(p)
         g_ex = jax.jacfwd(lambda q: exact_estimate(q, dt))(p)
         errors.append(float(jnp.max(jnp.abs(g_lp - g_ex))))
@@ -128,8 +128,7 @@ def test_gradient_of_failed_sample_is_finite():
     def loss(c):
         m = sj.RigidBody(model.inertia, c)
         dW = jnp.array([[0.01, 0.02], [60.0, 0.01]])  # the second path fails at step 0
-        ys = jax.vmap(lambda w: sj.integrate(m, y, w, 0.1, throw=False,
-                                             method=sj.LiePoisson()))(dW)
+        ys = jax.vmap(lambda w: sj.integrate(m, y, w, 0.1, throw=False, method=sj.LiePoisson()))(dW)
         return jnp.mean(ys)
 
     assert np.isfinite(float(jax.grad(loss)(0.2)))
@@ -140,20 +139,51 @@ def test_calibration_recovers_known_parameters():
     fixed: the Casimir shift of 1/I leaves the motion unchanged) lands within 3 standard
     errors that include both ensembles' sampling error."""
     true = sj.RigidBody.paper()
-    ts, dt, n_obs, n_fit = [1.0, 2.0, 3.0, 4.0], 2.0 ** -5, 400, 100
-    obs = sj.simulate(true, Y0, t1=4.0, dt=dt, n_samples=n_obs, key=jax.random.key(7),
-                      save_every=32, method=sj.Strang())
+    ts, dt, n_obs, n_fit = [1.0, 2.0, 3.0, 4.0], 2.0**-5, 400, 100
+    obs = sj.simulate(
+        true,
+        Y0,
+        t1=4.0,
+        dt=dt,
+        n_samples=n_obs,
+        key=jax.random.key(7),
+        save_every=32,
+        method=sj.Strang(),
+    )
     ys = obs.ys[:, 1:]
     stats = jax.vmap(sj.moments, in_axes=1)(ys)
-    stderr = jax.vmap(lambda y: jnp.concatenate([y.std(0), (y ** 2).std(0)]),
-                      in_axes=1)(ys) / np.sqrt(n_obs)
+    stderr = jax.vmap(lambda y: jnp.concatenate([y.std(0), (y**2).std(0)]), in_axes=1)(
+        ys
+    ) / np.sqrt(n_obs)
     init = sj.RigidBody(true.inertia * jnp.array([1.1, 0.95, 1.0]), 0.25)
     with pytest.raises(ValueError, match="Hold one moment fixed"):
-        sj.calibrate(stats, Y0, ts=ts, dt=dt, n_samples=n_fit, key=jax.random.key(1),
-                     init=init, observed_stderr=stderr, method=sj.Strang(), progress=False)
-    res = sj.calibrate(stats, Y0, ts=ts, dt=dt, n_samples=n_fit, key=jax.random.key(1),
-                       init=init, observed_stderr=stderr, observed_n_samples=n_obs,
-                       fixed=("I_3",), method=sj.Strang(), steps=30, progress=False)
+        sj.calibrate(
+            stats,
+            Y0,
+            ts=ts,
+            dt=dt,
+            n_samples=n_fit,
+            key=jax.random.key(1),
+            init=init,
+            observed_stderr=stderr,
+            method=sj.Strang(),
+            progress=False,
+        )
+    res = sj.calibrate(
+        stats,
+        Y0,
+        ts=ts,
+        dt=dt,
+        n_samples=n_fit,
+        key=jax.random.key(1),
+        init=init,
+        observed_stderr=stderr,
+        observed_n_samples=n_obs,
+        fixed=("I_3",),
+        method=sj.Strang(),
+        steps=30,
+        progress=False,
+    )
     fitted = np.r_[np.asarray(res.model.inertia), float(res.model.c)]
     truth = np.r_[np.asarray(true.inertia), float(true.c)]
     assert res.loss[-1] < 1e-3 * res.loss[0]

@@ -12,15 +12,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from reference import fitted_order, rigid_body_flow
 
 import slps_jax as sj
 from slps_jax import _components, so3
 from slps_jax._methods.lie_poisson_sym import _solve_rotation
-from reference import fitted_order, rigid_body_flow
 
 rng = np.random.default_rng(11)
 SYM = [sj.LiePoissonSym2(), sj.LiePoissonSym4(), sj.Strang4()]
-ids = lambda m: type(m).__name__  # noqa: E731
+ids = lambda m: type(m).__name__
 
 
 def jit_step(method):
@@ -85,8 +85,12 @@ def test_local_error_order(paper, method, order):
     model, _ = paper
     y = np.array([0.3, -0.5, 0.6])
     taus = 0.2 * 2.0 ** -np.arange(4)
-    errs = np.array([np.linalg.norm(one_step(method, model, y, t)
-                                    - rigid_body_flow(model.inertia, y, t)) for t in taus])
+    errs = np.array(
+        [
+            np.linalg.norm(one_step(method, model, y, t) - rigid_body_flow(model.inertia, y, t))
+            for t in taus
+        ]
+    )
     slopes = np.log2(errs[:-1] / errs[1:])
     assert np.all(np.abs(slopes - (order + 1)) < 0.15), (errs, slopes)
 
@@ -108,10 +112,19 @@ def test_strang4_is_the_triple_jump_of_strang(paper):
 @pytest.fixture(scope="module")
 def study():
     return sj.strong_convergence(
-        sj.RigidBody.paper(), sj.PAPER_Y0, t1=1.0, dts=[2.0 ** -k for k in range(5, 10)],
-        n_samples=200, key=jax.random.key(42),
-        methods={"LiePoisson": sj.LiePoisson(), "LiePoissonSym2": sj.LiePoissonSym2(),
-                 "LiePoissonSym4": sj.LiePoissonSym4(), "Strang4": sj.Strang4()})
+        sj.RigidBody.paper(),
+        sj.PAPER_Y0,
+        t1=1.0,
+        dts=[2.0**-k for k in range(5, 10)],
+        n_samples=200,
+        key=jax.random.key(42),
+        methods={
+            "LiePoisson": sj.LiePoisson(),
+            "LiePoissonSym2": sj.LiePoissonSym2(),
+            "LiePoissonSym4": sj.LiePoissonSym4(),
+            "Strang4": sj.Strang4(),
+        },
+    )
 
 
 def test_sym2_strong_order_one_with_smaller_constant(study):
@@ -164,8 +177,9 @@ def test_unsolvable_step_is_flagged_not_nan(paper, method):
     method = dataclasses.replace(method, max_iter=3)
     with pytest.raises(RuntimeError, match="step 2 could not be solved"):
         sj.integrate(model, y, dW, 0.05, method=method, save_every=1, retry_substeps=None)
-    ys = sj.integrate(model, y, dW, 0.05, method=method, save_every=1, throw=False,
-                      retry_substeps=None)
+    ys = sj.integrate(
+        model, y, dW, 0.05, method=method, save_every=1, throw=False, retry_substeps=None
+    )
     assert np.all(np.isfinite(np.asarray(ys)))
     np.testing.assert_array_equal(ys[3], ys[4])  # frozen at its last good state
 
@@ -188,8 +202,7 @@ def test_jit_and_vmap_agree_with_single_steps(paper, method):
     batched, info = jax.jit(jax.vmap(lambda y, w: method.step(model, y, 0.1, w)))(ys, dWs)
     assert info.ok.shape == (6,) and bool(jnp.all(info.ok))
     step = STEPS[type(method).__name__]
-    single = np.stack([np.asarray(step(model, y, jnp.asarray(0.1), w)[0])
-                       for y, w in zip(ys, dWs)])
+    single = np.stack([np.asarray(step(model, y, jnp.asarray(0.1), w)[0]) for y, w in zip(ys, dWs)])
     np.testing.assert_allclose(np.asarray(batched), single, rtol=0, atol=1e-14)
 
 
@@ -202,8 +215,9 @@ def test_float32(paper, method, tol):
     model32 = sj.RigidBody(np.asarray(model64.inertia, np.float32), np.float32(0.2))
     n, h = 1000, 0.01
     dW = sj.brownian_increments(jax.random.key(5), n, h)
-    y32 = sj.integrate(model32, y0.astype(jnp.float32), dW.astype(jnp.float32), h,
-                       method=method, save_every=100)
+    y32 = sj.integrate(
+        model32, y0.astype(jnp.float32), dW.astype(jnp.float32), h, method=method, save_every=100
+    )
     y64 = sj.integrate(model64, y0, dW, h, method=method, save_every=100)
     assert y32.dtype == jnp.float32
     assert np.abs(np.asarray(y32, np.float64) - np.asarray(y64)).max() < tol

@@ -40,12 +40,15 @@ def _imports(path):
             names = [a.name for a in node.names]
         elif isinstance(node, ast.ImportFrom):
             if node.level:
-                base = package[:len(package) - node.level + 1]
+                base = package[: len(package) - node.level + 1]
                 full = ".".join(base + ([node.module] if node.module else []))
             else:
                 full = node.module or ""
-            names = ([f"{full}.{a.name}" for a in node.names] if not node.module
-                     else [full] + [f"{full}.{a.name}" for a in node.names])
+            names = (
+                [f"{full}.{a.name}" for a in node.names]
+                if not node.module
+                else [full] + [f"{full}.{a.name}" for a in node.names]
+            )
         else:
             continue
         for name in names:
@@ -72,8 +75,10 @@ def test_every_module_has_a_layer_and_imports_none_above_it():
         me = _unit(f)
         for other in _imports(f) - {me}:
             if layers[other] > layers[me]:
-                wrong.append(f"{f.relative_to(ROOT)} ({me}, layer {layers[me]}) imports "
-                             f"{other} (layer {layers[other]})")
+                wrong.append(
+                    f"{f.relative_to(ROOT)} ({me}, layer {layers[me]}) imports "
+                    f"{other} (layer {layers[other]})"
+                )
             if other == "_paper" and me != "__main__":
                 wrong.append(f"{f.relative_to(ROOT)} imports the command line's _paper")
     assert not wrong, "\n".join(wrong)

@@ -17,8 +17,8 @@ import pytest
 
 import slps_jax as sj
 from slps_jax import _noise
-from slps_jax._solution import RESULTS
 from slps_jax._methods.base import AbstractMethod, StepInfo, StrongOrders
+from slps_jax._solution import RESULTS
 
 CHI = 0.5 * np.array([[1.0, 0.2, 0.0], [0.0, 1.0, 0.3], [0.4, 0.0, 1.0]])
 Y0 = jnp.asarray([0.45, -0.5, 0.4])
@@ -32,9 +32,10 @@ def salt_body():
 def sampled():
     """Areas of 3 noises at h = 2^-4 (p = 1 series term: the tail approximation carries the
     most weight there), 50 000 samples x 4 steps, untruncated."""
-    h = 2.0 ** -4
-    dW, A = sj.brownian_increments(jax.random.key(0), 4, h, n_samples=50_000, n_noises=3,
-                                   levy_area=True, truncate_k=None)
+    h = 2.0**-4
+    dW, A = sj.brownian_increments(
+        jax.random.key(0), 4, h, n_samples=50_000, n_noises=3, levy_area=True, truncate_k=None
+    )
     return h, np.asarray(dW).reshape(-1, 3), np.asarray(A).reshape(-1, 3, 3)
 
 
@@ -44,13 +45,13 @@ def test_areas_are_antisymmetric_with_the_exact_moments(sampled):
     n = A.shape[0]
     for q, r in ((0, 1), (0, 2), (1, 2)):
         a = A[:, q, r]
-        for power, exact in ((1, 0.0), (2, h * h / 4), (4, 5 * h ** 4 / 16)):
-            x = a ** power
+        for power, exact in ((1, 0.0), (2, h * h / 4), (4, 5 * h**4 / 16)):
+            x = a**power
             se = x.std(ddof=1) / math.sqrt(n)
             assert abs(x.mean() - exact) < 4 * se, (q, r, power, x.mean(), exact, se)
     # A Gaussian with the right variance has E A^4 = 3 h^4/16: far outside those bounds.
     x = A[:, 0, 1] ** 4
-    assert abs(3 * h ** 4 / 16 - x.mean()) > 10 * x.std() / math.sqrt(n)
+    assert abs(3 * h**4 / 16 - x.mean()) > 10 * x.std() / math.sqrt(n)
 
 
 def test_conditional_variance_recovered_by_regression(sampled):
@@ -58,19 +59,19 @@ def test_conditional_variance_recovered_by_regression(sampled):
     increments fails this."""
     h, dW, A = sampled
     pairs = ((0, 1), (0, 2), (1, 2))  # pooled: 600 000 areas (intercept's std. error ~1%)
-    x = np.concatenate([np.stack([np.ones(len(A)), dW[:, q] ** 2 + dW[:, r] ** 2], axis=1)
-                        for q, r in pairs])
-    coef = np.linalg.lstsq(x, np.concatenate([A[:, q, r] ** 2 for q, r in pairs]),
-                           rcond=None)[0]
+    x = np.concatenate(
+        [np.stack([np.ones(len(A)), dW[:, q] ** 2 + dW[:, r] ** 2], axis=1) for q, r in pairs]
+    )
+    coef = np.linalg.lstsq(x, np.concatenate([A[:, q, r] ** 2 for q, r in pairs]), rcond=None)[0]
     np.testing.assert_allclose(coef, [h * h / 12, h / 12], rtol=0.05)
 
 
 def test_terms_rule():
     # sqrt(s) h / (sqrt(12) pi p) <= h^(3/2), smallest p: the note's 18 and 42 normals for s = 3
-    for h, p in ((2.0 ** -7, 2), (2.0 ** -8, 3), (2.0 ** -10, 6)):
+    for h, p in ((2.0**-7, 2), (2.0**-8, 3), (2.0**-10, 6)):
         assert _noise.levy_area_terms(h, 3) == p
-        assert math.sqrt(3) * h / (math.sqrt(12) * math.pi * p) <= h ** 1.5
-        assert math.sqrt(3) * h / (math.sqrt(12) * math.pi * (p - 1 or 0.5)) > h ** 1.5
+        assert math.sqrt(3) * h / (math.sqrt(12) * math.pi * p) <= h**1.5
+        assert math.sqrt(3) * h / (math.sqrt(12) * math.pi * (p - 1 or 0.5)) > h**1.5
 
 
 def test_areas_do_not_depend_on_batch_and_increments_do_not_depend_on_areas():
@@ -99,14 +100,16 @@ def _chen(dW, A):
 
 def test_joined_steps_follow_chen_and_split_steps_give_the_step_back():
     key = jax.random.key(5)
-    fine_dW, fine_A = (np.asarray(x) for x in sj.brownian_increments(
-        key, 8, 2.0 ** -6, n_noises=3, levy_area=True))
+    fine_dW, fine_A = (
+        np.asarray(x) for x in sj.brownian_increments(key, 8, 2.0**-6, n_noises=3, levy_area=True)
+    )
     sample_key = _noise.sample_keys(key, 1)[0]
-    terms = _noise.levy_area_terms(2.0 ** -6, 3)
+    terms = _noise.levy_area_terms(2.0**-6, 3)
     for n, m in ((0, 8), (1, 4)):
-        got = _noise.draw_joined(sample_key, n, m, jnp.asarray(2.0 ** -6), jnp.inf,
-                                 jnp.float64, 3, terms)
-        want = _chen(fine_dW[n * m:(n + 1) * m], fine_A[n * m:(n + 1) * m])
+        got = _noise.draw_joined(
+            sample_key, n, m, jnp.asarray(2.0**-6), jnp.inf, jnp.float64, 3, terms
+        )
+        want = _chen(fine_dW[n * m : (n + 1) * m], fine_A[n * m : (n + 1) * m])
         np.testing.assert_allclose(got.dW, want[0], rtol=0, atol=1e-15)
         np.testing.assert_allclose(got.area, want[1], rtol=0, atol=1e-15)
     # m equal substeps (dW/m, A/m) joined give the step back (parallel increments)
@@ -129,12 +132,22 @@ def test_simulate_uses_the_areas_brownian_increments_gives():
         y = sj.integrate(model, Y0, dW[i], 1 / 16, levy_area=A[i], method=sj.Midpoint())
         np.testing.assert_allclose(sol.ys[i, -1], y, rtol=0, atol=1e-14)
     # chunked (ensemble_statistics, 2 samples a chunk): the same samples, areas included
-    st = sj.ensemble_statistics(model, Y0, t1=0.5, dt=1 / 16, n_samples=3, chunk_size=2,
-                                key=key, method=sj.Midpoint(), progress=False)
+    st = sj.ensemble_statistics(
+        model,
+        Y0,
+        t1=0.5,
+        dt=1 / 16,
+        n_samples=3,
+        chunk_size=2,
+        key=key,
+        method=sj.Midpoint(),
+        progress=False,
+    )
     np.testing.assert_allclose(st.mean[-1], np.mean(sol.ys[:, -1], axis=0), rtol=0, atol=1e-14)
     # and without them ("auto" draws them for Midpoint; False does not): a different path
-    plain = sj.simulate(model, Y0, t1=0.5, dt=1 / 16, n_samples=3, key=key,
-                        method=sj.Midpoint(), levy_area=False)
+    plain = sj.simulate(
+        model, Y0, t1=0.5, dt=1 / 16, n_samples=3, key=key, method=sj.Midpoint(), levy_area=False
+    )
     y = sj.integrate(model, Y0, dW[0], 1 / 16, method=sj.Midpoint())
     np.testing.assert_allclose(plain.ys[0, -1], y, rtol=0, atol=1e-14)
     assert np.max(np.abs(plain.ys[0, -1] - sol.ys[0, -1])) > 1e-3
@@ -144,10 +157,12 @@ def test_one_noise_has_no_areas(paper):
     """With one noise nothing changes: levy_area=True and False give the same paths."""
     model, y0 = paper
     key = jax.random.key(2)
-    a = sj.simulate(model, y0, t1=0.25, dt=1 / 32, n_samples=2, key=key, method=sj.Midpoint(),
-                    levy_area=True)
-    b = sj.simulate(model, y0, t1=0.25, dt=1 / 32, n_samples=2, key=key, method=sj.Midpoint(),
-                    levy_area=False)
+    a = sj.simulate(
+        model, y0, t1=0.25, dt=1 / 32, n_samples=2, key=key, method=sj.Midpoint(), levy_area=True
+    )
+    b = sj.simulate(
+        model, y0, t1=0.25, dt=1 / 32, n_samples=2, key=key, method=sj.Midpoint(), levy_area=False
+    )
     np.testing.assert_array_equal(a.ys, b.ys)
     dW, A = sj.brownian_increments(key, 8, 1 / 32, n_noises=1, levy_area=True)
     assert A.shape == (8, 1, 1) and not np.any(A)
@@ -166,16 +181,19 @@ class _Recorder(AbstractMethod):
         x = jnp.stack([dt, dW.dW[0], dW.dW[1], dW.area[0, 1], 0 * dt, 0 * dt])
         y_next = y + alg.from_coordinates(x.astype(y.dtype))
         ok = dt <= self.longest
-        return y_next, StepInfo(jnp.where(ok, RESULTS.successful,
-                                          RESULTS.max_iterations_reached).astype(jnp.int32),
-                                jnp.zeros((), jnp.int32), jnp.zeros((), y.dtype))
+        return y_next, StepInfo(
+            jnp.where(ok, RESULTS.successful, RESULTS.max_iterations_reached).astype(jnp.int32),
+            jnp.zeros((), jnp.int32),
+            jnp.zeros((), y.dtype),
+        )
 
 
 def test_a_retried_step_keeps_its_increments_and_areas():
     alg = sj.so(4)
     chi = np.stack([alg.from_coordinates(jnp.eye(6)[i]) for i in (0, 5)])
-    model = sj.LiePoissonSystem(lambda y, p: 0.5 * alg.norm_sq(y), None,
-                                noise=sj.salt_noise(chi), algebra=alg)
+    model = sj.LiePoissonSystem(
+        lambda y, p: 0.5 * alg.norm_sq(y), None, noise=sj.salt_noise(chi), algebra=alg
+    )
     dW = jnp.asarray([[0.3, -0.2], [0.1, 0.4]])
     A = jnp.asarray([[[0.0, 0.05], [-0.05, 0.0]], [[0.0, -0.02], [0.02, 0.0]]])
     y0 = jnp.zeros((4, 4))
@@ -184,8 +202,9 @@ def test_a_retried_step_keeps_its_increments_and_areas():
     x = np.asarray(alg.coordinates(y1))
     np.testing.assert_allclose(x[:4], [0.2, 0.4, 0.2, 0.03], rtol=1e-14)
     with pytest.raises(RuntimeError, match="could not be solved"):
-        sj.integrate(model, y0, dW, 0.1, levy_area=A, method=_Recorder(longest=0.05),
-                     retry_substeps=None)
+        sj.integrate(
+            model, y0, dW, 0.1, levy_area=A, method=_Recorder(longest=0.05), retry_substeps=None
+        )
 
 
 def test_levy_area_arguments_are_checked():
@@ -198,25 +217,44 @@ def test_levy_area_arguments_are_checked():
     with pytest.raises(ValueError, match="antisymmetric"):
         sj.integrate(model, Y0, dW, 0.1, levy_area=jnp.abs(A), method=sj.Midpoint())
     with pytest.raises(ValueError, match=r"finite; steps \[2\]"):
-        sj.integrate(model, Y0, dW, 0.1, levy_area=A.at[2, 0, 1].set(np.nan),
-                     method=sj.Midpoint())
+        sj.integrate(model, Y0, dW, 0.1, levy_area=A.at[2, 0, 1].set(np.nan), method=sj.Midpoint())
     with pytest.raises(TypeError, match="levy_area=True: Heun"):
-        sj.simulate(model, Y0, t1=0.4, dt=0.1, n_samples=2, key=jax.random.key(0),
-                    method=sj.Heun(), levy_area=True)
+        sj.simulate(
+            model,
+            Y0,
+            t1=0.4,
+            dt=0.1,
+            n_samples=2,
+            key=jax.random.key(0),
+            method=sj.Heun(),
+            levy_area=True,
+        )
     with pytest.raises(TypeError, match="'auto', True or False"):
-        sj.simulate(model, Y0, t1=0.4, dt=0.1, n_samples=2, key=jax.random.key(0),
-                    method=sj.Midpoint(), levy_area="yes")
+        sj.simulate(
+            model,
+            Y0,
+            t1=0.4,
+            dt=0.1,
+            n_samples=2,
+            key=jax.random.key(0),
+            method=sj.Midpoint(),
+            levy_area="yes",
+        )
     with pytest.raises(ValueError, match="needs n_noises"):
         sj.brownian_increments(jax.random.key(0), 4, 0.1, levy_area=True)
 
 
 def test_coarsen_is_join_over_blocks():
-    dW, A = (np.asarray(x) for x in sj.brownian_increments(
-        jax.random.key(9), 12, 0.05, n_samples=2, n_noises=3, levy_area=True))
+    dW, A = (
+        np.asarray(x)
+        for x in sj.brownian_increments(
+            jax.random.key(9), 12, 0.05, n_samples=2, n_noises=3, levy_area=True
+        )
+    )
     cdW, cA = _noise.coarsen(jnp.asarray(dW), jnp.asarray(A), 4)
     assert cdW.shape == (2, 3, 3) and cA.shape == (2, 3, 3, 3)
     for i in range(2):
         for n in range(3):
-            want = _chen(dW[i, 4 * n:4 * n + 4], A[i, 4 * n:4 * n + 4])
+            want = _chen(dW[i, 4 * n : 4 * n + 4], A[i, 4 * n : 4 * n + 4])
             np.testing.assert_allclose(cdW[i, n], want[0], atol=1e-15)
             np.testing.assert_allclose(cA[i, n], want[1], atol=1e-15)

@@ -18,15 +18,21 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from levy_reference import (
+    coarsen,
+    fine_path,
+    fitted_order,
+    salt_rigid_body_fields,
+    salt_so_n_fields,
+    wong_zakai_solution,
+)
 
 import slps_jax as sj
 from slps_jax._methods import METHODS
 from slps_jax._noise_hamiltonians import AbstractNoise
-from levy_reference import (coarsen, fine_path, fitted_order, salt_rigid_body_fields,
-                            salt_so_n_fields, wong_zakai_solution)
 
-N_PATHS, N_FINE, T = 128, 2 ** 10, 1.0
-HS = [2.0 ** -k for k in range(3, 6)]
+N_PATHS, N_FINE, T = 128, 2**10, 1.0
+HS = [2.0**-k for k in range(3, 6)]
 
 INERTIA = jnp.asarray([1.1, 1.7, 2.6])
 CHI = 0.5 * np.array([[1.0, 0.2, 0.0], [0.0, 1.0, 0.3], [0.4, 0.0, 1.0]])
@@ -35,12 +41,18 @@ Y0 = jnp.asarray([0.45, -0.5, 0.4])
 J4 = jnp.asarray([0.6, 0.9, 1.3, 1.7])
 _E = np.eye(4)
 # three skew noise directions of so(4) that do not commute
-X4 = 0.5 * np.stack([np.outer(_E[0], _E[1]) - np.outer(_E[1], _E[0]),
-                     np.outer(_E[1], _E[2]) - np.outer(_E[2], _E[1]) + 0.3 * (
-                         np.outer(_E[0], _E[3]) - np.outer(_E[3], _E[0])),
-                     np.outer(_E[2], _E[3]) - np.outer(_E[3], _E[2])])
-Y4 = 0.3 * jnp.asarray(np.array([[0, 1, -0.5, 0.2], [-1, 0, 0.8, -0.4],
-                                 [0.5, -0.8, 0, 0.6], [-0.2, 0.4, -0.6, 0]]))
+X4 = 0.5 * np.stack(
+    [
+        np.outer(_E[0], _E[1]) - np.outer(_E[1], _E[0]),
+        np.outer(_E[1], _E[2])
+        - np.outer(_E[2], _E[1])
+        + 0.3 * (np.outer(_E[0], _E[3]) - np.outer(_E[3], _E[0])),
+        np.outer(_E[2], _E[3]) - np.outer(_E[3], _E[2]),
+    ]
+)
+Y4 = 0.3 * jnp.asarray(
+    np.array([[0, 1, -0.5, 0.2], [-1, 0, 0.8, -0.4], [0.5, -0.8, 0, 0.6], [-0.2, 0.4, -0.6, 0]])
+)
 
 
 def _su3_inverse_laplacian():
@@ -49,8 +61,9 @@ def _su3_inverse_laplacian():
     sp = np.sqrt(2.0) * np.diag([1.0, 1.0], 1)  # S_+ of spin 1
     spins = [(sp + sp.T) / 2, (sp - sp.T) / 2j, np.diag([1.0, 0.0, -1.0])]
     basis = np.eye(9).reshape(9, 3, 3)
-    lap = np.stack([(-sum(s @ (s @ b - b @ s) - (s @ b - b @ s) @ s for s in spins)).ravel()
-                    for b in basis], 1)
+    lap = np.stack(
+        [(-sum(s @ (s @ b - b @ s) - (s @ b - b @ s) @ s for s in spins)).ravel() for b in basis], 1
+    )
     return jnp.asarray(np.linalg.pinv(lap))
 
 
@@ -92,8 +105,11 @@ SALT = sj.RigidBody(INERTIA, noise=sj.salt_noise(CHI))
 # here without a test of its own), on so(4) the two coadjoint-orbit methods, and on
 # Euler-Zeitlin su(3) the isospectral midpoint rule and scheme (42) on U(3).
 PARAMS = [("so(3)", cls) for cls in METHODS if cls.requires <= SALT.structure] + [
-    ("so(4)", sj.IsospectralMidpoint), ("so(4)", sj.LiePoisson),
-    ("su(3)", sj.IsospectralMidpoint), ("su(3)", sj.LiePoisson)]
+    ("so(4)", sj.IsospectralMidpoint),
+    ("so(4)", sj.LiePoisson),
+    ("su(3)", sj.IsospectralMidpoint),
+    ("su(3)", sj.LiePoisson),
+]
 # On U(3) at h = 1/8, LiePoisson's default chord iteration takes 27 updates a step on average
 # and over 900 on the worst sample (continuation, then substeps), and the batch's loop waits
 # for it; Newton's full Jacobian takes 4-5. The scheme, hence the order, is the same.
@@ -117,8 +133,16 @@ def _coarse_runs(model, y0, method, dW_fine, areas):
 
     def path(w, a, h, n):
         def step(i, y):
-            return sj.integrate(model, y, w[i][None], h, method=method, throw=False,
-                                levy_area=None if a is None else a[i][None])
+            return sj.integrate(
+                model,
+                y,
+                w[i][None],
+                h,
+                method=method,
+                throw=False,
+                levy_area=None if a is None else a[i][None],
+            )
+
         return jax.lax.fori_loop(0, n, step, jnp.asarray(y0))
 
     over_paths = jax.vmap(path, in_axes=(0, 0, None, None))
@@ -167,8 +191,9 @@ def test_declared_strong_orders_against_the_exact_signature(name, cls):
         assert casimir > 1e-6
 
 
-@pytest.mark.parametrize("cls", [cls for cls in METHODS if cls.uses_levy_area()],
-                         ids=lambda cls: cls.__name__)
+@pytest.mark.parametrize(
+    "cls", [cls for cls in METHODS if cls.uses_levy_area()], ids=lambda cls: cls.__name__
+)
 def test_no_areas_equals_zero_areas(cls):
     """What the order test relies on: a method given zero areas steps as without areas."""
     model, y0 = sj.RigidBody(INERTIA, noise=sj.salt_noise(CHI)), Y0
@@ -188,16 +213,21 @@ def test_gradients_through_the_area_term_match_finite_differences():
 
     def loss(theta, method):
         model = sj.RigidBody(theta[:3], noise=sj.salt_noise(theta[3:].reshape(3, 3)))
-        return jnp.dot(weights, sj.integrate(model, Y0, dW, 1 / 16, levy_area=A,
-                                             method=method, throw=False))
+        return jnp.dot(
+            weights, sj.integrate(model, Y0, dW, 1 / 16, levy_area=A, method=method, throw=False)
+        )
 
     theta = jnp.concatenate([INERTIA, jnp.asarray(CHI).ravel()])
     eps = 1e-5
     for method in (sj.Midpoint(), sj.LiePoisson(), sj.SaltSplitting()):
         f = jax.jit(lambda t: loss(t, method))
         grad = jax.jit(jax.grad(lambda t: loss(t, method)))(theta)
-        fd = np.array([(f(theta.at[i].add(eps)) - f(theta.at[i].add(-eps))) / (2 * eps)
-                       for i in range(theta.size)])
+        fd = np.array(
+            [
+                (f(theta.at[i].add(eps)) - f(theta.at[i].add(-eps))) / (2 * eps)
+                for i in range(theta.size)
+            ]
+        )
         np.testing.assert_allclose(grad, fd, rtol=0, atol=1e-6, err_msg=type(method).__name__)
 
 
@@ -205,18 +235,34 @@ def test_sampled_areas_in_a_study_give_order_one():
     """Areas drawn by the library at the reference's step (32x finer), joined by Chen's
     relation over the coarse steps: SaltSplitting against itself at the fine step."""
     model = sj.RigidBody(INERTIA, noise=sj.salt_noise(CHI))
-    res = sj.strong_convergence(model, Y0, t1=1.0, dts=HS, n_samples=64,
-                                key=jax.random.key(1), reference=sj.SaltSplitting(),
-                                methods={"s": sj.SaltSplitting(), "no areas": sj.SaltSplitting()},
-                                levy_area={"no areas": False}, reference_factor=32)
+    res = sj.strong_convergence(
+        model,
+        Y0,
+        t1=1.0,
+        dts=HS,
+        n_samples=64,
+        key=jax.random.key(1),
+        reference=sj.SaltSplitting(),
+        methods={"s": sj.SaltSplitting(), "no areas": sj.SaltSplitting()},
+        levy_area={"no areas": False},
+        reference_factor=32,
+    )
     assert 0.85 <= res.order["s"] <= 1.25, res.table()
     assert res.reference_error < 0.1 * res.errors["s"][-1], res.table()
     # the same method without areas, against the same reference: order 1/2
     assert 0.35 <= res.order["no areas"] <= 0.65, res.table()
     with pytest.raises(ValueError, match="levy_area names methods"):
-        sj.strong_convergence(model, Y0, t1=1.0, dts=HS, n_samples=4, key=jax.random.key(1),
-                              methods={"s": sj.SaltSplitting()}, levy_area={"t": False},
-                              reference=sj.SaltSplitting())
+        sj.strong_convergence(
+            model,
+            Y0,
+            t1=1.0,
+            dts=HS,
+            n_samples=4,
+            key=jax.random.key(1),
+            methods={"s": sj.SaltSplitting()},
+            levy_area={"t": False},
+            reference=sj.SaltSplitting(),
+        )
 
 
 @pytest.mark.parametrize("algebra", [sj.so(6), sj.su(8)], ids=str)
@@ -230,11 +276,12 @@ def test_area_term_of_many_noises_equals_the_double_sum(algebra):
     a = np.asarray(jax.random.normal(keys[r], (r, r)))
     A = a - a.T
     ref = 0.5 * sum(A[q, s] * (X[q] @ X[s] - X[s] @ X[q]) for q in range(r) for s in range(r))
-    model = sj.LiePoissonSystem(lambda y, p: algebra.norm_sq(y), None, algebra=algebra,
-                                noise=sj.salt_noise(X))
+    model = sj.LiePoissonSystem(
+        lambda y, p: algebra.norm_sq(y), None, algebra=algebra, noise=sj.salt_noise(X)
+    )
     y = algebra.random_state(jax.random.key(12))
-    np.testing.assert_allclose(model.area_gradient(y, jnp.asarray(A)), ref,
-                               atol=1e-12 * np.max(np.abs(ref)))
-    generic = AbstractNoise.area_gradient(model.noise, y, jnp.asarray(A), model.params,
-                                             algebra)
+    np.testing.assert_allclose(
+        model.area_gradient(y, jnp.asarray(A)), ref, atol=1e-12 * np.max(np.abs(ref))
+    )
+    generic = AbstractNoise.area_gradient(model.noise, y, jnp.asarray(A), model.params, algebra)
     np.testing.assert_allclose(generic, ref, atol=1e-12 * np.max(np.abs(ref)))

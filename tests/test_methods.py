@@ -21,31 +21,37 @@ import slps_jax as sj
 from slps_jax._methods import METHODS
 
 
-
 def _skew(n, norm):
     a = np.random.default_rng(1).normal(size=(n, n))
     return norm * (a - a.T) / np.linalg.norm(a - a.T, 2)
 
 
 def _quartic(y, p):
-    return 0.5 * jnp.sum(y ** 2 / p["inertia"]) + p["eps"] * jnp.sum(y ** 4)
+    return 0.5 * jnp.sum(y**2 / p["inertia"]) + p["eps"] * jnp.sum(y**4)
 
 
 _CHI = 0.4 * np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.5, 1.0]])
 SYSTEMS = {  # one of each kind: the structures they offer differ
     "paper rigid body": (sj.RigidBody.paper(), np.asarray(sj.PAPER_Y0)),
-    "rigid body, 3 SALT noises": (sj.RigidBody([1.0, 2.0, 3.0], noise=sj.salt_noise(_CHI)),
-                                  np.array([0.6, 0.5, 0.3])),
-    "quartic H": (sj.LiePoissonSystem(_quartic, {"inertia": jnp.asarray([1.0, 2.0, 3.0]),
-                                                 "eps": 0.5}, 0.2), np.array([0.6, 0.5, 0.3])),
-    "so(4) rigid body": (sj.GeneralisedRigidBody(jnp.asarray([0.6, 1.1, 1.7, 2.3]), c=0.4),
-                         _skew(4, 0.8)),
+    "rigid body, 3 SALT noises": (
+        sj.RigidBody([1.0, 2.0, 3.0], noise=sj.salt_noise(_CHI)),
+        np.array([0.6, 0.5, 0.3]),
+    ),
+    "quartic H": (
+        sj.LiePoissonSystem(_quartic, {"inertia": jnp.asarray([1.0, 2.0, 3.0]), "eps": 0.5}, 0.2),
+        np.array([0.6, 0.5, 0.3]),
+    ),
+    "so(4) rigid body": (
+        sj.GeneralisedRigidBody(jnp.asarray([0.6, 1.1, 1.7, 2.3]), c=0.4),
+        _skew(4, 0.8),
+    ),
     "Euler-Zeitlin su(3), 2 SALT noises": (
         sj.EulerZeitlin(3, noise=sj.salt_noise(0.3 * sj.zeitlin.shr2mat(np.eye(9)[[1, 5]], 3))),
-        sj.zeitlin.shr2mat(0.5 * np.array([0, 0.3, -0.2, 0.4, 0.5, -0.3, 0.2, 0.1, 0.4]), 3)),
+        sj.zeitlin.shr2mat(0.5 * np.array([0, 0.3, -0.2, 0.4, 0.5, -0.3, 0.2, 0.1, 0.4]), 3),
+    ),
 }
 PAIRS = list(itertools.product(METHODS, SYSTEMS))
-N_SAMPLES, N_STEPS, DT = 4, 16, 2.0 ** -5
+N_SAMPLES, N_STEPS, DT = 4, 16, 2.0**-5
 
 
 def supports(cls, system):
@@ -57,9 +63,13 @@ def quadratic_casimir(model, ys):
 
 
 def test_the_registry_holds_every_public_method():
-    public = {name for name in dir(sj) if isinstance(getattr(sj, name), type)
-              and issubclass(getattr(sj, name), sj.AbstractMethod)
-              and getattr(sj, name) is not sj.AbstractMethod}
+    public = {
+        name
+        for name in dir(sj)
+        if isinstance(getattr(sj, name), type)
+        and issubclass(getattr(sj, name), sj.AbstractMethod)
+        and getattr(sj, name) is not sj.AbstractMethod
+    }
     assert public == {cls.__name__ for cls in METHODS}
     # every system is supported by some method, and every method by some system
     assert all(any(supports(cls, s) for cls in METHODS) for s in SYSTEMS)
@@ -73,13 +83,22 @@ def test_method_on_system(cls, system):
     key = jax.random.key(0)
     if not supports(cls, system):
         with pytest.raises(TypeError, match=cls.__name__) as err:
-            sj.simulate(model, y0, t1=N_STEPS * DT, dt=DT, n_samples=N_SAMPLES, key=key,
-                        method=method)
+            sj.simulate(
+                model, y0, t1=N_STEPS * DT, dt=DT, n_samples=N_SAMPLES, key=key, method=method
+            )
         works = [c.__name__ for c in METHODS if supports(c, system)]
         assert any(name in str(err.value) for name in works), str(err.value)
         return
-    sol = sj.simulate(model, y0, t1=N_STEPS * DT, dt=DT, n_samples=N_SAMPLES, key=key,
-                      method=method, save_every=N_STEPS // 2)
+    sol = sj.simulate(
+        model,
+        y0,
+        t1=N_STEPS * DT,
+        dt=DT,
+        n_samples=N_SAMPLES,
+        key=key,
+        method=method,
+        save_every=N_STEPS // 2,
+    )
     assert sol.ys.shape == (N_SAMPLES, 3, *np.shape(y0))
     assert bool(jnp.all(sol.ok)) and bool(jnp.all(jnp.isfinite(sol.ys)))
     c0 = quadratic_casimir(model, jnp.asarray(y0))
@@ -95,14 +114,24 @@ def test_method_on_system(cls, system):
     # Newton stops at 64 float32 ulps (8e-6) per step, 16 steps (measured up to 2e-5).
     # (with the Lévy areas simulate draws for a method that uses them)
     areas = cls.uses_levy_area() and model.n_noises > 1
-    dW = sj.brownian_increments(key, N_STEPS, DT, n_samples=N_SAMPLES, n_noises=model.n_noises,
-                                levy_area=areas)
+    dW = sj.brownian_increments(
+        key, N_STEPS, DT, n_samples=N_SAMPLES, n_noises=model.n_noises, levy_area=areas
+    )
     dW, A = dW if areas else (dW, None)
     model32 = jax.tree_util.tree_map(
-        lambda x: jnp.asarray(x, jnp.float32) if jnp.issubdtype(jnp.result_type(x), jnp.floating)
-        else x, model)
-    y32 = sj.integrate(model32, jnp.asarray(y0, jnp.float32), dW[0].astype(jnp.float32), DT,
-                       method=method, levy_area=None if A is None else A[0].astype(jnp.float32))
+        lambda x: (
+            jnp.asarray(x, jnp.float32) if jnp.issubdtype(jnp.result_type(x), jnp.floating) else x
+        ),
+        model,
+    )
+    y32 = sj.integrate(
+        model32,
+        jnp.asarray(y0, jnp.float32),
+        dW[0].astype(jnp.float32),
+        DT,
+        method=method,
+        levy_area=None if A is None else A[0].astype(jnp.float32),
+    )
     assert y32.dtype == jnp.float32
     np.testing.assert_allclose(np.asarray(y32, np.float64), sol.ys[0, -1], rtol=0, atol=1e-4)
 
@@ -116,8 +145,13 @@ def test_the_retry_wraps_only_steps_that_can_fail(cls):
     dW = jnp.zeros((N_STEPS, model.n_noises))
 
     def traced(retry):
-        return str(jax.make_jaxpr(lambda d: sj.integrate(
-            model, y0, d, DT, method=cls(), throw=False, retry_substeps=retry))(dW))
+        return str(
+            jax.make_jaxpr(
+                lambda d: sj.integrate(
+                    model, y0, d, DT, method=cls(), throw=False, retry_substeps=retry
+                )
+            )(dW)
+        )
 
     assert (traced(4) == traced(None)) == (not cls.can_fail)
 
@@ -126,8 +160,11 @@ def test_auto_is_midpoint_on_so3_and_isospectral_midpoint_on_matrix_algebras():
     """`method="auto"`, the default of every entry point, is `default_method`: `Midpoint`
     on so(3)* (any system, one or several noises), `IsospectralMidpoint` on so(n)*, su(N)*;
     the same paths as naming the method. Anything else is refused, naming the choices."""
-    picks = {"paper rigid body": sj.Midpoint, "rigid body, 3 SALT noises": sj.Midpoint,
-             "quartic H": sj.Midpoint}
+    picks = {
+        "paper rigid body": sj.Midpoint,
+        "rigid body, 3 SALT noises": sj.Midpoint,
+        "quartic H": sj.Midpoint,
+    }
     for name, cls in picks.items():
         model, y0 = SYSTEMS[name]
         assert type(sj.default_method(model)) is cls, name
@@ -135,17 +172,21 @@ def test_auto_is_midpoint_on_so3_and_isospectral_midpoint_on_matrix_algebras():
     assert type(sj.default_method(so4)) is sj.IsospectralMidpoint
     assert type(sj.default_method(sj.EulerZeitlin(4))) is sj.IsospectralMidpoint
     model, y0 = SYSTEMS["rigid body, 3 SALT noises"]
-    kw = dict(t1=0.25, dt=2.0 ** -4, n_samples=4, key=jax.random.key(0))
-    np.testing.assert_array_equal(sj.simulate(model, y0, **kw).ys,
-                                  sj.simulate(model, y0, method=sj.Midpoint(), **kw).ys)
+    kw = dict(t1=0.25, dt=2.0**-4, n_samples=4, key=jax.random.key(0))
+    np.testing.assert_array_equal(
+        sj.simulate(model, y0, **kw).ys, sj.simulate(model, y0, method=sj.Midpoint(), **kw).ys
+    )
     Y0 = _skew(4, 0.8)
     np.testing.assert_array_equal(
         sj.simulate(so4, Y0, **kw).ys,
-        sj.simulate(so4, Y0, method=sj.IsospectralMidpoint(), **kw).ys)
-    dW = sj.brownian_increments(jax.random.key(1), 4, 2.0 ** -4)
+        sj.simulate(so4, Y0, method=sj.IsospectralMidpoint(), **kw).ys,
+    )
+    dW = sj.brownian_increments(jax.random.key(1), 4, 2.0**-4)
     paper, y0 = SYSTEMS["paper rigid body"]
-    np.testing.assert_array_equal(sj.integrate(paper, y0, dW, 2.0 ** -4),
-                                  sj.integrate(paper, y0, dW, 2.0 ** -4, method=sj.Midpoint()))
+    np.testing.assert_array_equal(
+        sj.integrate(paper, y0, dW, 2.0**-4),
+        sj.integrate(paper, y0, dW, 2.0**-4, method=sj.Midpoint()),
+    )
     for bad in ("fast", None):
         with pytest.raises(TypeError, match="'auto' or an instance"):
             sj.simulate(paper, y0, method=bad, **kw)

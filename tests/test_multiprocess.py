@@ -36,12 +36,33 @@ def _example():
 def test_two_processes_equal_one(tmp_path):
     port = _free_port()
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    procs = [subprocess.Popen(
-        [sys.executable, str(SCRIPT), "--coordinator", f"localhost:{port}",
-         "--num-processes", "2", "--process-id", str(i), "--cpu-devices", "2",
-         "--out", str(tmp_path), "--axis-types", "explicit", "auto"],
-        env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-        start_new_session=True) for i in range(2)]
+    procs = [
+        subprocess.Popen(
+            [
+                sys.executable,
+                str(SCRIPT),
+                "--coordinator",
+                f"localhost:{port}",
+                "--num-processes",
+                "2",
+                "--process-id",
+                str(i),
+                "--cpu-devices",
+                "2",
+                "--out",
+                str(tmp_path),
+                "--axis-types",
+                "explicit",
+                "auto",
+            ],
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            start_new_session=True,
+        )
+        for i in range(2)
+    ]
     outputs = []
     try:
         for p in procs:

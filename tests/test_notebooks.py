@@ -21,8 +21,13 @@ NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
 
 def test_there_are_notebooks():
     assert [p.name for p in NOTEBOOKS] == [
-        "01_paper.ipynb", "02_accuracy_and_speed.ipynb", "03_gradients_and_calibration.ipynb",
-        "04_several_noises.ipynb", "05_so_n.ipynb", "06_euler_sphere.ipynb"]
+        "01_paper.ipynb",
+        "02_accuracy_and_speed.ipynb",
+        "03_gradients_and_calibration.ipynb",
+        "04_several_noises.ipynb",
+        "05_so_n.ipynb",
+        "06_euler_sphere.ipynb",
+    ]
 
 
 def test_notebooks_are_committed_without_outputs():
@@ -32,7 +37,8 @@ def test_notebooks_are_committed_without_outputs():
             if cell.cell_type == "code":
                 assert not cell.outputs and cell.execution_count is None, (
                     f"{path.name}: clear the outputs before committing "
-                    "(jupyter nbconvert --clear-output --inplace notebooks/*.ipynb)")
+                    "(jupyter nbconvert --clear-output --inplace notebooks/*.ipynb)"
+                )
 
 
 # Each notebook starts from a fresh namespace, and without the previous one's compiled
@@ -57,8 +63,12 @@ def kernel():
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("SLPS_NOTEBOOK_SIZE", "small")
         mp.delenv("MPLBACKEND", raising=False)
-        mp.setenv("PYTHONPATH", os.pathsep.join(
-            [str(ROOT)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
+        mp.setenv(
+            "PYTHONPATH",
+            os.pathsep.join(
+                [str(ROOT)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
+            ),
+        )
         # (the kernel shares the run's persistent compilation cache: tests/conftest.py)
         km = jupyter_client.KernelManager(kernel_name="python3")
         km.start_kernel(cwd=str(ROOT / "notebooks"))

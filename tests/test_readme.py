@@ -44,7 +44,7 @@ def shrink(code):
     for number, line in enumerate(code.splitlines(), 1):
         mark = _MARK.search(line)
         if mark:
-            body, comment = line[:mark.start()], line[mark.start():]
+            body, comment = line[: mark.start()], line[mark.start() :]
             pairs = _PAIR.findall(mark.group(1))
             assert pairs, f"line {number}: a '# test:' marker without NAME=VALUE: {line!r}"
             for name, value in pairs:
@@ -57,8 +57,10 @@ def shrink(code):
 
 def _id(index, code):
     lines = [line for line in code.splitlines() if line.strip()]
-    first = next((line for line in lines if not line.startswith(("import ", "from ", "jax.config"))),
-                 lines[0] if lines else "(empty)")
+    first = next(
+        (line for line in lines if not line.startswith(("import ", "from ", "jax.config"))),
+        lines[0] if lines else "(empty)",
+    )
     return f"{index}-{re.sub(r'[^A-Za-z0-9_.]+', '_', first).strip('_')[:40]}"
 
 
@@ -69,8 +71,9 @@ def test_readme_has_python_blocks():
     assert len(BLOCKS) >= 5, f"found only {len(BLOCKS)} python blocks in {README}"
 
 
-@pytest.mark.parametrize("index,code", list(enumerate(BLOCKS)),
-                         ids=[_id(i, c) for i, c in enumerate(BLOCKS)])
+@pytest.mark.parametrize(
+    "index,code", list(enumerate(BLOCKS)), ids=[_id(i, c) for i, c in enumerate(BLOCKS)]
+)
 def test_block_runs(index, code):
     source = shrink(code)
     namespace = {"__name__": f"readme_block_{index}"}
@@ -81,24 +84,32 @@ def test_block_runs(index, code):
 
 
 def test_shrink_rule():
-    code = ("x = f(a, n_samples=10**6, b=2)  # test: n_samples=10\n"
-            "N = 32  # test: N=8\n"
-            "y = g(steps=30, n=4)  # test: steps=2 n=1\n")
+    code = (
+        "x = f(a, n_samples=10**6, b=2)  # test: n_samples=10\n"
+        "N = 32  # test: N=8\n"
+        "y = g(steps=30, n=4)  # test: steps=2 n=1\n"
+    )
     assert shrink(code).splitlines() == [
         "x = f(a, n_samples=10, b=2)  # test: n_samples=10",
         "N=8  # test: N=8",
-        "y = g(steps=2, n=1)  # test: steps=2 n=1"]
+        "y = g(steps=2, n=1)  # test: steps=2 n=1",
+    ]
     with pytest.raises(AssertionError, match="not on the line"):
         shrink("x = 1  # test: n_samples=3\n")
 
 
 def test_readme_is_short():
     n = len(README.read_text(encoding="utf-8").splitlines())
-    assert n <= MAX_LINES, (f"README.md has {n} lines, at most {MAX_LINES}: move measurements "
-                            f"and details into benchmarks/README.md or docs/")
+    assert n <= MAX_LINES, (
+        f"README.md has {n} lines, at most {MAX_LINES}: move measurements "
+        f"and details into benchmarks/README.md or docs/"
+    )
 
 
 def test_readme_has_no_history():
-    hits = [f"{i}: {line}" for i, line in
-            enumerate(README.read_text(encoding="utf-8").splitlines(), 1) if re.search(r"was \d", line)]
+    hits = [
+        f"{i}: {line}"
+        for i, line in enumerate(README.read_text(encoding="utf-8").splitlines(), 1)
+        if re.search(r"was \d", line)
+    ]
     assert not hits, "history ('was <number>') belongs in benchmarks/README.md:\n" + "\n".join(hits)

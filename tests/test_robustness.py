@@ -15,13 +15,12 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from reference import exact_sde_solution
 from scipy.optimize import root
 from scipy.spatial.transform import Rotation
+from test_benchmarks import run_script
 
 import slps_jax as sj
-
-from reference import exact_sde_solution
-from test_benchmarks import run_script
 
 PAPER_DIR = np.array([0.7, 0.7, 0.0]) / math.hypot(0.7, 0.7)
 
@@ -42,8 +41,16 @@ def test_simulate_failed_samples_frozen_at_last_good_state():
     model = sj.RigidBody.paper()
     model = sj.RigidBody(model.inertia, 1.0)
     y0 = 0.99 * PAPER_DIR
-    sol = quiet_simulate(model, y0, t1=0.5, dt=2 ** -5, n_samples=16, key=jax.random.key(20),
-                         save_every=1, retry_substeps=None)
+    sol = quiet_simulate(
+        model,
+        y0,
+        t1=0.5,
+        dt=2**-5,
+        n_samples=16,
+        key=jax.random.key(20),
+        save_every=1,
+        retry_substeps=None,
+    )
     ys, fail = np.asarray(sol.ys), np.asarray(sol.fail_step)
     failed = np.asarray(sol.result) != sj.RESULTS.successful
     assert failed.any() and (fail[failed] >= 0).all() and (fail[~failed] == -1).all()
@@ -52,26 +59,27 @@ def test_simulate_failed_samples_frozen_at_last_good_state():
     for i in np.flatnonzero(failed):
         f = fail[i]  # ys[:, j] is the state after j steps: ys[i, f] is the last good one
         np.testing.assert_array_equal(ys[i, f:], np.broadcast_to(ys[i, f], ys[i, f:].shape))
-        np.testing.assert_allclose(np.linalg.norm(ys[i, :f + 1], axis=-1), 0.99, rtol=1e-13)
+        np.testing.assert_allclose(np.linalg.norm(ys[i, : f + 1], axis=-1), 0.99, rtol=1e-13)
     # The unflagged samples' paths are close to the exact solution on the same increments.
-    dW = np.asarray(sj.brownian_increments(jax.random.key(20), 16, 2 ** -5, n_samples=16))
+    dW = np.asarray(sj.brownian_increments(jax.random.key(20), 16, 2**-5, n_samples=16))
     ok = np.flatnonzero(~failed)
     if ok.size:
         ref = exact_sde_solution(model.inertia, 1.0, y0, dW[ok].sum(1), 0.5)
         assert np.max(np.abs(ys[ok, -1] - ref)) < 0.05
 
 
-@pytest.mark.parametrize("method,step", [(sj.LiePoisson(), 7), (sj.Midpoint(), 7),
-                                         (sj.EulerMaruyama(), 8)],
-                         ids=["LiePoisson", "Midpoint", "EulerMaruyama"])
+@pytest.mark.parametrize(
+    "method,step",
+    [(sj.LiePoisson(), 7), (sj.Midpoint(), 7), (sj.EulerMaruyama(), 8)],
+    ids=["LiePoisson", "Midpoint", "EulerMaruyama"],
+)
 def test_failure_at_an_injected_increment(paper, method, step):
     # dW = 1e300 at step 7: the implicit solves fail there; Euler-Maruyama's step is still
     # finite (about 1e299) and overflows at step 8.
     model, y0 = paper
     dW = np.array(sj.brownian_increments(jax.random.key(21), 12, 0.01))
     dW[7] = 1e300
-    ys = np.asarray(sj.integrate(model, y0, dW, 0.01, method=method, throw=False,
-                                 save_every=1))
+    ys = np.asarray(sj.integrate(model, y0, dW, 0.01, method=method, throw=False, save_every=1))
     assert np.isfinite(ys).all()
     # Frozen from the failing step on at the state after steps 0 .. step-1, which is the
     # path of the first `step` increments.
@@ -94,10 +102,10 @@ def test_the_streaming_example_s_hard_sample_succeeds_with_default_arguments(pap
     # tests/test_benchmarks.py.)
     model, y0 = paper
     key = jax.random.key(0)
-    dW = np.asarray(sj.brownian_increments(key, 32, 2 ** -5, n_samples=42822)[42821])
+    dW = np.asarray(sj.brownian_increments(key, 32, 2**-5, n_samples=42822)[42821])
     with pytest.raises(RuntimeError, match="step 1 could not be solved"):
-        sj.integrate(model, y0, dW, 2 ** -5, retry_substeps=None, method=sj.LiePoisson())
-    y1 = np.asarray(sj.integrate(model, y0, dW, 2 ** -5, method=sj.LiePoisson()))
+        sj.integrate(model, y0, dW, 2**-5, retry_substeps=None, method=sj.LiePoisson())
+    y1 = np.asarray(sj.integrate(model, y0, dW, 2**-5, method=sj.LiePoisson()))
     ref = exact_sde_solution(model.inertia, model.c, y0, [dW.sum()], 1.0)[0]
     assert np.linalg.norm(y1 - ref) < 1e-2
     np.testing.assert_allclose(np.linalg.norm(y1), np.linalg.norm(y0), rtol=1e-13)
@@ -119,8 +127,9 @@ def test_gradient_through_retried_steps_matches_finite_differences():
 
     g_inertia, g_c = jax.grad(f, argnums=(0, 1))(inertia, 1.0)
     eps, e = 1e-6, np.eye(3)
-    fd = [(f(inertia + eps * e[i], 1.0) - f(inertia - eps * e[i], 1.0)) / (2 * eps)
-          for i in range(3)]
+    fd = [
+        (f(inertia + eps * e[i], 1.0) - f(inertia - eps * e[i], 1.0)) / (2 * eps) for i in range(3)
+    ]
     np.testing.assert_allclose(g_inertia, fd, rtol=1e-6, atol=1e-9)
     fd_c = (f(inertia, 1.0 + eps) - f(inertia, 1.0 - eps)) / (2 * eps)
     np.testing.assert_allclose(g_c, fd_c, rtol=1e-6)
@@ -133,8 +142,14 @@ def test_simulate_returns_failures_flagged_and_warns():
     # test_retry_keeps_strong_order_one.)
     model = sj.RigidBody(sj.RigidBody.paper().inertia, 1.0)
     y0 = 0.99 * PAPER_DIR
-    run = dict(t1=1.0, dt=2 ** -3, n_samples=24, key=jax.random.key(20), retry_substeps=None,
-               method=sj.LiePoisson())
+    run = dict(
+        t1=1.0,
+        dt=2**-3,
+        n_samples=24,
+        key=jax.random.key(20),
+        retry_substeps=None,
+        method=sj.LiePoisson(),
+    )
     with pytest.warns(RuntimeWarning, match=r"samples failed.*Solution.ok"):
         sol = sj.simulate(model, y0, **run)
     n_failed = int(sol.stats["n_failed"])
@@ -146,9 +161,13 @@ def test_simulate_returns_failures_flagged_and_warns():
         jax.effects_barrier()  # (the callback's warning may come after the result)
 
 
-
-RETRY_RUN = dict(t1=1.0, dt=0.1, n_samples=24, key=jax.random.key(23),  # shared compilations
-                 method=sj.LiePoisson())
+RETRY_RUN = dict(
+    t1=1.0,
+    dt=0.1,
+    n_samples=24,
+    key=jax.random.key(23),  # shared compilations
+    method=sj.LiePoisson(),
+)
 
 
 def test_retry_changes_nothing_when_no_step_fails(paper):
@@ -175,7 +194,7 @@ def test_retry_recovers_failed_samples_accurately():
     # Midpoint's error on the same paths is ~1e-2 at this step; Strang's ~4e-2. LiePoisson's
     # is 6.4e-2: its continuation solves some steps of tau ~ 1 whole, which the retry would
     # otherwise split into substeps.
-    assert np.sqrt(np.mean(err ** 2)) < 0.08 and err.max() < 0.2
+    assert np.sqrt(np.mean(err**2)) < 0.08 and err.max() < 0.2
 
 
 def test_retry_keeps_strong_order_one():
@@ -183,8 +202,14 @@ def test_retry_keeps_strong_order_one():
     # error keeps order 1 (and the retried samples' errors are no larger than the others').
     model = sj.RigidBody.paper()
     y0 = 0.999 * PAPER_DIR
-    kwargs = dict(t1=1.0, dts=[2.0 ** -k for k in range(4, 9)], n_samples=200,
-                  key=jax.random.key(24), methods={"LP": sj.LiePoisson()}, n_bootstrap=20)
+    kwargs = dict(
+        t1=1.0,
+        dts=[2.0**-k for k in range(4, 9)],
+        n_samples=200,
+        key=jax.random.key(24),
+        methods={"LP": sj.LiePoisson()},
+        n_bootstrap=20,
+    )
     # Without the retry, failed samples are left out of every step size, counted, and warned
     # about (never used as data, and the study returns).
     with pytest.warns(RuntimeWarning, match="left out of LP's estimates at every step size"):
@@ -203,8 +228,10 @@ def test_retry_keeps_strong_order_one():
 @pytest.fixture
 def no_compile():
     """Fail if the driver would start compiling."""
+
     def boom(*args, **kwargs):
         raise AssertionError("compiled before validating")
+
     targets = ["ensemble_jit", "_integrate_jit", "ensemble_dynamic_jit"]
     patches = [mock.patch(f"slps_jax._integrate.{t}", boom) for t in targets]
     patches.append(mock.patch("slps_jax._convergence.ensemble_dynamic_jit", boom))
@@ -255,8 +282,7 @@ BAD_SIMULATE = [
 @pytest.mark.parametrize("bad,exc,match", BAD_SIMULATE)
 def test_simulate_rejects_bad_input_before_compiling(paper, no_compile, bad, exc, match):
     model, y0 = paper
-    kwargs = dict(model=model, y0=y0, t1=1.0, dt=0.1, n_samples=4, key=KEY,
-                  method=sj.LiePoisson())
+    kwargs = dict(model=model, y0=y0, t1=1.0, dt=0.1, n_samples=4, key=KEY, method=sj.LiePoisson())
     kwargs.update(bad)
     with pytest.raises(exc, match=match):
         sj.simulate(kwargs.pop("model"), kwargs.pop("y0"), **kwargs)
@@ -306,11 +332,9 @@ BAD_CONVERGENCE = [
 
 
 @pytest.mark.parametrize("bad,exc,match", BAD_CONVERGENCE)
-def test_strong_convergence_rejects_bad_input_before_compiling(paper, no_compile, bad, exc,
-                                                               match):
+def test_strong_convergence_rejects_bad_input_before_compiling(paper, no_compile, bad, exc, match):
     model, y0 = paper
-    kwargs = dict(t1=1.0, dts=[0.1, 0.05], n_samples=4, key=KEY,
-                  methods={"LP": sj.LiePoisson()})
+    kwargs = dict(t1=1.0, dts=[0.1, 0.05], n_samples=4, key=KEY, methods={"LP": sj.LiePoisson()})
     kwargs.update(bad)
     with pytest.raises(exc, match=match):
         sj.strong_convergence(model, y0, **kwargs)
@@ -338,8 +362,7 @@ def test_brownian_increments_rejects_bad_input(bad, exc, match):
     kwargs = dict(key=KEY, n_steps=10, dt=0.1)
     kwargs.update(bad)
     with pytest.raises(exc, match=match):
-        sj.brownian_increments(kwargs.pop("key"), kwargs.pop("n_steps"), kwargs.pop("dt"),
-                               **kwargs)
+        sj.brownian_increments(kwargs.pop("key"), kwargs.pop("n_steps"), kwargs.pop("dt"), **kwargs)
 
 
 BAD_FLOW = [
@@ -363,11 +386,14 @@ def test_exact_flow_rejects_bad_input(paper, bad, exc, match):
         sj.exact_flow(kwargs["model"], kwargs["y0"], kwargs["t"])
 
 
-@pytest.mark.parametrize("bad,exc,match", [
-    (dict(W_t=np.zeros(3)), ValueError, r"W_t.*vmap"),
-    (dict(W_t=np.nan), ValueError, "W_t"),
-    (dict(model=mock.Mock(spec=["inertia"], inertia=np.ones(3))), TypeError, "`c`"),
-])
+@pytest.mark.parametrize(
+    "bad,exc,match",
+    [
+        (dict(W_t=np.zeros(3)), ValueError, r"W_t.*vmap"),
+        (dict(W_t=np.nan), ValueError, "W_t"),
+        (dict(model=mock.Mock(spec=["inertia"], inertia=np.ones(3))), TypeError, "`c`"),
+    ],
+)
 def test_exact_solution_rejects_bad_input(paper, bad, exc, match):
     model, y0 = paper
     kwargs = dict(model=model, W_t=0.1)
@@ -376,32 +402,38 @@ def test_exact_solution_rejects_bad_input(paper, bad, exc, match):
         sj.exact_solution(kwargs["model"], y0, 1.0, kwargs["W_t"])
 
 
-@pytest.mark.parametrize("inertia,c,exc,match", [
-    ("abc", 0.2, TypeError, "inertia"),
-    ([1.0, 2.0, 3.0j], 0.2, TypeError, "inertia"),
-    ([[1.0, 2.0, 3.0]], 0.2, ValueError, "inertia"),
-    ([1.0, 2.0, 3.0], "0.2", TypeError, "c"),
-    ([1.0, 2.0, 3.0], np.inf, ValueError, "c"),
-    ([1.0, 2.0, 3.0], object(), TypeError, "c"),
-])
+@pytest.mark.parametrize(
+    "inertia,c,exc,match",
+    [
+        ("abc", 0.2, TypeError, "inertia"),
+        ([1.0, 2.0, 3.0j], 0.2, TypeError, "inertia"),
+        ([[1.0, 2.0, 3.0]], 0.2, ValueError, "inertia"),
+        ([1.0, 2.0, 3.0], "0.2", TypeError, "c"),
+        ([1.0, 2.0, 3.0], np.inf, ValueError, "c"),
+        ([1.0, 2.0, 3.0], object(), TypeError, "c"),
+    ],
+)
 def test_rigid_body_rejects_more_bad_input(inertia, c, exc, match):
     with pytest.raises(exc, match=match):
         sj.RigidBody(inertia, c)
 
 
-@pytest.mark.parametrize("ctor,kwargs,exc,match", [
-    (sj.Midpoint, dict(tol="1e-9"), TypeError, "tol"),
-    (sj.Midpoint, dict(tol=-1.0), ValueError, "tol"),
-    (sj.Midpoint, dict(max_iter=True), ValueError, "max_iter"),
-    (sj.Midpoint, dict(max_iter=2.0), ValueError, "max_iter"),
-    (sj.LiePoisson, dict(tol=0.0), ValueError, "tol"),
-    (sj.LiePoisson, dict(scale=-2.0), ValueError, "scale"),
-    (sj.LiePoisson, dict(scale=np.nan), ValueError, "scale"),
-    (sj.LiePoisson, dict(max_iter=0), ValueError, "max_iter"),
-    (sj.LiePoisson, dict(max_iter=True), ValueError, "max_iter"),
-    (sj.LiePoisson, dict(tol="1e-9"), TypeError, "tol"),
-    (sj.LiePoissonSym2, dict(max_iter=np.int64(0)), ValueError, "max_iter"),
-])
+@pytest.mark.parametrize(
+    "ctor,kwargs,exc,match",
+    [
+        (sj.Midpoint, dict(tol="1e-9"), TypeError, "tol"),
+        (sj.Midpoint, dict(tol=-1.0), ValueError, "tol"),
+        (sj.Midpoint, dict(max_iter=True), ValueError, "max_iter"),
+        (sj.Midpoint, dict(max_iter=2.0), ValueError, "max_iter"),
+        (sj.LiePoisson, dict(tol=0.0), ValueError, "tol"),
+        (sj.LiePoisson, dict(scale=-2.0), ValueError, "scale"),
+        (sj.LiePoisson, dict(scale=np.nan), ValueError, "scale"),
+        (sj.LiePoisson, dict(max_iter=0), ValueError, "max_iter"),
+        (sj.LiePoisson, dict(max_iter=True), ValueError, "max_iter"),
+        (sj.LiePoisson, dict(tol="1e-9"), TypeError, "tol"),
+        (sj.LiePoissonSym2, dict(max_iter=np.int64(0)), ValueError, "max_iter"),
+    ],
+)
 def test_method_constructors_reject_bad_options(ctor, kwargs, exc, match):
     with pytest.raises(exc, match=match):
         ctor(**kwargs)
@@ -411,6 +443,7 @@ def test_exact_flow_still_works_under_jit_and_vmap(paper):
     model, y0 = paper
     ys = jax.jit(jax.vmap(lambda t: sj.exact_flow(model, y0, t)))(jnp.array([0.3, -0.7]))
     from reference import rigid_body_flow
+
     for t, y in zip((0.3, -0.7), np.asarray(ys)):
         np.testing.assert_allclose(y, rigid_body_flow(model.inertia, y0, t), atol=1e-12)
 
@@ -437,6 +470,7 @@ def test_dtype_policy_model_dtype_wins(paper):
 
 def inmap_residual_numpy(a, y, inertia, tau, kappa):
     """The in-map of docs/scheme.md, transcribed to NumPy from the formulas (not from the code)."""
+
     def vee(m):
         return np.array([m[2, 1], m[0, 2], m[1, 0]])
 
@@ -459,9 +493,13 @@ def solve_inmap_scipy(y, inertia, tau, kappa):
     r = np.linalg.norm(y)
     x = y / r * np.arcsin(r)
     for s in np.linspace(0.0, 1.0, 21)[1:]:
-        sol = root(lambda x: inmap_residual_numpy(Rotation.from_rotvec(x).as_matrix(), y,
-                                                  inertia, s * tau, s * s * kappa), x,
-                   tol=1e-15)
+        sol = root(
+            lambda x: inmap_residual_numpy(
+                Rotation.from_rotvec(x).as_matrix(), y, inertia, s * tau, s * s * kappa
+            ),
+            x,
+            tol=1e-15,
+        )
         x = sol.x
     a = Rotation.from_rotvec(x).as_matrix()
     return a, np.max(np.abs(inmap_residual_numpy(a, y, inertia, tau, kappa)))
@@ -475,22 +513,43 @@ def lp_step(inertia, c, y, dt, dW):
 @jax.jit
 def all_steps(inertia, c, y, dt, dW):
     model = sj.RigidBody(inertia, c)
-    return {name: m.step(model, y, dt, dW)
-            for name, m in (("Midpoint", sj.Midpoint()), ("Strang", sj.Strang()),
-                            ("Exact", sj.Exact()), ("EulerMaruyama", sj.EulerMaruyama()))}
+    return {
+        name: m.step(model, y, dt, dW)
+        for name, m in (
+            ("Midpoint", sj.Midpoint()),
+            ("Strang", sj.Strang()),
+            ("Exact", sj.Exact()),
+            ("EulerMaruyama", sj.EulerMaruyama()),
+        )
+    }
 
 
 inertias = st.lists(st.floats(-1.0, 1.0), min_size=3, max_size=3).map(
-    lambda e: 10.0 ** np.asarray(e))  # ratios up to 1e2
-directions = st.lists(st.floats(-1.0, 1.0), min_size=3, max_size=3).filter(
-    lambda v: np.linalg.norm(v) > 0.1).map(lambda v: np.asarray(v) / np.linalg.norm(v))
-FAST = settings(max_examples=25, deadline=None, derandomize=True, database=None,
-                suppress_health_check=[HealthCheck.too_slow])
+    lambda e: 10.0 ** np.asarray(e)
+)  # ratios up to 1e2
+directions = (
+    st.lists(st.floats(-1.0, 1.0), min_size=3, max_size=3)
+    .filter(lambda v: np.linalg.norm(v) > 0.1)
+    .map(lambda v: np.asarray(v) / np.linalg.norm(v))
+)
+FAST = settings(
+    max_examples=25,
+    deadline=None,
+    derandomize=True,
+    database=None,
+    suppress_health_check=[HealthCheck.too_slow],
+)
 
 
 @FAST
-@given(inertia=inertias, direction=directions, radius=st.floats(0.05, 0.95),
-       c=st.floats(0.0, 1.0), h=st.floats(1e-3, 0.1), xi=st.floats(-3.0, 3.0))
+@given(
+    inertia=inertias,
+    direction=directions,
+    radius=st.floats(0.05, 0.95),
+    c=st.floats(0.0, 1.0),
+    h=st.floats(1e-3, 0.1),
+    xi=st.floats(-3.0, 3.0),
+)
 def test_lie_poisson_step_properties(inertia, direction, radius, c, h, xi):
     y = radius * direction
     dW = xi * math.sqrt(h)
@@ -510,8 +569,14 @@ def test_lie_poisson_step_properties(inertia, direction, radius, c, h, xi):
 
 
 @FAST
-@given(inertia=inertias, direction=directions, radius=st.floats(0.05, 3.0),
-       c=st.floats(0.0, 3.0), h=st.floats(1e-3, 0.5), xi=st.floats(-4.0, 4.0))
+@given(
+    inertia=inertias,
+    direction=directions,
+    radius=st.floats(0.05, 3.0),
+    c=st.floats(0.0, 3.0),
+    h=st.floats(1e-3, 0.5),
+    xi=st.floats(-4.0, 4.0),
+)
 def test_other_methods_step_properties(inertia, direction, radius, c, h, xi):
     y = radius * direction
     out = all_steps(inertia, c, y, h, xi * math.sqrt(h))
@@ -541,11 +606,10 @@ def test_same_result_with_and_without_jit(paper):
     np.testing.assert_allclose(lp_eager, lp_jit, rtol=0, atol=1e-15)
 
 
-@pytest.mark.parametrize("method", [sj.Midpoint(), sj.Strang()],
-                         ids=lambda m: type(m).__name__)
+@pytest.mark.parametrize("method", [sj.Midpoint(), sj.Strang()], ids=lambda m: type(m).__name__)
 def test_sample_paths_independent_of_batch_and_repeatable(paper, method):
     model, y0 = paper
-    kwargs = dict(t1=0.25, dt=2 ** -5, key=jax.random.key(31), method=method)
+    kwargs = dict(t1=0.25, dt=2**-5, key=jax.random.key(31), method=method)
     small = sj.simulate(model, y0, n_samples=7, save_every=2, **kwargs)
     again = sj.simulate(model, y0, n_samples=7, save_every=2, **kwargs)
     big = sj.simulate(model, y0, n_samples=300, **kwargs)
@@ -561,9 +625,16 @@ def test_stress_matrix_fast(tmp_path):
     run_script("stress.py", tmp_path)
     import csv
     import json
+
     rows = list(csv.DictReader(open(tmp_path / "stress.csv")))
-    assert {r["method"] for r in rows} == {"LiePoisson", "LiePoisson+retry4", "Midpoint",
-                                           "Strang", "EulerMaruyama", "Exact"}
+    assert {r["method"] for r in rows} == {
+        "LiePoisson",
+        "LiePoisson+retry4",
+        "Midpoint",
+        "Strang",
+        "EulerMaruyama",
+        "Exact",
+    }
     for r in rows:
         assert int(r["nonfinite_unflagged"]) == 0 and int(r["nonfinite_flagged"]) == 0
     by = {r["method"]: r for r in rows}
@@ -580,8 +651,14 @@ def test_stress_matrix_fast(tmp_path):
     # Several noises: no NaN/Inf anywhere, every failure with its reason, |y| kept by the
     # Poisson methods.
     noise = {r["method"]: r for r in csv.DictReader(open(tmp_path / "stress_noises.csv"))}
-    assert set(noise) == {"LiePoisson", "LiePoisson+retry4", "Midpoint", "SaltSplitting",
-                          "Heun", "EulerMaruyama"}
+    assert set(noise) == {
+        "LiePoisson",
+        "LiePoisson+retry4",
+        "Midpoint",
+        "SaltSplitting",
+        "Heun",
+        "EulerMaruyama",
+    }
     for r in noise.values():
         assert int(r["nonfinite_unflagged"]) == 0 and int(r["nonfinite_flagged"]) == 0
         assert (r["reasons"] == "-") == (int(r["failed"]) == 0), r

@@ -18,7 +18,7 @@ import pytest
 import slps_jax as sj
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-KW = dict(t1=0.25, dt=2.0 ** -5)
+KW = dict(t1=0.25, dt=2.0**-5)
 ALL = ("mean", "var", "cov", "skewness", "kurtosis")
 
 SHARDED = textwrap.dedent("""
@@ -106,39 +106,60 @@ SHARDED = textwrap.dedent("""
 def test_sharded_simulate_matches_unsharded_on_four_devices():
     # (the suite's XLA flags kept: tests/conftest.py)
     flags = f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=4"
-    env = dict(os.environ, XLA_FLAGS=flags.strip(), JAX_PLATFORMS="cpu", PYTHONPATH=os.pathsep.join(
-                   [str(ROOT)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep)
-                                  if p]))
+    env = dict(
+        os.environ,
+        XLA_FLAGS=flags.strip(),
+        JAX_PLATFORMS="cpu",
+        PYTHONPATH=os.pathsep.join(
+            [str(ROOT)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
+        ),
+    )
     code = f"ROOT = {str(ROOT)!r}\n" + SHARDED
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                          cwd=ROOT, timeout=600, env=env)
+    proc = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=600, env=env
+    )
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "SHARDED OK" in proc.stdout
 
 
 def _numpy_moments(ys):
     d = ys - ys.mean(0)
-    m2 = (d ** 2).mean(0)
+    m2 = (d**2).mean(0)
     cov = np.einsum("s...i,s...j->...ij", d, d) / (ys.shape[0] - 1)
     with np.errstate(divide="ignore", invalid="ignore"):
-        return dict(mean=ys.mean(0), var=ys.var(0, ddof=1), cov=cov,
-                    skewness=(d ** 3).mean(0) / m2 ** 1.5, kurtosis=(d ** 4).mean(0) / m2 ** 2)
+        return dict(
+            mean=ys.mean(0),
+            var=ys.var(0, ddof=1),
+            cov=cov,
+            skewness=(d**3).mean(0) / m2**1.5,
+            kurtosis=(d**4).mean(0) / m2**2,
+        )
 
 
 @pytest.fixture(scope="module")
 def reference():
     model, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
-    sol = sj.simulate(model, y0, n_samples=50, key=jax.random.key(3), save_every=4,
-                      method=sj.Strang(), **KW)
+    sol = sj.simulate(
+        model, y0, n_samples=50, key=jax.random.key(3), save_every=4, method=sj.Strang(), **KW
+    )
     return model, y0, np.asarray(sol.ys)
 
 
 @pytest.mark.parametrize("chunk_size", [16, 7, 50])
 def test_streamed_moments_equal_numpy_on_the_unchunked_run(reference, chunk_size):
     model, y0, ys = reference
-    st = sj.ensemble_statistics(model, y0, n_samples=50, chunk_size=chunk_size,
-                                key=jax.random.key(3), save_every=4, method=sj.Strang(),
-                                statistics=ALL, progress=False, **KW)
+    st = sj.ensemble_statistics(
+        model,
+        y0,
+        n_samples=50,
+        chunk_size=chunk_size,
+        key=jax.random.key(3),
+        save_every=4,
+        method=sj.Strang(),
+        statistics=ALL,
+        progress=False,
+        **KW,
+    )
     assert (st.n, st.n_failed, st.n_chunks) == (50, 0, -(-50 // chunk_size))
     np.testing.assert_allclose(st.ts, [0.0, 0.125, 0.25])
     ref = _numpy_moments(ys)
@@ -158,8 +179,9 @@ def test_streamed_final_state_and_observable(reference):
     np.testing.assert_allclose(st.ts, [0.0, 0.25])
     np.testing.assert_allclose(st.mean[-1], ys[:, -1].mean(0), rtol=0, atol=1e-15)
     assert st.cov is None and st.skewness is None
-    energy = sj.ensemble_statistics(model, y0, chunk_size=20, save_every=4,
-                                    observable=_energy, statistics=("mean", "var"), **kw)
+    energy = sj.ensemble_statistics(
+        model, y0, chunk_size=20, save_every=4, observable=_energy, statistics=("mean", "var"), **kw
+    )
     h = np.stack([np.asarray(jax.vmap(model.hamiltonian)(jnp.asarray(y))) for y in ys])
     assert energy.mean.shape == (3,)
     np.testing.assert_allclose(energy.mean, h.mean(0), rtol=1e-14)
@@ -176,44 +198,53 @@ def test_streaming_compiles_once_and_shows_progress(reference, capsys, monkeypat
     model, y0, _ = reference
     monkeypatch.setattr(_progress, "interactive", lambda: True)  # as on a terminal
     before = _stream._chunk._cache_size()
-    st = sj.ensemble_statistics(model, y0, n_samples=45, chunk_size=15, key=jax.random.key(9),
-                                method=sj.Strang(), **KW)
+    st = sj.ensemble_statistics(
+        model, y0, n_samples=45, chunk_size=15, key=jax.random.key(9), method=sj.Strang(), **KW
+    )
     assert st.n_chunks == 3 and st.n == 45
     assert _stream._chunk._cache_size() == before + 1
     err = capsys.readouterr().err
     assert "3/3" in err and "45/45 samples" in err
     monkeypatch.setattr(_progress, "interactive", lambda: False)  # a log: nothing in it
-    sj.ensemble_statistics(model, y0, n_samples=45, chunk_size=15, key=jax.random.key(9),
-                           method=sj.Strang(), **KW)
+    sj.ensemble_statistics(
+        model, y0, n_samples=45, chunk_size=15, key=jax.random.key(9), method=sj.Strang(), **KW
+    )
     assert capsys.readouterr().err == ""
 
 
 def test_streaming_counts_and_leaves_out_failed_samples(paper):
     # Three Newton updates are too few for some steps at this size (as in test_driver).
     model, y0 = paper
-    kw = dict(t1=1.0, dt=0.05, key=jax.random.key(12), method=sj.LiePoisson(max_iter=3),
-              retry_substeps=None)
+    kw = dict(
+        t1=1.0,
+        dt=0.05,
+        key=jax.random.key(12),
+        method=sj.LiePoisson(max_iter=3),
+        retry_substeps=None,
+    )
     with pytest.warns(RuntimeWarning):
         sol = sj.simulate(model, y0, n_samples=50, throw=False, **kw)
     ok = np.asarray(sol.fail_step) < 0
     n_failed = int(np.sum(~ok))
     assert 0 < n_failed < 50
     with pytest.warns(RuntimeWarning, match=f"{n_failed} of 50"):
-        st = sj.ensemble_statistics(model, y0, n_samples=50, chunk_size=20, progress=False,
-                                    **kw)
+        st = sj.ensemble_statistics(model, y0, n_samples=50, chunk_size=20, progress=False, **kw)
     assert (st.n, st.n_failed) == (50 - n_failed, n_failed)
     np.testing.assert_allclose(st.mean[-1], np.asarray(sol.ys)[ok, -1].mean(0), atol=1e-15)
 
 
-@pytest.mark.parametrize("bad, exc, match", [
-    (dict(chunk_size=0), ValueError, "chunk_size"),
-    (dict(chunk_size=2.5), ValueError, "chunk_size"),
-    (dict(statistics=("mean", "median")), ValueError, "median"),
-    (dict(observable=3), TypeError, "observable"),
-    (dict(sharding="gpu"), ValueError, "sharding"),
-    (dict(sharding=4), TypeError, "sharding"),
-    (dict(n_samples=0), ValueError, "n_samples"),
-])
+@pytest.mark.parametrize(
+    "bad, exc, match",
+    [
+        (dict(chunk_size=0), ValueError, "chunk_size"),
+        (dict(chunk_size=2.5), ValueError, "chunk_size"),
+        (dict(statistics=("mean", "median")), ValueError, "median"),
+        (dict(observable=3), TypeError, "observable"),
+        (dict(sharding="gpu"), ValueError, "sharding"),
+        (dict(sharding=4), TypeError, "sharding"),
+        (dict(n_samples=0), ValueError, "n_samples"),
+    ],
+)
 def test_streaming_rejects_bad_input(paper, bad, exc, match):
     model, y0 = paper
     kw = dict(n_samples=10, chunk_size=5, key=jax.random.key(0), progress=False, **KW)

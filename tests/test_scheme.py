@@ -74,7 +74,9 @@ def test_sine_chart_residual_and_jacobian_match_autodiff_of_generating_function(
         a = _components.unmat(branch_rotation(_components.vec(v))[0])
         return in_map_by_autodiff(a, y, inertia, tau, kappa)
 
-    r, jac = sine_chart_in_map(_components.vec(v), _components.vec(y), _components.vec(1.0 / inertia), tau, kappa)
+    r, jac = sine_chart_in_map(
+        _components.vec(v), _components.vec(y), _components.vec(1.0 / inertia), tau, kappa
+    )
     np.testing.assert_allclose(_components.unvec(r), reference(v), atol=1e-15)
     np.testing.assert_allclose(_components.unmat(jac), jax.jacfwd(reference)(v), atol=1e-14)
 
@@ -84,8 +86,16 @@ def test_fast_path_reaches_the_tolerance_on_the_paper_setup(paper):
     of every step is within the tolerance, and at most 0.1 % of sample-steps needed more
     (each of those counts at least one more update)."""
     model, y0 = paper
-    sol = sj.simulate(model, y0, t1=0.25, dt=2.0 ** -9, n_samples=200, key=jax.random.key(3),
-                      newton_stats=True, method=sj.LiePoisson())
+    sol = sj.simulate(
+        model,
+        y0,
+        t1=0.25,
+        dt=2.0**-9,
+        n_samples=200,
+        key=jax.random.key(3),
+        newton_stats=True,
+        method=sj.LiePoisson(),
+    )
     tol = 64 * np.finfo(np.float64).eps
     assert int(sol.stats["n_failed"]) == 0
     assert float(sol.stats["residual_max"]) <= tol
@@ -104,10 +114,8 @@ def test_step_solves_in_map_and_out_map_equals_rotation(paper, dW):
     # parameterisation): the in-map residual at the returned A is at round-off, and the
     # out-map of docs/scheme.md gives the same y1.
     a = _solve_rotation(model, y0, tau, kappa)
-    np.testing.assert_allclose(in_map_by_autodiff(a, y0, model.inertia, tau, kappa), 0,
-                               atol=1e-13)
-    np.testing.assert_allclose(out_map_by_autodiff(a, model.inertia, tau, kappa), y1,
-                               atol=1e-13)
+    np.testing.assert_allclose(in_map_by_autodiff(a, y0, model.inertia, tau, kappa), 0, atol=1e-13)
+    np.testing.assert_allclose(out_map_by_autodiff(a, model.inertia, tau, kappa), y1, atol=1e-13)
     np.testing.assert_allclose(a @ y0, y1, atol=1e-14)
     np.testing.assert_allclose(a.T @ a, np.eye(3), atol=1e-14)
     assert np.trace(a) > 1.0  # the branch theta < pi/2
@@ -117,7 +125,7 @@ def _solve_rotation(model, y, tau, kappa):
     """Plain Newton with autodiff Jacobian on xi, A = exp(hat xi): a separate solver."""
     r = jnp.linalg.norm(y)
     xi = y * jnp.arcsin(r) / r
-    f = lambda x: in_map_by_autodiff(so3.exp(x), y, model.inertia, tau, kappa)  # noqa: E731
+    f = lambda x: in_map_by_autodiff(so3.exp(x), y, model.inertia, tau, kappa)
     update = jax.jit(lambda x: x - jnp.linalg.solve(jax.jacfwd(f)(x), f(x)))
     for _ in range(30):
         xi = update(xi)
@@ -150,8 +158,7 @@ def test_midpoint_step_satisfies_its_equation(paper):
 def test_euler_maruyama_step(paper):
     model, y0 = paper
     y1, _ = sj.EulerMaruyama().step(model, y0, 0.01, 0.3)
-    np.testing.assert_allclose(y1, y0 + model.vector_field(y0) * (0.01 + model.c * 0.3),
-                               atol=1e-16)
+    np.testing.assert_allclose(y1, y0 + model.vector_field(y0) * (0.01 + model.c * 0.3), atol=1e-16)
 
 
 def test_large_increment_near_the_fold_converges(paper):
@@ -160,7 +167,7 @@ def test_large_increment_near_the_fold_converges(paper):
     from the plain start v = y_n alone leaves the chart."""
     model, _ = paper
     y = jnp.array([0.69566237, 0.66189641, 0.24072184])
-    dW, dt = 0.7981970294584523, 2.0 ** -5
+    dW, dt = 0.7981970294584523, 2.0**-5
     y1, info = lie_poisson_step(model, y, dt, dW)
     assert bool(info.ok)
     assert int(info.iterations) > USUAL_UPDATES + 1  # solved by the continuation
@@ -168,6 +175,7 @@ def test_large_increment_near_the_fold_converges(paper):
     # Independent solution by continuation in tau with an autodiff Newton.
     r = jnp.linalg.norm(y)
     xi = y * jnp.arcsin(r) / r
+
     def f(x, s):
         return in_map_by_autodiff(so3.exp(x), y, model.inertia, s * tau, s * s * kappa)
 
@@ -184,9 +192,12 @@ def test_unrolled_updates_change_nothing(paper):
     """`unroll=3` only moves the first three Newton updates out of the loop: the same states
     to round-off; samples that the loop would stop after fewer updates make three."""
     model, y0 = paper
-    kw = dict(t1=0.5, dt=2.0 ** -5, n_samples=50, key=jax.random.key(5), newton_stats=True)
+    kw = dict(t1=0.5, dt=2.0**-5, n_samples=50, key=jax.random.key(5), newton_stats=True)
     a = sj.simulate(model, y0, method=sj.LiePoisson(), **kw)
     b = sj.simulate(model, y0, method=sj.LiePoisson(unroll=3), **kw)
     np.testing.assert_allclose(a.ys, b.ys, atol=1e-14)
-    its_a, its_b = float(a.stats["newton_iterations_mean"]), float(b.stats["newton_iterations_mean"])
+    its_a, its_b = (
+        float(a.stats["newton_iterations_mean"]),
+        float(b.stats["newton_iterations_mean"]),
+    )
     assert 3.0 <= its_b and its_a <= its_b < its_a + 0.5

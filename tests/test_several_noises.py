@@ -15,8 +15,8 @@ import pytest
 import scipy.linalg
 
 import slps_jax as sj
-from slps_jax._methods import METHODS
 from slps_jax import _components
+from slps_jax._methods import METHODS
 from slps_jax._methods.lie_poisson_sym import _solve_rotation
 from slps_jax.so3 import hat, skew, vee
 
@@ -26,12 +26,13 @@ INERTIA = jnp.asarray([1.0, 2.0, 3.0])
 CHI = 0.4 * np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.5, 1.0]])
 # Every Poisson method of the registry that runs on the SALT rigid body.
 _SALT_STRUCTURE = sj.RigidBody(INERTIA, noise=sj.salt_noise(CHI)).structure
-POISSON = {cls.__name__: cls() for cls in METHODS
-           if cls.poisson and cls.requires <= _SALT_STRUCTURE}
+POISSON = {
+    cls.__name__: cls() for cls in METHODS if cls.poisson and cls.requires <= _SALT_STRUCTURE
+}
 
 
 def rigid_body_h(y, inertia):
-    return 0.5 * jnp.sum(y ** 2 / inertia)
+    return 0.5 * jnp.sum(y**2 / inertia)
 
 
 def paper_noise(y, inertia):  # the paper's one noise, H_1 = c H_0 with c = 0.2
@@ -63,11 +64,13 @@ def test_paper_case_through_noise_equals_rigid_body():
     1e-13."""
     paper = sj.RigidBody.paper()
     y0 = jnp.asarray(sj.PAPER_Y0)
-    dt = 2.0 ** -6
+    dt = 2.0**-6
     dW = sj.brownian_increments(jax.random.key(1), 1000, dt, n_noises=1)
     expected = sj.integrate(paper, y0, dW, dt, save_every=1, method=sj.LiePoisson())
-    for model in (sj.LiePoissonSystem(rigid_body_h, paper.inertia, noise=paper_noise),
-                  sj.RigidBody(paper.inertia, noise=paper_noise)):
+    for model in (
+        sj.LiePoissonSystem(rigid_body_h, paper.inertia, noise=paper_noise),
+        sj.RigidBody(paper.inertia, noise=paper_noise),
+    ):
         assert model.n_noises == 1
         got = sj.integrate(model, y0, dW, dt, save_every=1, method=sj.LiePoisson())
         assert np.abs(got - expected).max() < 1e-13
@@ -76,11 +79,18 @@ def test_paper_case_through_noise_equals_rigid_body():
 def test_casimir_kept_with_three_noises():
     """|y| to 1e-13 over 10^4 steps with three SALT noises, for every Poisson method (with
     the Lévy areas for those that use them)."""
-    dt = 2.0 ** -8
+    dt = 2.0**-8
     dW, A = sj.brownian_increments(jax.random.key(2), 10_000, dt, n_noises=3, levy_area=True)
     for name, method in POISSON.items():
-        ys = sj.integrate(salt(), Y0, dW, dt, method=method, save_every=100,
-                          levy_area=A if method.uses_levy_area() else None)
+        ys = sj.integrate(
+            salt(),
+            Y0,
+            dW,
+            dt,
+            method=method,
+            save_every=100,
+            levy_area=A if method.uses_levy_area() else None,
+        )
         drift = np.abs(np.linalg.norm(ys, axis=1) - np.linalg.norm(Y0)).max()
         assert drift < 1e-13, (name, drift)
     # The baseline is not a Poisson map: Heun's |y| drifts far above round-off.
@@ -97,7 +107,7 @@ def test_adjoint_step_for_a_salt_hamiltonian():
     z = jnp.asarray([0.3, -0.5, 0.6])
 
     def k_step(x):
-        return dt * 0.5 * jnp.sum(x ** 2 / INERTIA) + dW @ (jnp.asarray(CHI) @ x)
+        return dt * 0.5 * jnp.sum(x**2 / INERTIA) + dW @ (jnp.asarray(CHI) @ x)
 
     def s_bar(a):  # the first-order generating function of psi_{-K/2}
         return 0.5 * jnp.trace(a) + 0.5 * k_step(so3_vee_skew(a))
@@ -109,7 +119,9 @@ def test_adjoint_step_for_a_salt_hamiltonian():
     np.testing.assert_allclose(out, z, atol=1e-14)
     np.testing.assert_allclose(a.T @ a, np.eye(3), atol=1e-14)
     # the even-Hamiltonian shortcut (in-map of -K/2 at -z) gives another, wrong, rotation
-    b_even, _ = _solve_rotation(model, _components.vec(-z), -0.5 * dt, -0.5 * dW, 1.0, 1e-14, 12, True)
+    b_even, _ = _solve_rotation(
+        model, _components.vec(-z), -0.5 * dt, -0.5 * dW, 1.0, 1e-14, 12, True
+    )
     assert np.abs(_components.unmat(b_even) - _components.unmat(b)).max() > 1e-3
 
 
@@ -124,7 +136,7 @@ def so3_vee_skew(a):
 @pytest.fixture(scope="module")
 def coupled():
     """200 Brownian paths at 2^-14 and the Midpoint reference on them."""
-    n_fine, n_samples = 2 ** 14, 200
+    n_fine, n_samples = 2**14, 200
     keys = jax.random.split(jax.random.key(0), n_samples)
     dW = jax.vmap(lambda k: sj.brownian_increments(k, n_fine, 1.0 / n_fine, n_noises=3))(keys)
     return dW, paths(salt(), dW, 1.0 / n_fine, sj.Midpoint())
@@ -144,8 +156,8 @@ def test_without_second_order_terms_the_bias_stays(coupled):
         y = paths(salt(), coarse(dW, n), 1.0 / n, method)
         return float(jnp.linalg.norm(jnp.mean(y - ref, axis=0)))
 
-    without = [bias(WithoutSecondOrder(), n) for n in (2 ** 8, 2 ** 10)]
-    with_terms = [bias(sj.LiePoisson(), n) for n in (2 ** 8, 2 ** 10)]
+    without = [bias(WithoutSecondOrder(), n) for n in (2**8, 2**10)]
+    with_terms = [bias(sj.LiePoisson(), n) for n in (2**8, 2**10)]
     assert without[1] > 0.75 * without[0]
     assert with_terms[1] < 0.5 * with_terms[0]
     assert without[1] > 10 * with_terms[1]
@@ -191,7 +203,8 @@ def test_linear_hamiltonians_exact_moments(method):
 
     def moments(n):
         y = jax.jit(jax.vmap(lambda d: sj.integrate(model, y0, d, 1.0 / n, method=method)))(
-            coarse(dW, n))
+            coarse(dW, n)
+        )
         y = np.asarray(y)
         return np.concatenate([y, (y[:, :, None] * y[:, None, :]).reshape(-1, 9)], axis=1)
 
@@ -211,7 +224,7 @@ def test_linear_hamiltonians_exact_moments(method):
 # (LiePoisson, Midpoint and SaltSplitting: with the Lévy areas, in tests/test_levy_order.py)
 @pytest.mark.parametrize("method", [sj.LiePoissonSym2()], ids=type)
 def test_gradients_chi_and_inertia_match_finite_differences(method):
-    dt, n = 2.0 ** -5, 32
+    dt, n = 2.0**-5, 32
     keys = jax.random.split(jax.random.key(4), 8)
     dW = jax.vmap(lambda k: sj.brownian_increments(k, n, dt, n_noises=3))(keys)
 
@@ -224,8 +237,12 @@ def test_gradients_chi_and_inertia_match_finite_differences(method):
     grad = np.asarray(jax.jit(jax.grad(estimate))(theta))
     f = jax.jit(estimate)
     eps = 1e-4
-    fd = np.array([(f(theta.at[i].add(eps)) - f(theta.at[i].add(-eps))) / (2 * eps)
-                   for i in range(theta.size)])
+    fd = np.array(
+        [
+            (f(theta.at[i].add(eps)) - f(theta.at[i].add(-eps))) / (2 * eps)
+            for i in range(theta.size)
+        ]
+    )
     np.testing.assert_allclose(grad, fd, atol=1e-6)
 
 
@@ -233,17 +250,34 @@ def test_calibrate_recovers_a_salt_amplitude():
     """Statistics of the ensemble at chi[0, 0] = 0.4 on the very paths calibrate simulates
     (common random numbers): the loss is zero at the truth, so the fit from 0.2 must land on
     it to the optimiser's tolerance."""
-    ts, dt, n = [1.0], 2.0 ** -4, 32
+    ts, dt, n = [1.0], 2.0**-4, 32
     names = [f"chi[{r}, {j}]" for r in range(3) for j in range(3)]
-    sol = sj.simulate(salt(), Y0, t1=1.0, dt=dt, n_samples=n, key=jax.random.key(8),
-                      save_every=16, method=sj.SaltSplitting())
+    sol = sj.simulate(
+        salt(),
+        Y0,
+        t1=1.0,
+        dt=dt,
+        n_samples=n,
+        key=jax.random.key(8),
+        save_every=16,
+        method=sj.SaltSplitting(),
+    )
     observed = jax.vmap(sj.moments, in_axes=1)(sol.ys[:, 1:])
     chi0 = CHI.copy()
     chi0[0, 0] = 0.2
     start = sj.RigidBody(INERTIA, noise=sj.salt_noise(chi0))
-    res = sj.calibrate(observed, Y0, ts=ts, dt=dt, n_samples=n, key=jax.random.key(8),
-                       init=start, fixed=("I_1", "I_2", "I_3", *names[1:]),
-                       method=sj.SaltSplitting(), progress=False)
+    res = sj.calibrate(
+        observed,
+        Y0,
+        ts=ts,
+        dt=dt,
+        n_samples=n,
+        key=jax.random.key(8),
+        init=start,
+        fixed=("I_1", "I_2", "I_3", *names[1:]),
+        method=sj.SaltSplitting(),
+        progress=False,
+    )
     assert res.names[3] == "chi[0, 0]"
     assert float(res.model.noise.chi[0, 0]) == pytest.approx(0.4, abs=1e-6)
     np.testing.assert_array_equal(np.asarray(res.model.noise.chi).ravel()[1:], CHI.ravel()[1:])
@@ -278,29 +312,56 @@ def test_bad_input_refused():
     with pytest.raises(ValueError, match="scale"):
         sj.integrate(salt(), Y0, jnp.zeros((10, 3)), 0.1, method=sj.LiePoisson(scale=2.0))
     with pytest.raises(ValueError, match="no time-change solution"):
-        sj.strong_convergence(salt(), Y0, t1=1.0, dts=[0.1, 0.05], n_samples=4,
-                              key=jax.random.key(0), methods=sj.Midpoint())
+        sj.strong_convergence(
+            salt(),
+            Y0,
+            t1=1.0,
+            dts=[0.1, 0.05],
+            n_samples=4,
+            key=jax.random.key(0),
+            methods=sj.Midpoint(),
+        )
 
 
 def test_simulate_draws_one_increment_per_noise():
     """simulate's sample i equals integrate on row i of brownian_increments(n_noises=3), and
     the noise families equal the same Hamiltonians given as functions."""
     key = jax.random.key(5)
-    sol = sj.simulate(salt(), Y0, t1=0.25, dt=2.0 ** -5, n_samples=3, key=key, levy_area=False, method=sj.LiePoisson())
-    dWs = sj.brownian_increments(key, 8, 2.0 ** -5, n_samples=3, n_noises=3)
+    sol = sj.simulate(
+        salt(),
+        Y0,
+        t1=0.25,
+        dt=2.0**-5,
+        n_samples=3,
+        key=key,
+        levy_area=False,
+        method=sj.LiePoisson(),
+    )
+    dWs = sj.brownian_increments(key, 8, 2.0**-5, n_samples=3, n_noises=3)
     assert dWs.shape == (3, 8, 3)
     for i in range(3):
-        np.testing.assert_allclose(sol.ys[i, -1], sj.integrate(salt(), Y0, dWs[i], 2.0 ** -5, method=sj.LiePoisson()),
-                                   atol=1e-15)
-    dW, A = sj.brownian_increments(key, 8, 2.0 ** -5, n_noises=3, levy_area=True)
+        np.testing.assert_allclose(
+            sol.ys[i, -1],
+            sj.integrate(salt(), Y0, dWs[i], 2.0**-5, method=sj.LiePoisson()),
+            atol=1e-15,
+        )
+    dW, A = sj.brownian_increments(key, 8, 2.0**-5, n_noises=3, levy_area=True)
     sigma = 0.3 * np.eye(3) + 0.1
-    for family, fn in ((sj.salt_noise(CHI), lambda y, p: jnp.asarray(CHI) @ y),
-                       (sj.random_inertia_noise(sigma),
-                        lambda y, p: 0.5 * jnp.asarray(sigma) @ (y * y))):
+    for family, fn in (
+        (sj.salt_noise(CHI), lambda y, p: jnp.asarray(CHI) @ y),
+        (sj.random_inertia_noise(sigma), lambda y, p: 0.5 * jnp.asarray(sigma) @ (y * y)),
+    ):
         # (with the Lévy areas: SALT's closed-form area term against autodiff's)
         for method in (sj.LiePoisson(), sj.Midpoint()):
-            got = sj.integrate(sj.RigidBody(INERTIA, noise=family), Y0, dW, 2.0 ** -5,
-                               method=method, levy_area=A)
-            want = sj.integrate(sj.LiePoissonSystem(rigid_body_h, INERTIA, noise=fn), Y0, dW,
-                                2.0 ** -5, method=method, levy_area=A)
+            got = sj.integrate(
+                sj.RigidBody(INERTIA, noise=family), Y0, dW, 2.0**-5, method=method, levy_area=A
+            )
+            want = sj.integrate(
+                sj.LiePoissonSystem(rigid_body_h, INERTIA, noise=fn),
+                Y0,
+                dW,
+                2.0**-5,
+                method=method,
+                levy_area=A,
+            )
             np.testing.assert_allclose(got, want, atol=1e-13)

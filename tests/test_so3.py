@@ -4,8 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from slps_jax import so3
-from slps_jax import _components
+from slps_jax import _components, so3
 
 rng = np.random.default_rng(1)
 XIS = rng.normal(size=(20, 3)) * rng.uniform(0.0, 2.5, size=(20, 1))
@@ -46,8 +45,9 @@ def test_cayley_matches_its_definition_and_inverse():
         theta = np.linalg.norm(xi)
         if theta > 0:
             rv = 2 * np.arctan(theta / 2) * xi / theta
-            np.testing.assert_allclose(so3.cayley(xi), Rotation.from_rotvec(rv).as_matrix(),
-                                       atol=2e-15)
+            np.testing.assert_allclose(
+                so3.cayley(xi), Rotation.from_rotvec(rv).as_matrix(), atol=2e-15
+            )
     np.testing.assert_allclose(so3.cayley_inv(so3.cayley(XIS)), XIS, atol=1e-13)
 
 
@@ -70,12 +70,16 @@ def test_exp_gradient_matches_finite_differences_near_threshold():
         xi = jnp.array([0.3, -0.5, 0.8]) * scale
         g = jax.jacfwd(so3.exp)(xi)
         eps = 1e-6
-        fd = np.stack([(so3.exp(xi + eps * e) - so3.exp(xi - eps * e)) / (2 * eps)
-                       for e in np.eye(3)], axis=-1)
+        fd = np.stack(
+            [(so3.exp(xi + eps * e) - so3.exp(xi - eps * e)) / (2 * eps) for e in np.eye(3)],
+            axis=-1,
+        )
         np.testing.assert_allclose(g, fd, atol=1e-8)
 
 
 def test_cofactor_solve():
     m, b = rng.normal(size=(3, 3)), rng.normal(size=3)
-    x = _components.unvec(_components.solve3(_components.mat(jnp.asarray(m)), _components.vec(jnp.asarray(b))))
+    x = _components.unvec(
+        _components.solve3(_components.mat(jnp.asarray(m)), _components.vec(jnp.asarray(b)))
+    )
     np.testing.assert_allclose(x, np.linalg.solve(m, b), rtol=1e-12)

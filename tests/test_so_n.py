@@ -41,18 +41,24 @@ def _vector_and_matrix(model_v, model_m, method, y0, dW, dt=0.01):
     return yv, vee(ym)
 
 
-@pytest.mark.parametrize("method", [sj.LiePoisson(), sj.Midpoint(), sj.Heun(),
-                                    sj.EulerMaruyama()],
-                         ids=["LiePoisson", "Midpoint", "Heun", "EulerMaruyama"])
+@pytest.mark.parametrize(
+    "method",
+    [sj.LiePoisson(), sj.Midpoint(), sj.Heun(), sj.EulerMaruyama()],
+    ids=["LiePoisson", "Midpoint", "Heun", "EulerMaruyama"],
+)
 def test_so3_matrix_api_equals_vector_api(method):
     """The methods with an so(3) fast path (on 3-vector components) and their generic path
     (the algebra interface alone, here on so(3) as matrices) give the same states."""
     y0 = jnp.asarray([0.3, 0.5, 0.4])
     dW = 0.1 * jax.random.normal(jax.random.key(0), (200, 1))
     # I = (J2 + J3, J3 + J1, J1 + J2) = (1.5, 2, 3)
-    yv, ym = _vector_and_matrix(sj.RigidBody([1.5, 2.0, 3.0], c=0.5),
-                                sj.GeneralisedRigidBody([1.75, 1.25, 0.25], c=0.5),
-                                method, y0, dW)
+    yv, ym = _vector_and_matrix(
+        sj.RigidBody([1.5, 2.0, 3.0], c=0.5),
+        sj.GeneralisedRigidBody([1.75, 1.25, 0.25], c=0.5),
+        method,
+        y0,
+        dW,
+    )
     assert np.max(np.abs(yv - ym)) < 1e-12
     # the Poisson methods keep |y| to round-off in both forms
     if type(method).poisson:
@@ -63,18 +69,18 @@ def test_so3_matrix_api_several_noises_and_own_hamiltonian():
     chi = 0.3 * np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.2], [0.0, 0.5, 1.0]])
 
     def h_vec(y, p):
-        return 0.5 * jnp.sum(y ** 2 / p) + 0.1 * y[0] * y[1] * y[2]
+        return 0.5 * jnp.sum(y**2 / p) + 0.1 * y[0] * y[1] * y[2]
 
     def h_mat(y, p):
         return h_vec(vee(y), p)
 
     p = jnp.asarray([1.0, 2.0, 3.0])
     model_v = sj.LiePoissonSystem(h_vec, p, noise=sj.salt_noise(chi))
-    model_m = sj.LiePoissonSystem(h_mat, p, noise=sj.salt_noise(hat(jnp.asarray(chi))),
-                                  algebra=sj.so(3))
+    model_m = sj.LiePoissonSystem(
+        h_mat, p, noise=sj.salt_noise(hat(jnp.asarray(chi))), algebra=sj.so(3)
+    )
     dW = 0.1 * jax.random.normal(jax.random.key(1), (100, 3))
-    yv, ym = _vector_and_matrix(model_v, model_m, sj.LiePoisson(), jnp.asarray([0.6, 0.5, 0.3]),
-                                dW)
+    yv, ym = _vector_and_matrix(model_v, model_m, sj.LiePoisson(), jnp.asarray([0.6, 0.5, 0.3]), dW)
     assert np.max(np.abs(yv - ym)) < 1e-12
 
 
@@ -83,7 +89,8 @@ def test_flow_matches_the_exact_rigid_body_flow():
     times = np.array([-2.1, -0.3, 0.0, 0.7, 2.9])
     flow = sj.deterministic_flow(sj.GeneralisedRigidBody([1.75, 1.25, 0.25]), hat(y0), times)
     exact = jax.vmap(lambda t: sj.exact_flow(sj.RigidBody([1.5, 2.0, 3.0]), y0, t))(
-        jnp.asarray(times))
+        jnp.asarray(times)
+    )
     assert flow.shape == (5, 3, 3)
     assert np.max(np.abs(vee(flow) - exact)) < 1e-12
 
@@ -96,10 +103,15 @@ def test_strong_order_one_noise_against_the_time_change(n):
     # 64 samples: the fitted orders' standard errors are at most 0.025 (measured 1.00 and
     # 1.05-1.07), far inside the bounds.
     res = sj.strong_convergence(
-        body(n, c=0.4), skew_state(n), t1=1.0, dts=[2.0 ** -k for k in range(4, 9)],
-        n_samples=64, key=jax.random.key(n),
+        body(n, c=0.4),
+        skew_state(n),
+        t1=1.0,
+        dts=[2.0**-k for k in range(4, 9)],
+        n_samples=64,
+        key=jax.random.key(n),
         methods={"LiePoisson": sj.LiePoisson(), "Isospectral": sj.IsospectralMidpoint()},
-        reference="flow")
+        reference="flow",
+    )
     for name, order in res.order.items():
         assert 0.85 < order < 1.25, (name, order, res.errors[name])
 
@@ -114,10 +126,14 @@ def long_runs():
     y0 = skew_state(n, 0.7)
     dW = jnp.sqrt(0.01) * jax.random.normal(jax.random.key(3), (10_000, 2))
     c0 = np.asarray(sj.so(n).casimirs(y0))
-    runs = {name: sj.integrate(model, y0, dW, 0.01, method=m, save_every=1000)
-            for name, m in [("LiePoisson", sj.LiePoisson()),
-                            ("Isospectral", sj.IsospectralMidpoint()),
-                            ("Midpoint", sj.Midpoint())]}
+    runs = {
+        name: sj.integrate(model, y0, dW, 0.01, method=m, save_every=1000)
+        for name, m in [
+            ("LiePoisson", sj.LiePoisson()),
+            ("Isospectral", sj.IsospectralMidpoint()),
+            ("Midpoint", sj.Midpoint()),
+        ]
+    }
     return c0, {k: np.asarray(sj.so(n).casimirs(v)) for k, v in runs.items()}
 
 
@@ -152,9 +168,13 @@ def test_gradient_with_respect_to_j_matches_finite_differences():
     for method in [sj.LiePoisson(), sj.IsospectralMidpoint()]:
         g = jax.grad(statistic)(J4, method)
         eps = 1e-5
-        fd = np.array([(statistic(J4.at[i].add(eps), method)
-                        - statistic(J4.at[i].add(-eps), method)) / (2 * eps)
-                       for i in range(4)])
+        fd = np.array(
+            [
+                (statistic(J4.at[i].add(eps), method) - statistic(J4.at[i].add(-eps), method))
+                / (2 * eps)
+                for i in range(4)
+            ]
+        )
         assert np.max(np.abs(g - fd)) < 1e-6 * max(1.0, np.max(np.abs(fd))), (method, g, fd)
 
 
@@ -197,8 +217,16 @@ def test_simulate_on_so_n_and_float32():
     model = sj.GeneralisedRigidBody(np.asarray(J4, np.float32), c=0.4)
     y0 = skew_state(4).astype(np.float32)
     for method in [sj.LiePoisson(), sj.IsospectralMidpoint(), sj.Midpoint(), sj.Heun()]:
-        sol = sj.simulate(model, y0, t1=0.5, dt=1 / 32, n_samples=16, key=jax.random.key(5),
-                          method=method, save_every=8)
+        sol = sj.simulate(
+            model,
+            y0,
+            t1=0.5,
+            dt=1 / 32,
+            n_samples=16,
+            key=jax.random.key(5),
+            method=method,
+            save_every=8,
+        )
         assert sol.ys.shape == (16, 3, 4, 4) and sol.ys.dtype == jnp.float32
         assert int(sol.stats["n_failed"]) == 0
         cas = np.asarray(sj.so(4).casimirs(sol.ys[:, -1]), np.float64)

@@ -4,12 +4,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from reference import exact_sde_solution, fitted_order, rigid_body_flow
 from scipy.integrate import solve_ivp
 
 import slps_jax as sj
 from slps_jax import _components
 from slps_jax._methods.strang import axis_flow
-from reference import exact_sde_solution, fitted_order, rigid_body_flow
 
 rng = np.random.default_rng(7)
 step = jax.jit(lambda model, y, dt, dW: sj.Strang().step(model, y, dt, dW))
@@ -28,8 +28,12 @@ def test_local_error_is_third_order(paper, sign):
     model, _ = paper
     y0 = jnp.asarray([0.3, -0.5, 0.8])
     taus = sign * 0.2 * 2.0 ** -np.arange(5)
-    errs = np.array([np.linalg.norm(one_step(model, y0, t)
-                                    - rigid_body_flow(model.inertia, y0, t)) for t in taus])
+    errs = np.array(
+        [
+            np.linalg.norm(one_step(model, y0, t) - rigid_body_flow(model.inertia, y0, t))
+            for t in taus
+        ]
+    )
     ratios = errs[:-1] / errs[1:]
     assert np.all(np.abs(ratios - 8.0) < 0.4), (errs, ratios)
 
@@ -45,8 +49,14 @@ def test_axis_flow_matches_scipy(axis, tau):
         return np.cross(x, x[axis] / inertia[axis] * e)  # y x grad H_i(y)
 
     ref = solve_ivp(rhs, (0.0, tau), y, method="DOP853", rtol=1e-13, atol=1e-15).y[:, -1]
-    got = _components.unvec(axis_flow(_components.vec(jnp.asarray(y)), _components.vec(jnp.asarray(1.0 / inertia)),
-                               axis, jnp.asarray(tau)))
+    got = _components.unvec(
+        axis_flow(
+            _components.vec(jnp.asarray(y)),
+            _components.vec(jnp.asarray(1.0 / inertia)),
+            axis,
+            jnp.asarray(tau),
+        )
+    )
     np.testing.assert_allclose(np.asarray(got), ref, rtol=0, atol=1e-12)
 
 
@@ -54,13 +64,18 @@ def test_axis_vector_fields_sum_to_full_vector_field(paper):
     model, _ = paper
     y = jnp.asarray(rng.normal(size=3))
     total = sum(
-        jax.jvp(lambda t, a=axis: _components.unvec(axis_flow(_components.vec(y), model.inverse_inertia(),
-                                                       a, t)),
-                (jnp.asarray(0.0),), (jnp.asarray(1.0),))[1]
+        jax.jvp(
+            lambda t, a=axis: _components.unvec(
+                axis_flow(_components.vec(y), model.inverse_inertia(), a, t)
+            ),
+            (jnp.asarray(0.0),),
+            (jnp.asarray(1.0),),
+        )[1]
         for axis in range(3)
     )
-    np.testing.assert_allclose(np.asarray(total), np.asarray(model.vector_field(y)),
-                               rtol=0, atol=1e-15)
+    np.testing.assert_allclose(
+        np.asarray(total), np.asarray(model.vector_field(y)), rtol=0, atol=1e-15
+    )
 
 
 def test_casimir_preserved_over_many_steps(paper):
@@ -83,15 +98,17 @@ LEVELS = [5, 6, 7, 8, 9]  # h = 2^-5 ... 2^-9
 @pytest.fixture(scope="module")
 def strong_errors():
     model, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
-    fine = sj.brownian_increments(jax.random.key(42), 2 ** LEVELS[-1], 2.0 ** -LEVELS[-1],
-                                  n_samples=N_SAMPLES)
+    fine = sj.brownian_increments(
+        jax.random.key(42), 2 ** LEVELS[-1], 2.0 ** -LEVELS[-1], n_samples=N_SAMPLES
+    )
     exact = exact_sde_solution(model.inertia, float(model.c), y0, np.asarray(fine.sum(1)), 1.0)
     hs, errs = [], []
     for level in LEVELS:
         coarse = fine.reshape(N_SAMPLES, -1, 2 ** (LEVELS[-1] - level)).sum(-1)
-        h = 2.0 ** -level
-        run = jax.jit(jax.vmap(lambda dW: sj.integrate(model, y0, dW, h, method=sj.Strang(),
-                                                       throw=False)))
+        h = 2.0**-level
+        run = jax.jit(
+            jax.vmap(lambda dW: sj.integrate(model, y0, dW, h, method=sj.Strang(), throw=False))
+        )
         y_end = np.asarray(run(coarse))
         errs.append(float(np.sqrt(np.mean(np.sum((y_end - exact) ** 2, -1)))))
         hs.append(h)
@@ -116,8 +133,7 @@ def test_jit_and_vmap_agree_with_single_steps(paper):
     batched, info = jax.jit(jax.vmap(lambda y, w: sj.Strang().step(model, y, 0.1, w)))(ys, dWs)
     assert info.ok.shape == (8,) and bool(jnp.all(info.ok))
     assert np.all(np.asarray(info.iterations) == 0)
-    single = np.stack([np.asarray(sj.Strang().step(model, y, 0.1, w)[0])
-                       for y, w in zip(ys, dWs)])
+    single = np.stack([np.asarray(sj.Strang().step(model, y, 0.1, w)[0]) for y, w in zip(ys, dWs)])
     np.testing.assert_allclose(np.asarray(batched), single, rtol=0, atol=1e-15)
 
 
@@ -127,8 +143,9 @@ def test_float32(paper):
     assert model32.inertia.dtype == jnp.float32
     n, h = 1000, 0.01
     dW = sj.brownian_increments(jax.random.key(5), n, h)
-    y32 = sj.integrate(model32, y0.astype(jnp.float32), dW.astype(jnp.float32), h,
-                       method=sj.Strang())
+    y32 = sj.integrate(
+        model32, y0.astype(jnp.float32), dW.astype(jnp.float32), h, method=sj.Strang()
+    )
     y64 = sj.integrate(model64, y0, dW, h, method=sj.Strang())
     assert y32.dtype == jnp.float32
     assert np.linalg.norm(np.asarray(y32, np.float64) - np.asarray(y64)) < 1e-4

@@ -7,20 +7,29 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-
-import slps_jax as sj
 from reference import exact_sde_solution
 
-DTS = [2.0 ** -k for k in (5, 6, 7, 8)]
+import slps_jax as sj
+
+DTS = [2.0**-k for k in (5, 6, 7, 8)]
 
 
 @pytest.fixture(scope="module")
 def study():
     model = sj.RigidBody.paper()
     return sj.strong_convergence(
-        model, sj.PAPER_Y0, t1=1.0, dts=DTS, n_samples=200, key=jax.random.key(20),
-        methods={"LiePoisson": sj.LiePoisson(), "Exact": sj.Exact(),
-                 "EulerMaruyama": sj.EulerMaruyama()})
+        model,
+        sj.PAPER_Y0,
+        t1=1.0,
+        dts=DTS,
+        n_samples=200,
+        key=jax.random.key(20),
+        methods={
+            "LiePoisson": sj.LiePoisson(),
+            "Exact": sj.Exact(),
+            "EulerMaruyama": sj.EulerMaruyama(),
+        },
+    )
 
 
 def test_orders(study):
@@ -40,20 +49,35 @@ def test_errors_match_an_independent_computation(study):
     fine = sj.brownian_increments(jax.random.key(20), 256, DTS[-1], n_samples=200)
     exact = exact_sde_solution(model.inertia, 0.2, y0, np.asarray(fine.sum(1)), 1.0)
     coarse = fine.reshape(200, -1, 2).sum(-1)  # h = 2^-7
-    y = jax.jit(jax.vmap(lambda w: sj.integrate(model, y0, w, DTS[2],
-                                                method=sj.LiePoisson())))(coarse)
+    y = jax.jit(jax.vmap(lambda w: sj.integrate(model, y0, w, DTS[2], method=sj.LiePoisson())))(
+        coarse
+    )
     rms = np.sqrt(np.mean(np.sum((np.asarray(y) - exact) ** 2, -1)))
     np.testing.assert_allclose(study.errors["LiePoisson"][2], rms, rtol=1e-8)
 
 
 def test_midpoint_reference_option():
-    res = sj.strong_convergence(sj.RigidBody.paper(), sj.PAPER_Y0, t1=0.5, dts=DTS[:3],
-                                n_samples=50, key=jax.random.key(21),
-                                methods={"LP": sj.LiePoisson()}, reference="midpoint",
-                                reference_dt=DTS[2] / 8)
-    exact = sj.strong_convergence(sj.RigidBody.paper(), sj.PAPER_Y0, t1=0.5, dts=DTS[:3],
-                                  n_samples=50, key=jax.random.key(21),
-                                  methods={"LP": sj.LiePoisson()}, reference_dt=DTS[2] / 8)
+    res = sj.strong_convergence(
+        sj.RigidBody.paper(),
+        sj.PAPER_Y0,
+        t1=0.5,
+        dts=DTS[:3],
+        n_samples=50,
+        key=jax.random.key(21),
+        methods={"LP": sj.LiePoisson()},
+        reference="midpoint",
+        reference_dt=DTS[2] / 8,
+    )
+    exact = sj.strong_convergence(
+        sj.RigidBody.paper(),
+        sj.PAPER_Y0,
+        t1=0.5,
+        dts=DTS[:3],
+        n_samples=50,
+        key=jax.random.key(21),
+        methods={"LP": sj.LiePoisson()},
+        reference_dt=DTS[2] / 8,
+    )
     # The midpoint reference is far more accurate than the scheme at these steps.
     np.testing.assert_allclose(res.errors["LP"], exact.errors["LP"], rtol=0.05)
 
@@ -82,8 +106,14 @@ def test_paper_command_fast(tmp_path):
 
     out = tmp_path / "paper"
     assert main(["paper", "--fast", "--no-cache", "--out", str(out)]) == 0
-    names = {"fig4_1_sample_path.png", "fig4_2_invariants.png", "fig4_3_phase_sphere.png",
-             "fig4_4_strong_order.png", "results.json", "results.md"}
+    names = {
+        "fig4_1_sample_path.png",
+        "fig4_2_invariants.png",
+        "fig4_3_phase_sphere.png",
+        "fig4_4_strong_order.png",
+        "results.json",
+        "results.md",
+    }
     assert names <= set(os.listdir(out))
     for n in names:
         assert (out / n).stat().st_size > 300
@@ -137,12 +167,20 @@ def test_the_command_line_keeps_compiled_programs_in_the_user_cache(tmp_path):
     import subprocess
     import sys
 
-    code = ("import jax; from slps_jax.__main__ import use_compilation_cache; "
-            "print(use_compilation_cache(jax)); jax.jit(lambda x: 2.0 * x + 1.0)(3.0)")
+    code = (
+        "import jax; from slps_jax.__main__ import use_compilation_cache; "
+        "print(use_compilation_cache(jax)); jax.jit(lambda x: 2.0 * x + 1.0)(3.0)"
+    )
     env = dict(os.environ, XDG_CACHE_HOME=str(tmp_path), JAX_PLATFORMS="cpu")
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                          env=env, timeout=120, cwd=os.path.dirname(os.path.dirname(__file__)))
+    proc = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=120,
+        cwd=os.path.dirname(os.path.dirname(__file__)),
+    )
     assert proc.returncode == 0, proc.stderr
     folder = tmp_path / "slps-jax" / "jax-compilation-cache"
     assert proc.stdout.strip() == str(folder)
@@ -159,10 +197,19 @@ def test_summary_writes_each_line_as_it_is_produced():
     import sys
 
     root = pathlib.Path(__file__).resolve().parents[1]
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
-        [str(root)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
-    proc = subprocess.Popen([sys.executable, "-m", "slps_jax", "summary", "--fast"],
-                            stdout=subprocess.PIPE, text=True, env=env, cwd=root)
+    env = dict(
+        os.environ,
+        PYTHONPATH=os.pathsep.join(
+            [str(root)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
+        ),
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "slps_jax", "summary", "--fast"],
+        stdout=subprocess.PIPE,
+        text=True,
+        env=env,
+        cwd=root,
+    )
     try:
         lines = [proc.stdout.readline() for _ in range(4)]
         still_running = proc.poll() is None
@@ -176,13 +223,21 @@ def test_summary_writes_each_line_as_it_is_produced():
 def test_a_float32_study_warns_once_and_a_float64_study_does_not():
     import warnings
 
-    kw = dict(t1=0.25, dts=[2.0 ** -3, 2.0 ** -4], n_samples=4, key=jax.random.key(0),
-              methods={"Strang": sj.Strang()})
+    kw = dict(
+        t1=0.25,
+        dts=[2.0**-3, 2.0**-4],
+        n_samples=4,
+        key=jax.random.key(0),
+        methods={"Strang": sj.Strang()},
+    )
     y0 = jnp.asarray(sj.PAPER_Y0)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        sj.strong_convergence(sj.RigidBody(jnp.asarray([2.0, 1.0, 2.0 / 3.0], jnp.float32), 0.5),
-                              y0.astype(jnp.float32), **kw)
+        sj.strong_convergence(
+            sj.RigidBody(jnp.asarray([2.0, 1.0, 2.0 / 3.0], jnp.float32), 0.5),
+            y0.astype(jnp.float32),
+            **kw,
+        )
     single = [w for w in caught if "float32" in str(w.message)]
     assert len(single) == 1 and "jax_enable_x64" in str(single[0].message)
     assert single[0].filename == __file__  # it points at the caller's line

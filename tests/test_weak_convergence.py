@@ -19,7 +19,7 @@ Y0 = jnp.asarray(sj.PAPER_Y0)
 
 
 def observable(y):
-    return jnp.concatenate([y, y ** 2])
+    return jnp.concatenate([y, y**2])
 
 
 @pytest.fixture(scope="module")
@@ -27,10 +27,20 @@ def study():
     """500 samples of the paper's setup; the coupled differences' CIs are 2-5% of the
     biases at every step, so the orders are fitted to about +-0.05."""
     return sj.weak_convergence(
-        sj.RigidBody.paper(), Y0, t1=1.0, dts=[2.0 ** -k for k in range(4, 9)], n_samples=500,
-        key=jax.random.key(0), observable=observable, retry_substeps=4,
-        methods={"LiePoisson": sj.LiePoisson(), "Midpoint": sj.Midpoint(),
-                 "EulerMaruyama": sj.EulerMaruyama()})
+        sj.RigidBody.paper(),
+        Y0,
+        t1=1.0,
+        dts=[2.0**-k for k in range(4, 9)],
+        n_samples=500,
+        key=jax.random.key(0),
+        observable=observable,
+        retry_substeps=4,
+        methods={
+            "LiePoisson": sj.LiePoisson(),
+            "Midpoint": sj.Midpoint(),
+            "EulerMaruyama": sj.EulerMaruyama(),
+        },
+    )
 
 
 def test_gauss_hermite_reference_is_the_exact_expectation(study):
@@ -39,8 +49,14 @@ def test_gauss_hermite_reference_is_the_exact_expectation(study):
     flow = jax.jit(lambda t: observable(sj.exact_flow(model, Y0, t)))
 
     def component(j):
-        return quad(lambda z: float(flow(1.0 + 0.2 * z)[j]) * math.exp(-z * z / 2)
-                    / math.sqrt(2 * math.pi), -12, 12, epsabs=1e-13, epsrel=1e-12, limit=200)[0]
+        return quad(
+            lambda z: float(flow(1.0 + 0.2 * z)[j]) * math.exp(-z * z / 2) / math.sqrt(2 * math.pi),
+            -12,
+            12,
+            epsabs=1e-13,
+            epsrel=1e-12,
+            limit=200,
+        )[0]
 
     expected = np.array([component(j) for j in range(6)])
     np.testing.assert_allclose(study.reference_mean, expected, atol=1e-12)
@@ -66,17 +82,24 @@ def test_method_reference_reports_its_own_error():
     chi = 0.4 * np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.5, 1.0]])
     model = sj.RigidBody([1.0, 2.0, 3.0], noise=sj.salt_noise(chi))
     result = sj.weak_convergence(
-        model, [0.6, 0.5, 0.3], t1=0.5, dts=[2.0 ** -4, 2.0 ** -5], n_samples=64,
-        key=jax.random.key(1), observable=model.hamiltonian, methods=sj.Midpoint(),
-        reference=sj.Midpoint(), reference_factor=8)
+        model,
+        [0.6, 0.5, 0.3],
+        t1=0.5,
+        dts=[2.0**-4, 2.0**-5],
+        n_samples=64,
+        key=jax.random.key(1),
+        observable=model.hamiltonian,
+        methods=sj.Midpoint(),
+        reference=sj.Midpoint(),
+        reference_factor=8,
+    )
     assert result.bias["Midpoint"].shape == (2, 1)
     assert np.all(np.isfinite(result.reference_error)) and result.reference_error[0] > 0
     assert result.reference_error[0] < np.abs(result.bias["Midpoint"]).max()
 
 
 def test_bad_input():
-    kw = dict(t1=1.0, dts=[0.1, 0.05], n_samples=4, key=jax.random.key(0),
-              methods=sj.Midpoint())
+    kw = dict(t1=1.0, dts=[0.1, 0.05], n_samples=4, key=jax.random.key(0), methods=sj.Midpoint())
     model = sj.RigidBody.paper()
     with pytest.raises(TypeError, match="observable"):
         sj.weak_convergence(model, Y0, observable=3.0, **kw)

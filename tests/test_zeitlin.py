@@ -37,11 +37,11 @@ def test_laplacian_spectrum_and_spin_casimir(N):
     E = np.eye(N * N).reshape(N * N, N, N).astype(complex)
     lap = np.stack([np.asarray(z.laplacian(e)).ravel() for e in E], 1)
     expect = np.concatenate([[-el * (el + 1)] * (2 * el + 1) for el in range(N)])
-    np.testing.assert_allclose(np.sort(np.linalg.eigvals(lap).real), np.sort(expect),
-                               atol=1e-9)
+    np.testing.assert_allclose(np.sort(np.linalg.eigvals(lap).real), np.sort(expect), atol=1e-9)
     # the same operator as -sum_a [S_a, [S_a, .]] by dense matrix products
     P = np.random.default_rng(1).normal(size=(N, N)) + 1j * np.random.default_rng(2).normal(
-        size=(N, N))
+        size=(N, N)
+    )
     ref = -sum(s @ (s @ P - P @ s) - (s @ P - P @ s) @ s for s in _spin(N))
     np.testing.assert_allclose(z.laplacian(P), ref, atol=1e-11)
 
@@ -70,8 +70,7 @@ def test_poisson_routes_agree_to_round_off_at_research_size():
     assert float(jnp.max(jnp.abs(P["sweep"] - P["scan"]))) < 1e-13 * scale
     batch = jnp.stack([W, 2 * W])
     for r in z.ROUTES:
-        np.testing.assert_allclose(z.solve_poisson(batch, route=r)[1], 2 * P[r],
-                                   atol=1e-13 * scale)
+        np.testing.assert_allclose(z.solve_poisson(batch, route=r)[1], 2 * P[r], atol=1e-13 * scale)
     W32 = W.astype(jnp.complex64)
     for route in (*z.ROUTES, "auto"):
         p = z.solve_poisson(W32, route=route)
@@ -95,8 +94,9 @@ def test_quantised_harmonics_are_orthonormal_eigenvectors_and_invert():
     np.testing.assert_allclose(z.mat2shr(z.shr2mat(om, N)), om, atol=1e-13)
     # l = 1 harmonics are spin matrices: T_10 = -i sqrt(3) hbar S_z (unit norm: the factor;
     # the sign is quflow's orientation, compared with quflow itself in benchmarks/zeitlin.py)
-    np.testing.assert_allclose(T[z.elm2ind(1, 0)], -1j * math.sqrt(3) * z.hbar(N) * _spin(N)[2],
-                               atol=1e-13)
+    np.testing.assert_allclose(
+        T[z.elm2ind(1, 0)], -1j * math.sqrt(3) * z.hbar(N) * _spin(N)[2], atol=1e-13
+    )
 
 
 def test_fields_are_the_real_spherical_harmonics():
@@ -143,12 +143,20 @@ def test_a_single_degree_state_is_steady(body):
     for el in (1, 3):
         W = z.shr2mat(_coefficients(N, [el], seed=el), N)
         assert float(jnp.max(jnp.abs(body.vector_field(W)))) < 1e-12
-        np.testing.assert_allclose(sj.deterministic_flow(body, W, np.array([1.0]))[0], W,
-                                   atol=1e-12)
+        np.testing.assert_allclose(
+            sj.deterministic_flow(body, W, np.array([1.0]))[0], W, atol=1e-12
+        )
         # (a step of the implicit midpoint rule is steady at a steady state too; the
         # isospectral rule's is not, to O(h^3): its midpoint has other degrees)
-        sol = sj.simulate(body, W, t1=0.25, dt=2.0 ** -5, n_samples=1,
-                          key=jax.random.PRNGKey(0), method=sj.Midpoint())
+        sol = sj.simulate(
+            body,
+            W,
+            t1=0.25,
+            dt=2.0**-5,
+            n_samples=1,
+            key=jax.random.PRNGKey(0),
+            method=sj.Midpoint(),
+        )
         np.testing.assert_allclose(sol.ys[0, -1], W, atol=1e-12)
 
 
@@ -162,8 +170,11 @@ def test_rossby_haurwitz_wave_turns_at_its_exact_speed(body):
     W = sj.deterministic_flow(body, z.shr2mat(om, N), np.array([t]))[0]
     out = np.asarray(z.mat2shr(W))
     angle = 2 * (a / math.sqrt(3)) * t  # cos 2(phi - c t) in Y_22 ~ cos 2phi, Y_2-2 ~ -sin 2phi
-    np.testing.assert_allclose(out[[z.elm2ind(2, 2), z.elm2ind(2, -2)]],
-                               [e * math.cos(angle), -e * math.sin(angle)], atol=1e-10)
+    np.testing.assert_allclose(
+        out[[z.elm2ind(2, 2), z.elm2ind(2, -2)]],
+        [e * math.cos(angle), -e * math.sin(angle)],
+        atol=1e-10,
+    )
     np.testing.assert_allclose(out[z.elm2ind(1, 0)], a, atol=1e-12)
 
 
@@ -174,8 +185,11 @@ def test_energy_and_casimirs_conserved_by_the_exact_flow(body):
     # the flow moves the state, and keeps E and every tr W^k
     assert float(jnp.max(jnp.abs(Ws[-1] - W0))) > 1e-2
     np.testing.assert_allclose(body.energy(Ws), body.energy(W0), rtol=1e-11)
-    np.testing.assert_allclose(body.algebra.casimirs(Ws), np.broadcast_to(
-        body.algebra.casimirs(W0), (2, N - 1)), atol=1e-10)
+    np.testing.assert_allclose(
+        body.algebra.casimirs(Ws),
+        np.broadcast_to(body.algebra.casimirs(W0), (2, N - 1)),
+        atol=1e-10,
+    )
 
 
 def test_bad_input_refused_by_name():
@@ -184,11 +198,25 @@ def test_bad_input_refused_by_name():
             sj.EulerZeitlin(bad)
     body = sj.EulerZeitlin(4)
     with pytest.raises(ValueError, match="skew-Hermitian"):
-        sj.simulate(body, np.eye(4) * 1j + np.ones((4, 4)), t1=1.0, dt=0.1, n_samples=1,
-                    key=jax.random.PRNGKey(0), method=sj.Heun())
+        sj.simulate(
+            body,
+            np.eye(4) * 1j + np.ones((4, 4)),
+            t1=1.0,
+            dt=0.1,
+            n_samples=1,
+            key=jax.random.PRNGKey(0),
+            method=sj.Heun(),
+        )
     with pytest.raises(TypeError, match="IsospectralMidpoint"):  # names what works
-        sj.simulate(body, np.zeros((4, 4)), t1=1.0, dt=0.1, n_samples=1,
-                    key=jax.random.PRNGKey(0), method=sj.Strang())
+        sj.simulate(
+            body,
+            np.zeros((4, 4)),
+            t1=1.0,
+            dt=0.1,
+            n_samples=1,
+            key=jax.random.PRNGKey(0),
+            method=sj.Strang(),
+        )
 
 
 def test_complex64_model_casts_its_input_and_keeps_the_casimirs_to_its_round_off():
@@ -199,21 +227,38 @@ def test_complex64_model_casts_its_input_and_keeps_the_casimirs_to_its_round_off
     on the same paths."""
     N, steps = 16, 200
     X = 0.2 * z.shr2mat(np.eye(N * N)[[1, 2, 3]], N)
-    w0 = z.shr2mat(np.concatenate([[0.0], np.random.default_rng(0).normal(size=24),
-                                   np.zeros(N * N - 25)]), N)  # complex128
-    kw = dict(t1=steps * 0.01, dt=0.01, n_samples=8, key=jax.random.key(1), save_every=20,
-              method=sj.IsospectralMidpoint())
-    runs = {dt: sj.simulate(sj.EulerZeitlin(N, noise=sj.salt_noise(X), dtype=dt), w0, **kw)
-            for dt in (jnp.complex64, jnp.complex128)}
+    w0 = z.shr2mat(
+        np.concatenate([[0.0], np.random.default_rng(0).normal(size=24), np.zeros(N * N - 25)]), N
+    )  # complex128
+    kw = dict(
+        t1=steps * 0.01,
+        dt=0.01,
+        n_samples=8,
+        key=jax.random.key(1),
+        save_every=20,
+        method=sj.IsospectralMidpoint(),
+    )
+    runs = {
+        dt: sj.simulate(sj.EulerZeitlin(N, noise=sj.salt_noise(X), dtype=dt), w0, **kw)
+        for dt in (jnp.complex64, jnp.complex128)
+    }
     assert runs[jnp.complex64].ys.dtype == jnp.complex64
     c = np.asarray(sj.su(N).casimirs(runs[jnp.complex64].ys.astype(jnp.complex128)))
     drift = np.max(np.abs(c / c[:, :1] - 1)[..., :3])
     assert drift < 10 * np.finfo(np.float32).eps * math.sqrt(steps), drift
     # the same increments (float64, cast by the complex64 model) over 50 steps
     dW, A = sj.brownian_increments(jax.random.key(2), 50, 0.01, n_noises=3, levy_area=True)
-    y = {dt: sj.integrate(sj.EulerZeitlin(N, noise=sj.salt_noise(X), dtype=dt), w0, dW, 0.01,
-                          levy_area=A, method=sj.IsospectralMidpoint())
-         for dt in (jnp.complex64, jnp.complex128)}
+    y = {
+        dt: sj.integrate(
+            sj.EulerZeitlin(N, noise=sj.salt_noise(X), dtype=dt),
+            w0,
+            dW,
+            0.01,
+            levy_area=A,
+            method=sj.IsospectralMidpoint(),
+        )
+        for dt in (jnp.complex64, jnp.complex128)
+    }
     assert y[jnp.complex64].dtype == jnp.complex64
     gap = float(jnp.max(jnp.abs(y[jnp.complex64] - y[jnp.complex128])))
     assert gap < 1e-5 * float(jnp.max(jnp.abs(w0))), gap
@@ -223,8 +268,9 @@ def test_complex64_model_casts_its_input_and_keeps_the_casimirs_to_its_round_off
 
 def _observe(ys):
     # energy, the l = 1 coefficients and the Casimirs of each saved state
-    return jnp.concatenate([sj.zeitlin.energy(ys)[:, None], z.mat2shr(ys)[:, 1:4],
-                            sj.su(4).casimirs(ys)], axis=-1)
+    return jnp.concatenate(
+        [sj.zeitlin.energy(ys)[:, None], z.mat2shr(ys)[:, 1:4], sj.su(4).casimirs(ys)], axis=-1
+    )
 
 
 def test_ensemble_statistics_of_observables_match_the_paths():
@@ -233,10 +279,10 @@ def test_ensemble_statistics_of_observables_match_the_paths():
     X = 0.3 * z.shr2mat(np.eye(16)[[1, 6]], 4)
     body = sj.EulerZeitlin(4, noise=sj.salt_noise(X))
     w0 = z.shr2mat(0.5 * _coefficients(4, [1, 2, 3], seed=7), 4)
-    run = dict(t1=0.5, dt=2.0 ** -5, n_samples=12, key=jax.random.key(3),
-               method=sj.IsospectralMidpoint())
-    st = sj.ensemble_statistics(body, w0, chunk_size=5, observable=_observe, progress=False,
-                                **run)
+    run = dict(
+        t1=0.5, dt=2.0**-5, n_samples=12, key=jax.random.key(3), method=sj.IsospectralMidpoint()
+    )
+    st = sj.ensemble_statistics(body, w0, chunk_size=5, observable=_observe, progress=False, **run)
     sol = sj.simulate(body, w0, **run)
     ref = np.asarray(jax.vmap(_observe)(sol.ys))[:, -1]  # (samples, k) at t1
     np.testing.assert_allclose(st.mean[-1], ref.mean(0), rtol=1e-12, atol=1e-13)
@@ -254,15 +300,25 @@ def _weighted_square(y, p):  # H = 1/2 sum_ij p_ij |Y_ij|^2: the same function o
 def test_lie_poisson_on_the_unitary_group_equals_so_n_on_real_states():
     """Scheme (42) on U(N) (conjugate transposes, Hermitian parts) restricted to real skew
     states is scheme (42) on SO(n)."""
-    n, dt = 4, 2.0 ** -5
+    n, dt = 4, 2.0**-5
     p = jnp.asarray(1.0 + np.add.outer(np.arange(n), np.arange(n)) % 3)
     a = np.random.default_rng(2).normal(size=(n, n))
     y0 = 0.6 * (a - a.T) / np.linalg.norm(a - a.T, 2)
     dW = sj.brownian_increments(jax.random.key(4), 32, dt)
-    real = sj.integrate(sj.LiePoissonSystem(_weighted_square, p, c=0.4, algebra=sj.so(n)), y0,
-                        dW, dt, method=sj.LiePoisson())
-    unitary = sj.integrate(sj.LiePoissonSystem(_weighted_square, p, c=0.4, algebra=sj.su(n)),
-                           y0, dW, dt, method=sj.LiePoisson())
+    real = sj.integrate(
+        sj.LiePoissonSystem(_weighted_square, p, c=0.4, algebra=sj.so(n)),
+        y0,
+        dW,
+        dt,
+        method=sj.LiePoisson(),
+    )
+    unitary = sj.integrate(
+        sj.LiePoissonSystem(_weighted_square, p, c=0.4, algebra=sj.su(n)),
+        y0,
+        dW,
+        dt,
+        method=sj.LiePoisson(),
+    )
     assert unitary.dtype == jnp.complex128
     np.testing.assert_allclose(unitary, real, atol=1e-12)
     assert float(jnp.max(jnp.abs(real - y0))) > 0.1  # (the state moved)
@@ -274,8 +330,13 @@ def test_isospectral_step_is_modin_viviani_with_the_midpoint_in_u_n():
     W_1 = W + 2e[P, X], e = h / (2 hbar). Its midpoint X has a trace (tr X = tr(e^2 P^2 X)):
     solved on su(N) alone the step would differ by about 1e-9 here."""
     N, h = 6, 0.05
-    lap = np.stack([(-sum(s @ (s @ b - b @ s) - (s @ b - b @ s) @ s for s in _spin(N))).ravel()
-                    for b in np.eye(N * N).reshape(N * N, N, N)], 1)
+    lap = np.stack(
+        [
+            (-sum(s @ (s @ b - b @ s) - (s @ b - b @ s) @ s for s in _spin(N))).ravel()
+            for b in np.eye(N * N).reshape(N * N, N, N)
+        ],
+        1,
+    )
     inv = np.linalg.pinv(lap)
     w0 = np.asarray(z.shr2mat(_coefficients(N, [1, 2, 3, 4], seed=8), N))
     e = h / (2 * z.hbar(N))
@@ -286,8 +347,9 @@ def test_isospectral_step_is_modin_viviani_with_the_midpoint_in_u_n():
     p = e * (inv @ x.ravel()).reshape(N, N)
     ref = w0 + 2 * (p @ x - x @ p)
     assert abs(np.trace(x)) > 1e-6
-    ours = sj.integrate(sj.EulerZeitlin(N), w0, np.zeros((1, 1)), h,
-                        method=sj.IsospectralMidpoint())
+    ours = sj.integrate(
+        sj.EulerZeitlin(N), w0, np.zeros((1, 1)), h, method=sj.IsospectralMidpoint()
+    )
     np.testing.assert_allclose(ours, ref, atol=1e-13)
 
 
@@ -300,14 +362,19 @@ def test_gradients_through_complex_states_and_retried_steps_match_finite_differe
 
     def mean_energy(a, method):
         body = sj.EulerZeitlin(4, noise=sj.salt_noise(a * e))
-        sol = sj.simulate(body, w0, t1=0.25, dt=2.0 ** -3, n_samples=4, key=jax.random.key(0),
-                          method=method)
-        return jnp.mean(z.energy(sol.ys[:, -1])), (sol.stats["n_retried_steps"],
-                                                   sol.stats["n_failed"])
+        sol = sj.simulate(
+            body, w0, t1=0.25, dt=2.0**-3, n_samples=4, key=jax.random.key(0), method=method
+        )
+        return jnp.mean(z.energy(sol.ys[:, -1])), (
+            sol.stats["n_retried_steps"],
+            sol.stats["n_failed"],
+        )
 
-    for method, retried in ((sj.IsospectralMidpoint(), False),
-                            (sj.IsospectralMidpoint(max_iter=8), True)):
-        value = lambda a: mean_energy(a, method)[0]  # noqa: E731
+    for method, retried in (
+        (sj.IsospectralMidpoint(), False),
+        (sj.IsospectralMidpoint(max_iter=8), True),
+    ):
+        value = lambda a: mean_energy(a, method)[0]
         n_retried, n_failed = mean_energy(0.3, method)[1]
         assert (int(n_retried) > 0) == retried and int(n_failed) == 0
         g = jax.grad(value)(0.3)
@@ -322,12 +389,14 @@ def test_conversions_of_the_low_degrees_alone_agree_with_the_full_ones():
     N, L = 33, 6
     om = np.random.default_rng(5).normal(size=N * N)
     W = z.shr2mat(om, N)
-    np.testing.assert_allclose(z.mat2shr(W, L=L), z.mat2shr(W)[:L * L], atol=1e-12)
+    np.testing.assert_allclose(z.mat2shr(W, L=L), z.mat2shr(W)[: L * L], atol=1e-12)
     low = np.where(np.arange(N * N) < L * L, om, 0.0)
-    np.testing.assert_allclose(z.shr2mat(om[:L * L], N), z.shr2mat(low, N), atol=1e-12)
-    np.testing.assert_allclose(z.shr2mat(om[:L * L - 3], N),
-                               z.shr2mat(np.where(np.arange(N * N) < L * L - 3, om, 0.0), N),
-                               atol=1e-12)
+    np.testing.assert_allclose(z.shr2mat(om[: L * L], N), z.shr2mat(low, N), atol=1e-12)
+    np.testing.assert_allclose(
+        z.shr2mat(om[: L * L - 3], N),
+        z.shr2mat(np.where(np.arange(N * N) < L * L - 3, om, 0.0), N),
+        atol=1e-12,
+    )
     with pytest.raises(ValueError, match="degrees"):
         z.shr2mat(np.zeros(N * N + 1), N)
     with pytest.raises(ValueError, match="L must be"):
@@ -343,9 +412,12 @@ def test_final_updates_agree_at_the_root_and_the_default_follows_the_precision()
     w0 = z.shr2mat(np.concatenate([[0.0], np.random.default_rng(3).normal(size=24)]), N)
     dW, A = sj.brownian_increments(jax.random.key(4), 3, 0.01, n_noises=3, levy_area=True)
     model = sj.EulerZeitlin(N, noise=sj.salt_noise(X))
-    y = {f: sj.integrate(model, w0, dW, 0.01, levy_area=A,
-                         method=sj.IsospectralMidpoint(final_update=f))
-         for f in ("explicit", "cayley", "auto")}
+    y = {
+        f: sj.integrate(
+            model, w0, dW, 0.01, levy_area=A, method=sj.IsospectralMidpoint(final_update=f)
+        )
+        for f in ("explicit", "cayley", "auto")
+    }
     assert 0 < float(jnp.max(jnp.abs(y["explicit"] - y["cayley"]))) < 1e-12
     np.testing.assert_array_equal(y["auto"], y["explicit"])
     method = sj.IsospectralMidpoint()

@@ -30,7 +30,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-
 # What an algebra may offer to methods beyond the interface (`structure`), declared by the
 # methods that need it in `requires`.
 SO3_VECTORS = "so(3)* as 3-vectors"  # states are y in R^3 (the component fast paths)
@@ -193,19 +192,21 @@ class AbstractAlgebra:
         """Raise `ValueError` unless the concrete array `y` (NumPy) is a state of the algebra
         (shape, finite, and the algebra's own conditions)."""
         if y.shape != self.shape:
-            raise ValueError(f"{name} must have shape {self.shape} (a state of {self.name}), "
-                             f"got shape {y.shape}.")
+            raise ValueError(
+                f"{name} must have shape {self.shape} (a state of {self.name}), "
+                f"got shape {y.shape}."
+            )
         if not np.all(np.isfinite(y)):
             raise ValueError(f"{name} must be finite, got {y}.")
         if np.iscomplexobj(y) and not self.is_complex:
-            raise TypeError(f"{name} must be real (a state of {self.name}), got a complex "
-                            f"array.")
+            raise TypeError(f"{name} must be real (a state of {self.name}), got a complex array.")
         off = self.distance(y)
         # (relative to the state's size and its own precision: float32 states are 1e-7 off)
         tol = max(1e-12, 64.0 * float(np.finfo(y.dtype).eps)) * max(1.0, float(np.max(np.abs(y))))
         if off > tol:
-            raise ValueError(f"{name} must be {self.condition} (a state of {self.name}); it "
-                             f"is {off:.3g} away.")
+            raise ValueError(
+                f"{name} must be {self.condition} (a state of {self.name}); it is {off:.3g} away."
+            )
 
     condition = "a state"  # the algebra's condition on a matrix, in words
 
@@ -232,4 +233,5 @@ def _commutator(a, b):
 def _random_state(algebra, key, dtype):
     """`AbstractAlgebra.random_state`: one program per algebra and dtype."""
     return algebra.from_coordinates(jax.random.normal(key, (algebra.dim,), dtype)).astype(
-        algebra.state_dtype(dtype))
+        algebra.state_dtype(dtype)
+    )

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from .. import _components, so3
+from .. import so3
 from .base import SO3_VECTORS, AbstractAlgebra
 
 

@@ -79,9 +79,13 @@ class SUnAlgebra(AbstractAlgebra):
         return self.n * self.n  # u(N): su(N) and the centre
 
     def group_coordinates(self, m):
-        return jnp.concatenate([self.coordinates(self.project(m)),
-                                jnp.imag(jnp.trace(m, axis1=-2, axis2=-1))[..., None]
-                                / np.sqrt(2.0 * self.n)], axis=-1)
+        return jnp.concatenate(
+            [
+                self.coordinates(self.project(m)),
+                jnp.imag(jnp.trace(m, axis1=-2, axis2=-1))[..., None] / np.sqrt(2.0 * self.n),
+            ],
+            axis=-1,
+        )
 
     def from_group_coordinates(self, x):
         centre = (1j * np.sqrt(2.0 / self.n)) * x[..., -1:, None]
@@ -103,9 +107,9 @@ class SUnAlgebra(AbstractAlgebra):
     def from_coordinates(self, x):
         k = len(self._rows)
         dtype = jnp.result_type(x.dtype, jnp.complex64)
-        upper = (x[..., :k] + 1j * x[..., k:2 * k]).astype(dtype)
+        upper = (x[..., :k] + 1j * x[..., k : 2 * k]).astype(dtype)
         m = skew_from_upper(upper, self.n)
-        d = x[..., 2 * k:] @ jnp.asarray(self._diag, x.dtype)
+        d = x[..., 2 * k :] @ jnp.asarray(self._diag, x.dtype)
         return m + 1j * d[..., None, :] * jnp.eye(self.n, dtype=x.dtype)
 
 

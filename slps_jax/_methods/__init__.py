@@ -11,5 +11,17 @@ from .midpoint import Midpoint
 from .milstein import Milstein
 from .strang import SaltSplitting, Strang, Strang4
 
-METHODS = (LiePoisson, LiePoissonSym2, LiePoissonSym4, Midpoint, IsospectralMidpoint, Strang,
-           Strang4, SaltSplitting, Exact, Heun, Milstein, EulerMaruyama)
+METHODS = (
+    LiePoisson,
+    LiePoissonSym2,
+    LiePoissonSym4,
+    Midpoint,
+    IsospectralMidpoint,
+    Strang,
+    Strang4,
+    SaltSplitting,
+    Exact,
+    Heun,
+    Milstein,
+    EulerMaruyama,
+)

@@ -111,8 +111,7 @@ class AbstractMethod:
 
 def explicit_info(y):
     """`StepInfo` of an explicit step: successful iff the new state is finite."""
-    return StepInfo(finite_result(y), jnp.zeros((), jnp.int32),
-                    jnp.zeros((), real_dtype(y.dtype)))
+    return StepInfo(finite_result(y), jnp.zeros((), jnp.int32), jnp.zeros((), real_dtype(y.dtype)))
 
 
 def finite_result(y, result=RESULTS.successful):

@@ -29,8 +29,10 @@ class Heun(AbstractMethod):
 
     def step(self, model, y, dt, dW):
         if SO3_VECTORS not in model.structure:
+
             def f(u):
                 return model.algebra.bracket(u, model.step_gradient(u, dt, dW))
+
             k1 = f(y)
             y_next = y + 0.5 * (k1 + f(y + k1))
             return y_next.astype(y.dtype), explicit_info(y_next)

@@ -7,12 +7,11 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-
 from .._algebra import adjoint, matmul
 from .._checks import check_options, real_dtype
-from .base import AbstractMethod, StepInfo, StrongOrders, default_tol, finite_result
 from .._newton import implicit_root, jacobian_mode, newton, solve_array
 from .._solution import RESULTS
+from .base import AbstractMethod, StepInfo, StrongOrders, default_tol, finite_result
 
 
 @dataclasses.dataclass(frozen=True)
@@ -83,12 +82,16 @@ class IsospectralMidpoint(AbstractMethod):
     def __post_init__(self):
         check_options(self)
         if self.final_update not in ("auto", "explicit", "cayley"):
-            raise ValueError(f"IsospectralMidpoint: final_update must be 'auto', 'explicit' "
-                             f"or 'cayley', got {self.final_update!r}.")
+            raise ValueError(
+                f"IsospectralMidpoint: final_update must be 'auto', 'explicit' "
+                f"or 'cayley', got {self.final_update!r}."
+            )
         if self.jacobian not in ("auto", "newton", "identity"):
-            raise ValueError(f"IsospectralMidpoint: jacobian must be 'auto', 'newton' or "
-                             f"'identity', got "
-                             f"{self.jacobian!r}.")
+            raise ValueError(
+                f"IsospectralMidpoint: jacobian must be 'auto', 'newton' or "
+                f"'identity', got "
+                f"{self.jacobian!r}."
+            )
 
     def step(self, model, y, dt, dW):
         dtype = y.dtype
@@ -110,19 +113,20 @@ class IsospectralMidpoint(AbstractMethod):
         x0 = alg.group_coordinates(yn)
         mode = jacobian_mode(self.jacobian, alg.group_dim, large="identity")
         if mode == "identity":
-            xc, result, it, res = _fixed_point(alg, half_w, yn, residual, x0, tol,
-                                               48 if self.max_iter is None else self.max_iter)
+            xc, result, it, res = _fixed_point(
+                alg, half_w, yn, residual, x0, tol, 48 if self.max_iter is None else self.max_iter
+            )
         else:
-            xc, result, it, res = solve_array(residual, x0, x0, tol=tol,
-                                              max_iter=self.max_iter, jacobian=mode)
+            xc, result, it, res = solve_array(
+                residual, x0, x0, tol=tol, max_iter=self.max_iter, jacobian=mode
+            )
         a = half_w(alg.from_group_coordinates(xc))
         if self._cayley(dtype):  # Q Y_n Q^H, Q = (I - A)^{-1}(I + A), A = W/2
             y_next = alg.act(alg.cayley(a), y).astype(dtype)
         else:  # (I + A) X (I - A) = Y_n + 2(AX - XA) at the root: one product
             ax = matmul(a, alg.from_group_coordinates(xc))
             y_next = alg.project(yn + 2.0 * (ax - adjoint(ax))).astype(dtype)
-        return y_next, StepInfo(finite_result(y_next, result), it,
-                                res.astype(real_dtype(dtype)))
+        return y_next, StepInfo(finite_result(y_next, result), it, res.astype(real_dtype(dtype)))
 
 
 def _fixed_point(alg, half_w, yn, residual, x0, tol, max_iter):
@@ -144,8 +148,11 @@ def _fixed_point(alg, half_w, yn, residual, x0, tol, max_iter):
 
     def solve():
         s = newton(update, split(yn), tol=tol, max_iter=max_iter)
-        return (alg.group_coordinates(join(s.x)), s.result == RESULTS.successful,
-                (s.result, s.iterations, s.residual))
+        return (
+            alg.group_coordinates(join(s.x)),
+            s.result == RESULTS.successful,
+            (s.result, s.iterations, s.residual),
+        )
 
     x, _, (result, iterations, res) = implicit_root(lambda xc: residual(xc, 1.0), solve, x0)
     return x, result.astype(jnp.int32), iterations.astype(jnp.int32), res

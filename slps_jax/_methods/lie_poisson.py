@@ -9,13 +9,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _components as comp
-from .._algebra import adjoint
+from .._algebra import SO3_VECTORS, adjoint
 from .._checks import check_options, real_dtype
+from .._newton import implicit_root, newton, solve_array
 from .._noise import scale
 from .._solution import RESULTS
-from .._system import NOISE_PROPORTIONAL_TO_DRIFT, QUADRATIC, RIGID_BODY, SO3_VECTORS
+from .._system import NOISE_PROPORTIONAL_TO_DRIFT, QUADRATIC, RIGID_BODY
 from .base import AbstractMethod, StepInfo, StrongOrders, default_tol, finite_result
-from .._newton import implicit_root, newton, solve_array
 
 
 def branch_rotation(v):
@@ -67,8 +67,9 @@ def sine_chart_in_map(v, y, d, tau, kappa, jacobian=True):
     vx = comp.dot(v, x)
     vxx = comp.cross(v, x)
     qx = tuple(0.5 * (opc * xi - ci - g * vx * vi) for xi, ci, vi in zip(x, vxx, v))
-    b = tuple(0.25 * (n2 * vi + s * wi - gs * ci) + 0.5 * qi
-              for vi, wi, ci, qi in zip(v, w, vxw, qx))
+    b = tuple(
+        0.25 * (n2 * vi + s * wi - gs * ci) + 0.5 * qi for vi, wi, ci, qi in zip(v, w, vxw, qx)
+    )
     r = tuple(vi + tau * fi - kappa * bi - yi for vi, fi, bi, yi in zip(v, f, b, y))
     if not jacobian:
         return r
@@ -83,29 +84,64 @@ def sine_chart_in_map(v, y, d, tau, kappa, jacobian=True):
     hv_d = comp.diag_right(comp.hat(v), d)  # hat(v) I^{-1}
     hw = comp.hat(w)
     # F' = (w grad_c^T + (1+c) I^{-1} + hat(w) - hat(v) I^{-1} - v grad_gs^T - g s Id) / 2
-    jf = comp.mscale(0.5, comp.shift(comp.madd(
-        comp.outer(w, grad_c), comp.mscale(opc, dmat), hw, comp.mscale(-1.0, hv_d),
-        comp.mscale(-1.0, comp.outer(v, grad_gs))), -gs))
+    jf = comp.mscale(
+        0.5,
+        comp.shift(
+            comp.madd(
+                comp.outer(w, grad_c),
+                comp.mscale(opc, dmat),
+                hw,
+                comp.mscale(-1.0, hv_d),
+                comp.mscale(-1.0, comp.outer(v, grad_gs)),
+            ),
+            -gs,
+        ),
+    )
     # m' and x' = I^{-1} m'
-    jm = comp.shift(comp.madd(comp.mscale(-1.0, comp.outer(w, grad_c)), comp.mscale(-opc, dmat),
-                            comp.outer(v, grad_gs)), gs)
+    jm = comp.shift(
+        comp.madd(
+            comp.mscale(-1.0, comp.outer(w, grad_c)),
+            comp.mscale(-opc, dmat),
+            comp.outer(v, grad_gs),
+        ),
+        gs,
+    )
     jx = comp.diag_left(d, jm)
     # (Q x)' = (x grad_c^T + (1+c) x' + hat(x) - hat(v) x' - v grad(g v.x)^T - g (v.x) Id)/2,
     # grad(g v.x) = (v.x) grad g + g (x + x'^T v)
     jxtv = comp.mtv(jx, v)
     grad_gvx = tuple(vx * g * g * ic * vi + g * (xi + ti) for vi, xi, ti in zip(v, x, jxtv))
-    jq = comp.mscale(0.5, comp.shift(comp.madd(
-        comp.outer(x, grad_c), comp.mscale(opc, jx), comp.hat(x),
-        comp.mscale(-1.0, comp.hat_mat(v, jx)), comp.mscale(-1.0, comp.outer(v, grad_gvx))),
-        -g * vx))
+    jq = comp.mscale(
+        0.5,
+        comp.shift(
+            comp.madd(
+                comp.outer(x, grad_c),
+                comp.mscale(opc, jx),
+                comp.hat(x),
+                comp.mscale(-1.0, comp.hat_mat(v, jx)),
+                comp.mscale(-1.0, comp.outer(v, grad_gvx)),
+            ),
+            -g * vx,
+        ),
+    )
     # B' = (v grad|w|^2^T + |w|^2 Id + w grad_s^T + s I^{-1} - (v x w) grad_gs^T
     #       + g s (hat(w) - hat(v) I^{-1}))/4 + (Q x)'/2
     jb = comp.madd(
-        comp.mscale(0.25, comp.shift(comp.madd(
-            comp.outer(v, comp.scale(2.0, comp.mul(d, w))), comp.outer(w, comp.scale(2.0, w)),
-            comp.mscale(s, dmat), comp.mscale(-1.0, comp.outer(vxw, grad_gs)),
-            comp.mscale(gs, comp.madd(hw, comp.mscale(-1.0, hv_d)))), n2)),
-        comp.mscale(0.5, jq))
+        comp.mscale(
+            0.25,
+            comp.shift(
+                comp.madd(
+                    comp.outer(v, comp.scale(2.0, comp.mul(d, w))),
+                    comp.outer(w, comp.scale(2.0, w)),
+                    comp.mscale(s, dmat),
+                    comp.mscale(-1.0, comp.outer(vxw, grad_gs)),
+                    comp.mscale(gs, comp.madd(hw, comp.mscale(-1.0, hv_d))),
+                ),
+                n2,
+            ),
+        ),
+        comp.mscale(0.5, jq),
+    )
     jac = comp.shift(comp.madd(comp.mscale(tau, jf), comp.mscale(-kappa, jb)), 1.0)
     return r, jac
 
@@ -139,8 +175,9 @@ def sine_chart_in_map_noise(v, y, fields, jacobian=True):
 
         def q(x):
             vx = comp.dot(v, x)
-            return tuple(0.5 * (opc * xi - ci - g * vx * vi)
-                         for xi, ci, vi in zip(x, comp.cross(v, x), v))
+            return tuple(
+                0.5 * (opc * xi - ci - g * vx * vi) for xi, ci, vi in zip(x, comp.cross(v, x), v)
+            )
 
         vu = comp.dot(v, u)
         p = tuple(c * ui - ci + g * vu * vi for ui, ci, vi in zip(u, comp.cross(v, u), v))
@@ -148,8 +185,10 @@ def sine_chart_in_map_noise(v, y, fields, jacobian=True):
         uxp = comp.cross(u, p)
         n2 = comp.dot(u, u)
         qk, qjm = q(k), q(comp.mtv(ju, m))
-        return tuple(vi + a - 0.25 * b - 0.5 * n2 * vi - 0.5 * e - yi
-                     for vi, a, b, e, yi in zip(v, qk, uxp, qjm, y))
+        return tuple(
+            vi + a - 0.25 * b - 0.5 * n2 * vi - 0.5 * e - yi
+            for vi, a, b, e, yi in zip(v, qk, uxp, qjm, y)
+        )
 
     if not jacobian:
         return residual(v)
@@ -176,16 +215,23 @@ def solve_on_branch(sine_fn, z, *, tol, max_iter, feasible=True, unroll=0):
     A sample whose attempt fails (no convergence in `max_iter` updates, a non-finite
     residual, or a root off the chart `|v| < 1`, near the fold at large steps) starts again
     and follows the roots from `lam = 0` to `lam = 1` in 2, 4, 8, then 16 stages (`newton`'s
-    continuation: data in the same loop, so the residual is compiled once). Derivatives follow the implicit function theorem
-    (`implicit_root`).
+    continuation: data in the same loop, so the residual is compiled once). Derivatives
+    follow the implicit function theorem (`implicit_root`).
 
     **Returns:** `(v, result, iterations, residual)`.
     """
 
     def solve():
-        s = newton(sine_fn, z, tol=tol, max_iter=max_iter, active=feasible,
-                   admissible=lambda v: comp.dot(v, v) < 1.0, continuation=CONTINUATION,
-                   unroll=unroll)
+        s = newton(
+            sine_fn,
+            z,
+            tol=tol,
+            max_iter=max_iter,
+            active=feasible,
+            admissible=lambda v: comp.dot(v, v) < 1.0,
+            continuation=CONTINUATION,
+            unroll=unroll,
+        )
         return s.x, s.result == RESULTS.successful, (s.result, s.iterations, s.residual)
 
     # Derivatives (with respect to the model's parameters, y and dW) by the implicit
@@ -193,7 +239,8 @@ def solve_on_branch(sine_fn, z, *, tol, max_iter, feasible=True, unroll=0):
     # failed.
     zero = comp.scale(0.0, z)
     v, _, (result, iterations, residual) = implicit_root(
-        lambda v: sine_fn(v, 1.0, jacobian=False), solve, zero)
+        lambda v: sine_fn(v, 1.0, jacobian=False), solve, zero
+    )
     return v, result.astype(jnp.int32), iterations.astype(jnp.int32), residual
 
 
@@ -223,8 +270,11 @@ def group_in_map(model, a, dt, dW, second):
     def sbar(a):
         v = alg.project(a)
         u = second * model.noise_gradient(v, dW)
-        return (0.5 * jnp.real(jnp.trace(a)) - model.step_hamiltonian(v, dt, dW)
-                - 0.25 * jnp.real(jnp.trace(a @ adjoint(u) @ u)))
+        return (
+            0.5 * jnp.real(jnp.trace(a))
+            - model.step_hamiltonian(v, dt, dW)
+            - 0.25 * jnp.real(jnp.trace(a @ adjoint(u) @ u))
+        )
 
     # (the gradient for Re tr(X^H Y): the conjugate of JAX's for complex A)
     m = adjoint(a) @ jnp.conj(jax.grad(sbar)(a))
@@ -247,8 +297,9 @@ class LiePoisson(AbstractMethod):
     and the fold at $|y| = 1$ only enters through the small terms; the chart is algebraic
     (no trigonometry) and lies on the branch by construction. On the paper's setup three
     updates reach the tolerance for almost every sample-step. A sample whose attempt fails
-    (near the fold at large steps) starts again and follows the roots along the step, $\lambda\tau$ and $\lambda^2\kappa$ for $\lambda = 1/2, 1$, then
-    $1/4, \dots, 1$ and finer: data in the same loop, so the solver is compiled once
+    (near the fold at large steps) starts again and follows the roots along the step,
+    $\lambda\tau$ and $\lambda^2\kappa$ for $\lambda = 1/2, 1$, then $1/4, \dots, 1$ and
+    finer: data in the same loop, so the solver is compiled once
     (`solve_on_branch`).
 
     **Any system.** For the `RigidBody` with `c=` the residual and Jacobian above are written
@@ -302,8 +353,9 @@ class LiePoisson(AbstractMethod):
     def __post_init__(self):
         check_options(self)
         if self.jacobian not in ("auto", "chart", "newton"):
-            raise ValueError(f"LiePoisson: jacobian must be 'auto', 'chart' or 'newton', got "
-                             f"{self.jacobian!r}.")
+            raise ValueError(
+                f"LiePoisson: jacobian must be 'auto', 'chart' or 'newton', got {self.jacobian!r}."
+            )
 
     def check_initial(self, model, y0):
         vectors = SO3_VECTORS in model.structure
@@ -312,9 +364,10 @@ class LiePoisson(AbstractMethod):
             raise ValueError(
                 "LiePoisson(scale=...) needs a rigid body with one noise proportional to the "
                 "drift (c=): scaling y is a time change only for a quadratic Hamiltonian "
-                "and noise; this system has not that structure.")
+                "and noise; this system has not that structure."
+            )
         lam = 1.0 if self.scale is None else self.scale
-        norm = float((y0 ** 2).sum() ** 0.5 if vectors else np.linalg.norm(y0, 2))
+        norm = float((y0**2).sum() ** 0.5 if vectors else np.linalg.norm(y0, 2))
         name = "|y0|" if vectors else "the spectral norm ||Y0||_2"
         if norm / lam >= 1.0:
             raise ValueError(
@@ -356,18 +409,22 @@ class LiePoisson(AbstractMethod):
             def sine_fn(v, lam, jacobian=True):
                 def fields(v):
                     k, u, ju = model.step_fields_components(v, dt, dW)
-                    return (comp.scale(lam, k), comp.scale(second * lam, u),
-                            comp.mscale(lam, ju))
+                    return (comp.scale(lam, k), comp.scale(second * lam, u), comp.mscale(lam, ju))
+
                 return sine_chart_in_map_noise(v, z, fields, jacobian)
 
         feasible = comp.dot(z, z) < 1.0
         v, result, iterations, residual = solve_on_branch(
-            sine_fn, z, tol=tol, max_iter=12 if self.max_iter is None else self.max_iter,
-            feasible=feasible, unroll=self.unroll)
+            sine_fn,
+            z,
+            tol=tol,
+            max_iter=12 if self.max_iter is None else self.max_iter,
+            feasible=feasible,
+            unroll=self.unroll,
+        )
         a, _, _ = branch_rotation(v)
         y_next = comp.unvec(comp.mv(a, comp.vec(y))).astype(dtype)
-        return y_next, StepInfo(finite_result(y_next, result), iterations,
-                                residual.astype(dtype))
+        return y_next, StepInfo(finite_result(y_next, result), iterations, residual.astype(dtype))
 
     def _step_group(self, model, y, dt, dW, tol):
         r"""The step on SO(n) and U(N): Newton in Cayley coordinates
@@ -392,25 +449,35 @@ class LiePoisson(AbstractMethod):
         def residual(x, lam_):
             a = rotation(x)
             return alg.group_coordinates(
-                group_in_map(model, a, lam_ * dt_s, scale(dW_s, lam_), second) - alg.to_matrix(z))
+                group_in_map(model, a, lam_ * dt_s, scale(dW_s, lam_), second) - alg.to_matrix(z)
+            )
 
         zero = jnp.zeros((alg.group_dim,), real)
 
         def chart():  # d skew(A_0 cay(X)) / dX at X = 0: the in-map of a step of size 0
-            return jax.jacfwd(lambda x: alg.group_coordinates(
-                0.5 * (rotation(x) - adjoint(rotation(x)))))(zero)
+            return jax.jacfwd(
+                lambda x: alg.group_coordinates(0.5 * (rotation(x) - adjoint(rotation(x))))
+            )(zero)
 
         mode = "newton" if self.jacobian == "newton" else chart
         x, result, iterations, res = solve_array(
-            residual, zero, zero, tol=tol, max_iter=self.max_iter, jacobian=mode,
-            active=gap > 0.0, continuation=CONTINUATION)
+            residual,
+            zero,
+            zero,
+            tol=tol,
+            max_iter=self.max_iter,
+            jacobian=mode,
+            active=gap > 0.0,
+            continuation=CONTINUATION,
+        )
         a = rotation(x)
         # The branch: a positive definite symmetric part. Tested once, at the root (a
         # Cholesky factorisation in every update would cost a third of the step at so(4));
         # a root off it is a failure the driver reports (and `retry_substeps` splits).
         on_branch = jnp.all(jnp.isfinite(jnp.linalg.cholesky(0.5 * (a + adjoint(a)))))
-        result = jnp.where((result == RESULTS.successful) & ~on_branch, RESULTS.off_branch,
-                           result).astype(jnp.int32)
+        result = jnp.where(
+            (result == RESULTS.successful) & ~on_branch, RESULTS.off_branch, result
+        ).astype(jnp.int32)
         # (projected: a symmetric part left by rounding would add up over the steps and
         # move the Casimirs)
         y_next = alg.act(a, y).astype(y.dtype)

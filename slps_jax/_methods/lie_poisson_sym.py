@@ -8,11 +8,11 @@ import jax
 import jax.numpy as jnp
 
 from .. import _components as comp
-from .._solution import RESULTS
+from .._algebra import SO3_VECTORS
 from .._batching import batched_like
 from .._checks import check_options
 from .._noise import scale
-from .._system import SO3_VECTORS
+from .._solution import RESULTS
 from .base import AbstractMethod, StepInfo, StrongOrders, default_tol, finite_result
 from .composition import TRIPLE_JUMP, combine
 from .lie_poisson import branch_rotation, solve_on_branch
@@ -49,10 +49,21 @@ def sine_chart_in_map_general(v, y, fields, jacobian=True):
     ic = 1.0 / jnp.maximum(c, jnp.finfo(c.dtype).tiny)
     grad_c = comp.scale(-ic, v)
     grad_gs = tuple(s * g * g * ic * vi + g * wi for vi, wi in zip(v, w))
-    dq = comp.mscale(0.5, comp.shift(comp.madd(
-        comp.outer(w, grad_c), comp.hat(w), comp.mscale(-1.0, comp.outer(v, grad_gs))), -g * s))
-    qm = comp.mscale(0.5, comp.madd(comp.shift(comp.mscale(-1.0, comp.hat(v)), opc),
-                                  comp.mscale(-g, comp.outer(v, v))))
+    dq = comp.mscale(
+        0.5,
+        comp.shift(
+            comp.madd(
+                comp.outer(w, grad_c), comp.hat(w), comp.mscale(-1.0, comp.outer(v, grad_gs))
+            ),
+            -g * s,
+        ),
+    )
+    qm = comp.mscale(
+        0.5,
+        comp.madd(
+            comp.shift(comp.mscale(-1.0, comp.hat(v)), opc), comp.mscale(-g, comp.outer(v, v))
+        ),
+    )
     jac = comp.shift(comp.madd(dq, comp.mm(qm, hess)), 1.0)
     return r, jac
 
@@ -62,6 +73,7 @@ def _solve_rotation(model, y, dt, dW, sign, tol, max_iter, active):
     the step Hamiltonian `x -> sign K(sign x)`, `K = dt H_0 + sum_r dW_r H_r` (fields from
     the model), by `LiePoisson`'s solver (`solve_on_branch`: Newton in the sine chart with
     continuation, implicit derivatives)."""
+
     def sine_fn(v, lam, jacobian=True):
         def fields(u, jac):
             x = comp.scale(sign, u)
@@ -69,10 +81,12 @@ def _solve_rotation(model, y, dt, dW, sign, tol, max_iter, active):
                 k, hess = model.step_gradient_hessian_components(x, lam * dt, scale(dW, lam))
                 return k, comp.mscale(sign, hess)
             return model.step_gradient_components(x, lam * dt, scale(dW, lam))
+
         return sine_chart_in_map_general(v, y, fields, jacobian)
 
-    v, result, iterations, res = solve_on_branch(sine_fn, y, tol=tol, max_iter=max_iter,
-                                                 feasible=active)
+    v, result, iterations, res = solve_on_branch(
+        sine_fn, y, tol=tol, max_iter=max_iter, feasible=active
+    )
     return branch_rotation(v)[0], StepInfo(result, iterations, res)
 
 
@@ -87,8 +101,8 @@ def _composition(model, y, dt, dW, weights, tol, max_iter, info):
     `-z` of `x -> -s K(-x)` (branch `tr B = tr A > 1`), and psi*_s(z) = B z. (For an even
     `K`, such as the rigid body's, that is the in-map of `-s K`; docs/several-noises.md.)
     Every solve is one round of one loop (`u <- R u`, `R` solving the in-map at `sign u` of
-    `x -> sign w_k K(sign x) / 2`, the sign `-` for the adjoint half), so the solver is compiled once whatever the number of
-    substeps.
+    `x -> sign w_k K(sign x) / 2`, the sign `-` for the adjoint half), so the solver is
+    compiled once whatever the number of substeps.
     """
     gammas = jnp.asarray(weights, jnp.asarray(dt).dtype)
 
@@ -96,21 +110,23 @@ def _composition(model, y, dt, dW, weights, tol, max_iter, info):
         u, info = carry
         sign = jnp.where(k % 2 == 0, -1.0, 1.0)
         w = 0.5 * gammas[k // 2]
-        r, new = _solve_rotation(model, comp.scale(sign, u), w * dt, scale(dW, w), sign, tol,
-                                 max_iter, info.ok)
+        r, new = _solve_rotation(
+            model, comp.scale(sign, u), w * dt, scale(dW, w), sign, tol, max_iter, info.ok
+        )
         return comp.mv(r, u), combine([info, new])
 
     return jax.lax.fori_loop(0, 2 * len(weights), body, (y, batched_like(info, y)))
 
 
 def _check_unit_ball(name, y0):
-    norm = float((y0 ** 2).sum() ** 0.5)
+    norm = float((y0**2).sum() ** 0.5)
     if norm >= 1.0:
         raise ValueError(
             f"{name} needs |y0| < 1 (its in-maps have no solution on the branch theta < pi/2 "
             f"otherwise), got |y0| = {norm:.6g}. |y| is conserved; for the rigid body use "
             f"LiePoisson(scale=s) with s > {norm:.6g}, or Strang4 or Midpoint, which have no "
-            f"such limit.")
+            f"such limit."
+        )
 
 
 class _SymmetricLiePoisson(AbstractMethod):
@@ -132,12 +148,12 @@ class _SymmetricLiePoisson(AbstractMethod):
         tol = default_tol(dtype) if self.tol is None else self.tol
         yc = comp.vec(y)
         inside = jnp.where(comp.dot(yc, yc) < 1.0, RESULTS.successful, RESULTS.outside_domain)
-        info0 = StepInfo(inside.astype(jnp.int32), jnp.zeros((), jnp.int32),
-                         jnp.zeros((), dtype))
+        info0 = StepInfo(inside.astype(jnp.int32), jnp.zeros((), jnp.int32), jnp.zeros((), dtype))
         yc, info = _composition(model, yc, dt, dW, self._substeps, tol, self.max_iter, info0)
         y_next = comp.unvec(yc).astype(dtype)
-        return y_next, StepInfo(finite_result(y_next, info.result), info.iterations,
-                                info.residual.astype(dtype))
+        return y_next, StepInfo(
+            finite_result(y_next, info.result), info.iterations, info.residual.astype(dtype)
+        )
 
 
 @dataclasses.dataclass(frozen=True)

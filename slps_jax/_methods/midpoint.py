@@ -3,14 +3,15 @@
 from __future__ import annotations
 
 import dataclasses
+
 import jax.numpy as jnp
 
 from .. import _components as comp
 from .._algebra import SO3_VECTORS
 from .._checks import check_options, real_dtype
+from .._newton import implicit_root, jacobian_mode, newton, solve_array
 from .._solution import RESULTS
 from .base import AbstractMethod, StepInfo, StrongOrders, default_tol, finite_result
-from .._newton import implicit_root, jacobian_mode, newton, solve_array
 
 
 @dataclasses.dataclass(frozen=True)
@@ -68,15 +69,17 @@ class Midpoint(AbstractMethod):
 
         def solve():
             start = comp.add(y0, f(y0))
-            s = newton(system, start, tol=tol,
-                       max_iter=12 if self.max_iter is None else self.max_iter)
+            s = newton(
+                system, start, tol=tol, max_iter=12 if self.max_iter is None else self.max_iter
+            )
             return s.x, s.result == RESULTS.successful, (s.result, s.iterations, s.residual)
 
         # Derivatives by the implicit function theorem at the root, not through Newton.
         y1, _, (result, it, res) = implicit_root(residual, solve, y0)
         y_next = comp.unvec(y1).astype(dtype)
-        return y_next, StepInfo(finite_result(y_next, result.astype(jnp.int32)),
-                                it.astype(jnp.int32), res.astype(dtype))
+        return y_next, StepInfo(
+            finite_result(y_next, result.astype(jnp.int32)), it.astype(jnp.int32), res.astype(dtype)
+        )
 
     def _step_coordinates(self, model, y, dt, dW, tol):
         """Any algebra: the solve on the state's real coordinates."""
@@ -91,8 +94,12 @@ class Midpoint(AbstractMethod):
             return x - x0 - alg.coordinates(f(m))
 
         x, result, it, res = solve_array(
-            residual, x0 + alg.coordinates(f(y)), x0, tol=tol, max_iter=self.max_iter,
-            jacobian=jacobian_mode("auto", alg.dim, large="identity"))
+            residual,
+            x0 + alg.coordinates(f(y)),
+            x0,
+            tol=tol,
+            max_iter=self.max_iter,
+            jacobian=jacobian_mode("auto", alg.dim, large="identity"),
+        )
         y_next = alg.from_coordinates(x).astype(y.dtype)
-        return y_next, StepInfo(finite_result(y_next, result), it,
-                                res.astype(real_dtype(y.dtype)))
+        return y_next, StepInfo(finite_result(y_next, result), it, res.astype(real_dtype(y.dtype)))

@@ -54,8 +54,9 @@ class Milstein(AbstractMethod):
         f = jax.vmap(lambda e: field(y, e))(eye)  # (s, *shape): f_q(y)
         # (a failed sample idles with dt = 0: keep the difference step finite)
         eps = jnp.sqrt(jnp.where(dt > 0, dt, 1.0)).astype(dtype)
-        diff = jax.vmap(lambda fq, jq: (field(y + eps * fq, jq) - field(y - eps * fq, jq))
-                        / (2.0 * eps))(f, jmat)
+        diff = jax.vmap(
+            lambda fq, jq: (field(y + eps * fq, jq) - field(y - eps * fq, jq)) / (2.0 * eps)
+        )(f, jmat)
         drift = alg.bracket(y, dt * model.gradient(y))
         y_next = (y + drift + jnp.tensordot(w, f, axes=1) + jnp.sum(diff, axis=0)).astype(dtype)
         return y_next, explicit_info(y_next)

@@ -95,8 +95,9 @@ def _composed_step(model, y, tau, weights):
     # ~150x for Strang's 5 inside `simulate`; `optimization_barrier` does not stop it). The
     # loop body is one Strang step.
     gammas = jnp.asarray(weights, jnp.asarray(tau).dtype)
-    yc = jax.lax.fori_loop(0, len(weights),
-                           lambda i, u: _strang_flow(u, inv_i, gammas[i] * tau), yc)
+    yc = jax.lax.fori_loop(
+        0, len(weights), lambda i, u: _strang_flow(u, inv_i, gammas[i] * tau), yc
+    )
     y_next = comp.unvec(yc).astype(y.dtype)
     return y_next, explicit_info(y_next)
 
