@@ -8,7 +8,7 @@ those of quflow (Modin & Viviani), so that coefficients, matrices, energies and 
 moved between the two:
 
 - `shr2mat(omega, N)` / `mat2shr(W, L)`: coefficients to matrix and back (degrees
-  below `L`);
+  below `L`); `truncate(W, N)`: a state at another resolution N;
 - `laplacian(P)` ($\Delta_N$, eigenvalues $-\ell(\ell+1)$ on $T_{\ell m}$) and
   `solve_poisson(W)` ($\Delta_N^{-1}$ on traceless matrices), both $O(N^2)$: $\Delta_N$ maps
   each diagonal of a matrix to itself and is tridiagonal there;
@@ -353,6 +353,18 @@ def mat2shr(W, L=None):
     # every index l^2 + l + m once: a gather in the coefficients' order, no scatter
     neg = valid & ~zero_m
     return jnp.concatenate([wp[..., valid], wm[..., neg]], axis=-1)[..., _coefficient_order(L)]
+
+
+@functools.partial(jax.jit, static_argnames="N")
+def truncate(W, N):
+    r"""An su(M) state `W` (`(..., M, M)`) at another resolution: the su(N) state of its
+    degrees $\ell < \min(M, N)$, `shr2mat(mat2shr(W, L), N)` with $L = \min(M, N)$. For
+    $N < M$ it coarse-grains (the finer degrees are dropped: in the $L^2$ norm the nearest
+    su(N) field); for $N > M$ the new degrees are zero. The tables hold $(M + N)L^2$ numbers."""
+    W = jnp.asarray(W)
+    if isinstance(N, (bool, np.bool_)) or not isinstance(N, (int, np.integer)) or N < 2:
+        raise ValueError(f"truncate: N must be an integer >= 2, got {N!r}.")
+    return shr2mat(mat2shr(W, L=min(W.shape[-1], N)), N)
 
 
 @functools.cache

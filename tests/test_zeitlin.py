@@ -424,3 +424,24 @@ def test_final_updates_agree_at_the_root_and_the_default_follows_the_precision()
     assert method._cayley(jnp.complex64) and not method._cayley(jnp.complex128)
     with pytest.raises(ValueError, match="final_update"):
         sj.IsospectralMidpoint(final_update="exact")
+
+
+def test_truncate_keeps_the_low_degrees_between_resolutions():
+    """`truncate(W, N)` is `shr2mat` of the first N^2 coefficients (M = 24 to N = 9, a batch);
+    through a finer resolution and back it is the identity on su(N); upwards it pads the
+    coefficients with zeros; a bad N is refused."""
+    M, N = 24, 9
+    om = np.random.default_rng(6).normal(size=(2, M * M))
+    om[:, 0] = 0.0
+    W = z.shr2mat(om, M)
+    low = z.truncate(W, N)
+    assert low.shape == (2, N, N)
+    np.testing.assert_allclose(low, z.shr2mat(z.mat2shr(W)[:, : N * N], N), atol=1e-12)
+    np.testing.assert_allclose(z.truncate(z.truncate(low, M), N), low, atol=1e-12)
+    up = z.mat2shr(z.truncate(low, M))
+    np.testing.assert_allclose(up[:, : N * N], om[:, : N * N], atol=1e-12)
+    np.testing.assert_allclose(up[:, N * N :], 0.0, atol=1e-12)
+    for p in low:
+        sj.su(N).validate("W", np.asarray(p))
+    with pytest.raises(ValueError, match="N must be"):
+        z.truncate(W, 1)
