@@ -73,5 +73,7 @@ from ._solution import Solution as Solution
 from ._stream import EnsembleStatistics as EnsembleStatistics
 from ._stream import ensemble_statistics as ensemble_statistics
 from ._system import LiePoissonSystem as LiePoissonSystem
+from ._transport_fit import TransportNoiseFit as TransportNoiseFit
+from ._transport_fit import fit_transport_noise as fit_transport_noise
 
 __version__ = "0.1.0"
