@@ -68,6 +68,8 @@ from ._noise import brownian_increments as brownian_increments
 from ._noise_hamiltonians import random_inertia_noise as random_inertia_noise
 from ._noise_hamiltonians import salt_noise as salt_noise
 from ._plan import default_method as default_method
+from ._scores import ForecastScores as ForecastScores
+from ._scores import forecast_scores as forecast_scores
 from ._solution import RESULTS as RESULTS
 from ._solution import Solution as Solution
 from ._stream import EnsembleStatistics as EnsembleStatistics
