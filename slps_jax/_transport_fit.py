@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import zeitlin
+from ._checks import check_count, check_positive
 from ._euler_zeitlin import EulerZeitlin
 from ._integrate import integrate
 from ._methods.isospectral import IsospectralMidpoint
@@ -49,14 +50,6 @@ class TransportNoiseFit:
         var = np.sum(t * t, axis=0)
         acf = np.stack([np.sum(t[: t.shape[0] - k] * t[k:], axis=0) / var for k in range(lags + 1)])
         return np.cumsum(self.explained), acf
-
-
-def _positive_int(name, value, minimum=1):
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
-        raise ValueError(f"fit_transport_noise: {name} must be an integer, got {value!r}.")
-    if value < minimum:
-        raise ValueError(f"fit_transport_noise: {name} must be >= {minimum}, got {value}.")
-    return int(value)
 
 
 def fit_transport_noise(
@@ -99,8 +92,8 @@ def fit_transport_noise(
     if not np.all(np.isfinite(states)):
         raise ValueError("fit_transport_noise: states must be finite.")
     M = states.shape[-1]
-    N = _positive_int("N", N, 2)
-    window = _positive_int("window", window)
+    N = check_count("N", N, 2)
+    window = check_count("window", window)
     if N > M:
         raise ValueError(f"fit_transport_noise: N = {N} must not exceed the data's M = {M}.")
     intervals = states.shape[0] - 1
@@ -110,10 +103,9 @@ def fit_transport_noise(
             f"K >= 2 windows of window = {window}."
         )
     K = intervals // window
-    if not (isinstance(dt, (int, float, np.floating)) and dt > 0 and math.isfinite(dt)):
-        raise ValueError(f"fit_transport_noise: dt must be a positive number, got {dt!r}.")
+    dt = float(check_positive("dt", dt))
     if n_modes is not None:
-        n_modes = _positive_int("n_modes", n_modes)
+        n_modes = check_count("n_modes", n_modes)
         if n_modes > min(K, N * N - 1):
             raise ValueError(
                 f"fit_transport_noise: n_modes = {n_modes} exceeds the {min(K, N * N - 1)} "

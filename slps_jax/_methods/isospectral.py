@@ -120,11 +120,12 @@ class IsospectralMidpoint(AbstractMethod):
             xc, result, it, res = solve_array(
                 residual, x0, x0, tol=tol, max_iter=self.max_iter, jacobian=mode
             )
-        a = half_w(alg.from_group_coordinates(xc))
+        x = alg.from_group_coordinates(xc)
+        a = half_w(x)
         if self._cayley(dtype):  # Q Y_n Q^H, Q = (I - A)^{-1}(I + A), A = W/2
             y_next = alg.act(alg.cayley(a), y).astype(dtype)
         else:  # (I + A) X (I - A) = Y_n + 2(AX - XA) at the root: one product
-            ax = matmul(a, alg.from_group_coordinates(xc))
+            ax = matmul(a, x)
             y_next = alg.project(yn + 2.0 * (ax - adjoint(ax))).astype(dtype)
         return y_next, StepInfo(finite_result(y_next, result), it, res.astype(real_dtype(dtype)))
 
