@@ -8,7 +8,7 @@ import numpy as np
 
 from . import zeitlin
 from ._algebra import su
-from ._system import QUADRATIC, LiePoissonSystem
+from ._system import QUADRATIC, LiePoissonSystem, Tables
 
 
 def _euler_hamiltonian(w, params):
@@ -41,13 +41,18 @@ class EulerZeitlin(LiePoissonSystem):
       noise's matrices, complex128 with float64 enabled). `complex64` runs the model in
       single precision while float64 stays enabled for everything else: `c` and the noise
       are cast to it, and so are the states and increments given to it.
+    - `poisson`: the route of the Poisson solve in every step (`zeitlin.solve_poisson`):
+      `"auto"` (default), `"sweep"`, `"scan"` or `"eigenbasis"`. With `"eigenbasis"` the
+      model carries its table of $N^3$ numbers (1.1 GB at N = 512 in complex128), built
+      here; jitted functions must take the model as an argument, not close over it, and
+      derivatives with respect to the model's parameters do not see the table.
 
     `model.stream(W)` ($P = \Delta_N^{-1}W$), `model.energy(W)`, `model.enstrophy(W)`
     (quflow's normalisation), `model.algebra.casimirs(W)` ($\operatorname{tr}W^k$). All
     computations are $O(N^2)$ except the methods' matrix products.
     """
 
-    def __init__(self, N, *, c=None, noise=None, dtype=None):
+    def __init__(self, N, *, c=None, noise=None, dtype=None, poisson="auto"):
         if isinstance(N, (bool, np.bool_)) or not isinstance(N, (int, np.integer)) or N < 2:
             raise ValueError(f"EulerZeitlin needs an integer N >= 2, got {N!r}.")
         if dtype is not None:
@@ -68,6 +73,27 @@ class EulerZeitlin(LiePoissonSystem):
                     noise,
                 )
         super().__init__(_euler_hamiltonian, None, c=c, noise=noise, algebra=su(int(N)))
+        if poisson != "auto":
+            zeitlin._route(poisson)
+        self.poisson = poisson
+        self.tables = None
+        if poisson == "eigenbasis":
+            complex_ = jnp.result_type(1j if dtype is None else dtype)
+            self.tables = Tables(zeitlin.poisson_eigenbasis(int(N), jnp.finfo(complex_).dtype))
+
+    def tree_flatten(self):
+        children, aux = super().tree_flatten()
+        return (*children, self.tables), (*aux, self.poisson)
+
+    @classmethod
+    def tree_unflatten(cls, aux, children):
+        obj = super().tree_unflatten(aux[:-1], children[:-1])
+        obj.tables, obj.poisson = children[-1], aux[-1]
+        return obj
+
+    def _solve_poisson(self, w):
+        tables = None if self.tables is None else self.tables.arrays
+        return zeitlin.solve_poisson(w, route=self.poisson, eigenbasis=tables)
 
     @property
     def N(self):
@@ -90,7 +116,7 @@ class EulerZeitlin(LiePoissonSystem):
 
     def stream(self, w):
         r"""The stream matrix $P = \Delta_N^{-1}W$ (traceless), over leading axes."""
-        return zeitlin.solve_poisson(w)
+        return self._solve_poisson(w)
 
     def energy(self, w):
         r"""quflow's energy $-\tfrac12\langle W, P\rangle_{L^2}$, over leading axes."""
@@ -101,4 +127,4 @@ class EulerZeitlin(LiePoissonSystem):
         return zeitlin.enstrophy(w)
 
     def gradient(self, y):
-        return -zeitlin.solve_poisson(y) / self.hbar
+        return -self._solve_poisson(y) / self.hbar

@@ -37,6 +37,7 @@ from ._batching import batched_like
 from ._checks import real_dtype
 from ._methods.base import finite_result
 from ._solution import RESULTS
+from ._system import differentiable_leaves
 
 # A failed step is split into k, k^2, ..., k^RETRY_LEVELS equal parts before giving up.
 RETRY_LEVELS = 3
@@ -109,17 +110,6 @@ def _attempts(method, model, y, dt, dW, act, k, m0, jacobians=False):
     return y_next, code, its, res, retried, jac
 
 
-def _inexact_leaves(model):
-    """The model's leaves, its tree structure, and the indices of the inexact (differentiable)
-    leaves."""
-    leaves, treedef = jax.tree_util.tree_flatten(model)
-    return (
-        leaves,
-        treedef,
-        [i for i, leaf in enumerate(leaves) if jnp.issubdtype(jnp.result_type(leaf), jnp.inexact)],
-    )
-
-
 def _real(x):
     """`x` flattened to real numbers: complex arrays (su(N) states, their noise parameters)
     as their real parts followed by their imaginary parts, so that the Jacobians below are
@@ -141,7 +131,7 @@ def _jacobian_tools(method, model, y, dW):
     (one `jacfwd` of the step with respect to `(ys, h, w, the model's inexact leaves)`), the
     Jacobians of no step at all (the identity in `y`), and `chain(J, derivatives, m)`, the
     Jacobians after one more substep of `(dt/m, dW/m)`."""
-    leaves, treedef, idx = _inexact_leaves(model)
+    leaves, treedef, idx = differentiable_leaves(model)
     p0 = [leaves[i] for i in idx]
     # (on real coordinates: a complex state or leaf as its real and imaginary parts)
     dtype, d = real_dtype(y.dtype), _real(y).size
@@ -207,7 +197,7 @@ def _robust_step_jvp(method, k, primals, tangents):
     y2, code2, its2, res2, _, (jy, jdt, jdw, jp) = _attempts(
         method, model, y, dt, dW, need, k, k, jacobians=True
     )
-    leaves, idx = jax.tree_util.tree_leaves(t_model), _inexact_leaves(model)[2]
+    leaves, idx = differentiable_leaves(t_model)[0], differentiable_leaves(model)[2]
     t_re = jy @ _real(t_y) + jdt * t_dt + jdw @ ravel_pytree(t_dW)[0]
     for i, j in zip(idx, jp):
         t_re = t_re + j @ _real(leaves[i]).astype(dtype)

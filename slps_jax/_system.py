@@ -21,6 +21,36 @@ QUADRATIC = "quadratic Hamiltonians"  # H_0 and every H_r quadratic: y -> y/s is
 
 
 @jax.tree_util.register_pytree_node_class
+class Tables:
+    """Precomputed arrays a system carries (`EulerZeitlin`'s Poisson eigenbasis): leaves of
+    its pytree, so that `jit` takes them as arguments rather than compiling them in as
+    constants, but not parameters: the derivatives with respect to the system that the
+    driver forms (a retried step's Jacobians) skip them."""
+
+    def __init__(self, arrays):
+        self.arrays = tuple(arrays)
+
+    def tree_flatten(self):
+        return self.arrays, None
+
+    @classmethod
+    def tree_unflatten(cls, aux, children):
+        return cls(children)
+
+
+def differentiable_leaves(model):
+    """The system's leaves (a `Tables` as one), its tree structure, and the indices of the
+    inexact leaves other than tables: the parameters a derivative acts on."""
+    leaves, treedef = jax.tree_util.tree_flatten(model, is_leaf=lambda x: isinstance(x, Tables))
+    idx = [
+        i
+        for i, leaf in enumerate(leaves)
+        if not isinstance(leaf, Tables) and jnp.issubdtype(jnp.result_type(leaf), jnp.inexact)
+    ]
+    return leaves, treedef, idx
+
+
+@jax.tree_util.register_pytree_node_class
 class LiePoissonSystem:
     r"""A stochastic Lie–Poisson system on so(3)*: a drift Hamiltonian $H_0$ you supply and
     its noise, either one noise proportional to the drift,

@@ -58,9 +58,11 @@ def test_solve_poisson_inverts_the_laplacian_on_traceless_matrices(N, route):
 
 
 def test_poisson_routes_agree_to_round_off_at_research_size():
-    """N = 256: both routes solve Delta_N P = W to 1e-12 N (the residual through `laplacian`,
-    an independent O(N^2) stencil) and agree to round-off, one state and a batch; in
-    complex64 (coefficients computed in float64) to its precision."""
+    """N = 256: every route solves Delta_N P = W to 1e-12 N (the residual through `laplacian`,
+    an independent O(N^2) stencil) and they agree to round-off (the eigenbasis's dense
+    products to 1e-12 relative: eps times the blocks' condition number, N^2 / 2, would allow
+    7e-12), one state and a batch; in complex64 (tables computed in float64) to its
+    precision."""
     N = 256
     W = sj.su(N).random_state(jax.random.key(0))
     P = {r: z.solve_poisson(W, route=r) for r in z.ROUTES}
@@ -68,6 +70,7 @@ def test_poisson_routes_agree_to_round_off_at_research_size():
         assert float(jnp.max(jnp.abs(z.laplacian(p) - W))) < 1e-12 * N
     scale = float(jnp.max(jnp.abs(P["scan"])))
     assert float(jnp.max(jnp.abs(P["sweep"] - P["scan"]))) < 1e-13 * scale
+    assert float(jnp.max(jnp.abs(P["eigenbasis"] - P["scan"]))) < 1e-12 * scale
     batch = jnp.stack([W, 2 * W])
     for r in z.ROUTES:
         np.testing.assert_allclose(z.solve_poisson(batch, route=r)[1], 2 * P[r], atol=1e-13 * scale)
@@ -445,3 +448,42 @@ def test_truncate_keeps_the_low_degrees_between_resolutions():
         sj.su(N).validate("W", np.asarray(p))
     with pytest.raises(ValueError, match="N must be"):
         z.truncate(W, 1)
+
+
+def test_a_model_on_the_eigenbasis_route_steps_and_differentiates_as_the_default():
+    """`EulerZeitlin(N, poisson="eigenbasis")` carries its table as a leaf that derivatives
+    skip: its paths and its gradients through retried steps (the retry's Jacobians
+    with respect to the model's leaves) equal the default route's, against finite
+    differences too; a route it does not know is refused."""
+    from slps_jax._system import Tables, differentiable_leaves
+
+    w0 = z.shr2mat(0.3 * np.arange(16) / 16, 4)
+    e = z.shr2mat(np.eye(16)[[1, 6]], 4)
+
+    def mean_energy(a, poisson):
+        body = sj.EulerZeitlin(4, noise=sj.salt_noise(a * e), poisson=poisson)
+        sol = sj.simulate(
+            body,
+            w0,
+            t1=0.25,
+            dt=2.0**-3,
+            n_samples=4,
+            key=jax.random.key(0),
+            method=sj.IsospectralMidpoint(max_iter=8),
+        )
+        return jnp.mean(z.energy(sol.ys[:, -1])), sol
+
+    body = sj.EulerZeitlin(4, noise=sj.salt_noise(e), poisson="eigenbasis")
+    leaves, _, idx = differentiable_leaves(body)
+    assert any(isinstance(leaf, Tables) for leaf in leaves)
+    assert all(not isinstance(leaves[i], Tables) for i in idx) and idx
+    (_, sol), (_, ref) = mean_energy(0.3, "eigenbasis"), mean_energy(0.3, "auto")
+    assert int(sol.stats["n_retried_steps"]) > 0
+    np.testing.assert_allclose(sol.ys, ref.ys, atol=1e-13)
+    g = jax.grad(lambda a: mean_energy(a, "eigenbasis")[0])(0.3)
+    fd = (mean_energy(0.3 + 1e-5, "auto")[0] - mean_energy(0.3 - 1e-5, "auto")[0]) / 2e-5
+    np.testing.assert_allclose(float(g), float(fd), rtol=1e-6)
+    with pytest.raises(ValueError, match="route"):
+        sj.EulerZeitlin(4, poisson="fft")
+    with pytest.raises(ValueError, match="N >= 2"):
+        z.poisson_eigenbasis(1)
