@@ -57,11 +57,12 @@ H = 0.01
 STEPS = {8: 64, 16: 64, 32: 32, 64: 16, 128: 8, 256: 4}
 ENSEMBLE = 16
 TOL = 64 * float(np.finfo(np.float64).eps)  # the implicit methods' default tolerance
+EIGENBASIS_MAX_N = 512  # its table: N^3 numbers, 1.1 GB at N = 512 in float64
 
 
 def initial(N, degrees=range(1, 5), seed=0):
     rng = np.random.default_rng(seed)
-    om = np.zeros(N * N)
+    om = np.zeros((max(degrees) + 1) ** 2)  # (only these degrees: conversion tables of N L^2)
     for el in degrees:
         for m in range(-el, el + 1):
             om[z.elm2ind(el, m)] = rng.normal()
@@ -228,8 +229,13 @@ def scale(ns, dtypes, budget_s, members, member_ns, write):
             row = dict(N=N, dtype=jnp.dtype(dtype).name, h=0.64 / N)
             parts = {
                 f"poisson_{r}_ms": (lambda w, r=r: z.solve_poisson(w, route=r), (w0,))
-                for r in z.ROUTES
+                for r in ("sweep", "scan")
             }
+            if N <= EIGENBASIS_MAX_N:  # (its table, an argument: a closure would be compiled in)
+                parts["poisson_eigenbasis_ms"] = (
+                    lambda w, t: z.solve_poisson(w, route="eigenbasis", eigenbasis=t),
+                    (w0, z.poisson_eigenbasis(N, real)),
+                )
             rng = np.random.default_rng(N)
             a, b = (
                 jnp.asarray(rng.normal(size=(N, N)) + 1j * rng.normal(size=(N, N)), dtype)
@@ -247,25 +253,30 @@ def scale(ns, dtypes, budget_s, members, member_ns, write):
                 method=sj.IsospectralMidpoint(),
             )
             parts["step_ms"] = (step, (w0, jnp.zeros((1, 1), real)))
-            ensemble = jax.vmap(
-                lambda w, d: sj.integrate(
-                    model, w, d, 0.64 / N, throw=False, method=sj.IsospectralMidpoint()
-                )
+            ensemble = jax.vmap(  # (the model an argument: its tables are not compiled in)
+                lambda m, w, d: sj.integrate(
+                    m, w, d, 0.64 / N, throw=False, method=sj.IsospectralMidpoint()
+                ),
+                in_axes=(None, 0, 0),
             )
             scales = jnp.asarray(1.0 + 0.01 * np.arange(members), real)[:, None, None]
             # 8 transport noises with their Lévy areas, one step (the area term's cost)
             noisy = sj.EulerZeitlin(
-                N, noise=sj.salt_noise(0.05 * z.shr2mat(np.eye(N * N)[1:9], N)), dtype=dtype
+                N, noise=sj.salt_noise(0.05 * z.shr2mat(np.eye(9)[1:], N)), dtype=dtype
             )
             dW8, A8 = sj.brownian_increments(
                 jax.random.key(N), 1, 0.64 / N, n_noises=8, levy_area=True
             )
-            areas = lambda w, d, a: sj.integrate(
-                noisy, w, d, 0.64 / N, levy_area=a, throw=False, method=sj.IsospectralMidpoint()
+            areas = lambda m, w, d, a: sj.integrate(
+                m, w, d, 0.64 / N, levy_area=a, throw=False, method=sj.IsospectralMidpoint()
             )
-            parts["step_8_areas_ms"] = (areas, (w0, dW8.astype(real), A8.astype(real)))
+            parts["step_8_areas_ms"] = (areas, (noisy, w0, dW8.astype(real), A8.astype(real)))
             if N in member_ns:
-                parts["ensemble_ms"] = (ensemble, (scales * w0, jnp.zeros((members, 4, 1), real)))
+                dW0 = jnp.zeros((members, 4, 1), real)
+                parts["ensemble_ms"] = (ensemble, (model, scales * w0, dW0))
+                if N <= EIGENBASIS_MAX_N:
+                    eig = sj.EulerZeitlin(N, dtype=dtype, poisson="eigenbasis")
+                    parts["ensemble_eigenbasis_ms"] = (ensemble, (eig, scales * w0, dW0))
             for name, (fn, args) in parts.items():
                 if (name, dtype) in over:
                     row[name] = None
@@ -275,8 +286,11 @@ def scale(ns, dtypes, budget_s, members, member_ns, write):
                 row[name] = 1e3 * med
                 if compile_s + 4 * med > budget_s:
                     over.add((name, dtype))
-            ensemble_ms = row.pop("ensemble_ms", None)  # (4 steps of each member)
-            row["ms_per_member_step"] = None if ensemble_ms is None else ensemble_ms / (4 * members)
+            for route in ("", "_eigenbasis"):  # (4 steps of each member)
+                ensemble_ms = row.pop(f"ensemble{route}_ms", None)
+                row[f"ms_per_member_step{route}"] = (
+                    None if ensemble_ms is None else ensemble_ms / (4 * members)
+                )
             if row["step_ms"] is not None:
                 sol = sj.simulate(
                     model,
@@ -308,6 +322,73 @@ def scale(ns, dtypes, budget_s, members, member_ns, write):
                 ),
                 flush=True,
             )
+    return rows
+
+
+def breakdown(N, members, big_N, write):
+    """Where an ensemble step's time goes: per member of an ensemble of `members` at N,
+    two batched N x N products, `solve_poisson` by the scan and eigenbasis routes, and an
+    `IsospectralMidpoint` step (2 steps timed) by final update and route, complex128 and
+    complex64; then one complex64 state at `big_N`: the Cayley rotation's LU solve, two
+    products, and a step by final update. ms, median of >= 3 calls."""
+    rows = []
+
+    def timed(case, dtype, fn, *args, per=1):
+        compiled, compile_s = _common.compile_timed(fn, *args)
+        med = _common.time_call(compiled, *args, repeats=3, min_total=0.3)[0]
+        rows.append(dict(case=case, dtype=jnp.dtype(dtype).name, ms=1e3 * med / per))
+        rows[-1]["compile_s"] = compile_s
+        print(f"{case} {rows[-1]['dtype']}: {rows[-1]['ms']:.4g} ms", flush=True)
+        write(rows)
+
+    for dtype in (jnp.complex128, jnp.complex64):
+        real = jnp.finfo(dtype).dtype
+        w = (jnp.asarray(1.0 + 0.01 * np.arange(members))[:, None, None] * initial(N)).astype(dtype)
+        label = f"N = {N}, per member of {members}:"
+        two = jax.vmap(lambda a, b: matmul(matmul(a, b), b))
+        timed(f"{label} two products", dtype, two, w, w, per=members)
+        scan = jax.vmap(lambda x: z.solve_poisson(x, route="scan"))
+        timed(f"{label} solve_poisson scan", dtype, scan, w, per=members)
+        eig = lambda x, t: z.solve_poisson(x, route="eigenbasis", eigenbasis=t)
+        timed(
+            f"{label} solve_poisson eigenbasis",
+            dtype,
+            eig,
+            w,
+            z.poisson_eigenbasis(N, real),
+            per=members,
+        )
+        dW = jnp.zeros((members, 2, 1), real)
+        for final in ("explicit", "cayley"):
+            ensemble = jax.vmap(
+                lambda m, x, d, f=final: sj.integrate(
+                    m, x, d, 0.64 / N, throw=False, method=sj.IsospectralMidpoint(final_update=f)
+                ),
+                in_axes=(None, 0, 0),
+            )
+            for route in ("scan", "eigenbasis"):
+                model = sj.EulerZeitlin(N, dtype=dtype, poisson=route)
+                timed(
+                    f"{label} step, {final}, {route}",
+                    dtype,
+                    ensemble,
+                    model,
+                    w,
+                    dW,
+                    per=2 * members,
+                )
+    w = initial(big_N).astype(jnp.complex64)
+    eye = jnp.eye(big_N, dtype=jnp.complex64)
+    label = f"N = {big_N}, one state:"
+    timed(f"{label} LU solve", jnp.complex64, lambda a: jnp.linalg.solve(eye - a, eye + a), w)
+    timed(f"{label} two products", jnp.complex64, lambda a, b: matmul(matmul(a, b), b), w, w)
+    model = sj.EulerZeitlin(big_N, dtype=jnp.complex64)
+    for final in ("explicit", "cayley"):
+        step = lambda m, x, d, f=final: sj.integrate(
+            m, x, d, 0.64 / big_N, throw=False, method=sj.IsospectralMidpoint(final_update=f)
+        )
+        dW = jnp.zeros((2, 1), jnp.float32)
+        timed(f"{label} step, {final}", jnp.complex64, step, model, w, dW, per=2)
     return rows
 
 
@@ -458,6 +539,18 @@ def main(argv=None):
         help="with --scale: N = 64 ... 2048 on one GPU and an ensemble of 64 at "
         "N = 512, about 8 minutes",
     )
+    p.add_argument(
+        "--sizes",
+        type=int,
+        nargs="+",
+        help="with --scale: these N, in this order (default: 64 ... 256; with --gpu 64 ... 2048)",
+    )
+    p.add_argument(
+        "--breakdown",
+        action="store_true",
+        help="only where an ensemble step's time goes (N = 512, 64 members; one state at "
+        "N = 2048; with --fast 8, 4 and 16) into zeitlin_breakdown.*",
+    )
     args = p.parse_args(argv)
     os.makedirs(args.out, exist_ok=True)
     info = _common.machine_info()
@@ -467,8 +560,31 @@ def main(argv=None):
         f"quflow {info['quflow']}, {info['date']}",
         flush=True,
     )
+    if args.breakdown:
+        device = (
+            info["cpu_model"] if jax.default_backend() == "cpu" else jax.devices()[0].device_kind
+        )
+
+        def write_breakdown(rows):
+            _common.write_json(
+                os.path.join(args.out, "zeitlin_breakdown.json"), dict(machine=info, rows=rows)
+            )
+            with open(os.path.join(args.out, "zeitlin_breakdown.md"), "w") as fh:
+                fh.write(f"Measured on {device}, jax {info['jax']}, {info['date'][:10]}.\n\n")
+                fh.write(
+                    _common.markdown_table(
+                        rows,
+                        ["case", "dtype", "ms", "compile_s"],
+                        {"ms": ".4g", "compile_s": ".1f"},
+                    )
+                )
+
+        with jax.default_matmul_precision("highest"):
+            breakdown(*((8, 4, 16) if args.fast else (512, 64, 2048)), write=write_breakdown)
+        return
     if args.scale:
         ns = (8,) if args.fast else (64, 128, 256, 512, 1024, 2048) if args.gpu else (64, 128, 256)
+        ns = tuple(args.sizes) if args.sizes else ns
         device = (
             info["cpu_model"] if jax.default_backend() == "cpu" else jax.devices()[0].device_kind
         )
@@ -489,6 +605,7 @@ def main(argv=None):
                     "h",
                     "poisson_sweep_ms",
                     "poisson_scan_ms",
+                    "poisson_eigenbasis_ms",
                     "two_products_ms",
                     "two_complex_products_ms",
                     "step_ms",
@@ -498,6 +615,7 @@ def main(argv=None):
                     "quflow_ms",
                     "step_vs_quflow",
                     "ms_per_member_step",
+                    "ms_per_member_step_eigenbasis",
                     "areas_vs_step",
                 ]
                 fh.write(

@@ -34,7 +34,7 @@ def test_zeitlin(tmp_path):
 
 
 def test_zeitlin_scale(tmp_path):
-    """`--scale` (the GPU mode's sizes cut to N = 8): both Poisson routes, the products, the
+    """`--scale` (the GPU mode's sizes cut to N = 8): the Poisson routes, the products, the
     step, its floor and an ensemble are measured in both dtypes."""
     run_script("zeitlin.py", tmp_path, "--scale")
     rows = json.loads((tmp_path / "zeitlin_scale.json").read_text())["rows"]
@@ -43,12 +43,22 @@ def test_zeitlin_scale(tmp_path):
         for k in (
             "poisson_sweep_ms",
             "poisson_scan_ms",
+            "poisson_eigenbasis_ms",
             "two_products_ms",
             "two_complex_products_ms",
             "step_ms",
             "ms_per_member_step",
+            "ms_per_member_step_eigenbasis",
             "step_8_areas_ms",
         ):
             assert r[k] > 0, (k, r)
         assert r["updates"] >= 1 and r["floor_ms"] > 0
     assert (tmp_path / "zeitlin_scale.md").read_text().count("| 8 |") == 2
+
+
+def test_zeitlin_breakdown(tmp_path):
+    """`--breakdown` (cut to N = 8, 4 members, one state at N = 16): every case is timed."""
+    run_script("zeitlin.py", tmp_path, "--breakdown")
+    rows = json.loads((tmp_path / "zeitlin_breakdown.json").read_text())["rows"]
+    assert len(rows) == 2 * (3 + 4) + 4
+    assert all(r["ms"] > 0 for r in rows)
