@@ -125,7 +125,10 @@ def fit_transport_noise(
             )
         if psi.shape[-1] < N or not np.all(np.isfinite(psi)):
             raise ValueError("fit_transport_noise: streams must be finite, of size M' >= N.")
-    psi = np.asarray(zeitlin.truncate(jnp.asarray(psi), N))
+    # A stream matrix of su(M') transports as [psi, W]: the same physical stream in su(N) is
+    # its field truncated, times hbar(M') / hbar(N) (the bracket scales with hbar).
+    scale = zeitlin.hbar(psi.shape[-1]) / zeitlin.hbar(N)
+    psi = scale * np.asarray(zeitlin.truncate(jnp.asarray(psi), N))
     coarse = zeitlin.truncate(jnp.asarray(states[::window]), N)  # (K + 1, N, N)
     model = EulerZeitlin(N)
     method = IsospectralMidpoint() if method is None else method

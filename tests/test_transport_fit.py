@@ -78,3 +78,18 @@ def test_default_streams_and_the_variance_rule(synthetic):
         sj.fit_transport_noise(ws, dt=s["h"], N=8, streams=s["streams"][:5])
     with pytest.raises(ValueError, match="dt"):
         sj.fit_transport_noise(ws, dt=-1.0, N=8)
+
+
+def test_a_flow_both_resolutions_carry_exactly_misses_no_transport():
+    """A Rossby–Haurwitz wave (a Y_10 + e Y_22, exact at every N) run at M = 16 and fitted at
+    N = 8: the coarse model follows it, so the missed transport is the two runs' O(h^3)
+    difference, not a share of the resolved stream (a stream of su(M) transports su(N) times
+    hbar(M) / hbar(N))."""
+    M, N, h, K = 16, 8, 0.01, 40
+    om = np.zeros(M * M)
+    om[z.elm2ind(1, 0)], om[z.elm2ind(2, 2)] = 0.8, 0.3
+    fine = sj.EulerZeitlin(M)
+    ws = sj.integrate(fine, z.shr2mat(om, M), np.zeros((K, 1)), h, save_every=1)
+    fit = sj.fit_transport_noise(ws, dt=h, N=N, n_modes=1)
+    stream = np.max(np.abs(np.asarray(sj.EulerZeitlin(N).gradient(z.truncate(ws[0], N)))))
+    assert fit.std[0] < 1e-6 * stream * h, (fit.std[0], stream * h)  # (without: 2e-4)
