@@ -70,7 +70,10 @@ def fit_transport_noise(
     - `states`: `(K * window + 1, M, M)` vorticity snapshots of su(M), spaced `dt` in time
       (physical seconds, as `EulerZeitlin`), $M \ge N$, $K \ge 2$.
     - `dt`: the snapshots' spacing; `N`: the coarse model's size.
-    - `window`: intervals per window (default 1).
+    - `window`: intervals per window (default 1): the time scale at which the white noise's
+      variance matches the data's. The missed transport of a smooth flow is correlated in
+      time, so a noise fitted over one step is too weak at longer leads: choose a window of
+      the order of the forecasts' lead (`docs/data-driven-noise.md`, "Choosing the window").
     - `streams`: `(K * window, M', M')` transport streams $\psi$ over each interval
       ($dW = [\psi, W]\,dt$, so $-\nabla H_0$: $\Delta_{M'}^{-1}W/\hbar$ for Euler–Zeitlin),
       $M' \ge N$; default: the fine model's own, $-\nabla H_0$ of the snapshots averaged over

@@ -27,6 +27,7 @@ def test_there_are_notebooks():
         "04_several_noises.ipynb",
         "05_so_n.ipynb",
         "06_euler_sphere.ipynb",
+        "07_data_driven_noise.ipynb",
     ]
 
 
