@@ -271,3 +271,13 @@ def test_chunk_size(tmp_path):
     assert [r["chunk_size"] for r in rows] == [500, 2000]
     assert all(r["us_per_sample_step"] > 0 for r in rows)
     assert "| 500 |" in stdout
+
+
+def test_transport_fit(tmp_path):
+    """`transport_fit.py --fast` (M = 12, N = 6): the fine run, the fit and the ensemble are
+    timed."""
+    run_script("transport_fit.py", tmp_path)
+    rows = json.loads((tmp_path / "transport_fit.json").read_text())["rows"]
+    assert [(r["M"], r["N"]) for r in rows] == [(12, 6)]
+    for k in ("fine_ms_per_step", "fit_s", "ensemble_ms_per_member_step"):
+        assert rows[0][k] > 0, k

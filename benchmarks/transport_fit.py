@@ -1,0 +1,118 @@
+#!/usr/bin/env python
+"""Data-driven transport noise: the cost of the fit and of the coarse ensembles against M, N.
+
+For (M, N) = (32, 8), (64, 16), (128, 32) (GPU: also (256, 64), (512, 128)), h = 0.64/M s:
+
+- the fine deterministic run of su(M), `IsospectralMidpoint`, ms per step;
+- `fit_transport_noise` at su(N) on K = 8 windows of 50 steps (wall time of the whole call,
+  NumPy's SVD included, after a first call that compiles);
+- an ensemble of 32 members with the fitted noise and its Lévy areas, 50 steps at h, ms per
+  member-step (`simulate`, final states only; compile time apart).
+
+Writes `transport_fit.json` and `transport_fit.md` into --out (default benchmarks/results).
+
+    python benchmarks/transport_fit.py [--fast] [--out DIR]
+"""
+
+from __future__ import annotations
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import argparse  # noqa: E402
+import os  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import _common  # noqa: E402
+
+import slps_jax as sj  # noqa: E402
+from slps_jax import zeitlin  # noqa: E402
+
+WINDOWS, WINDOW, MEMBERS = 8, 50, 32
+
+
+def initial(M, degrees=10, seed=0):
+    """Degrees 1..`degrees` (at most M - 1), coefficients N(0, 1/l^2)."""
+    L = min(degrees, M - 1)
+    el = np.floor(np.sqrt(np.arange(1, (L + 1) ** 2)))
+    omega = np.r_[0.0, np.random.default_rng(seed).normal(size=el.size) / el]
+    return zeitlin.shr2mat(omega, M)
+
+
+def case(M, N, windows=WINDOWS, window=WINDOW, members=MEMBERS):
+    h = 0.64 / M
+    steps = windows * window
+    run = lambda w: sj.integrate(
+        sj.EulerZeitlin(M), w, np.zeros((steps, 1)), h, save_every=1, throw=False
+    )
+    w0 = initial(M)
+    jax.block_until_ready(run(w0))  # (compiles)
+    start = time.perf_counter()
+    fine = jax.block_until_ready(run(w0))
+    fine_ms = 1e3 * (time.perf_counter() - start) / steps
+    sj.fit_transport_noise(fine, dt=h, N=N, window=window, n_modes=min(4, windows))  # (compiles)
+    start = time.perf_counter()
+    fit = sj.fit_transport_noise(fine, dt=h, N=N, window=window, n_modes=min(4, windows))
+    fit_s = time.perf_counter() - start
+    model = sj.EulerZeitlin(N, noise=fit.noise)
+    x0 = zeitlin.truncate(fine[-1], N)
+    ensemble = lambda key: (
+        sj.simulate(model, x0, t1=window * h, dt=h, n_samples=members, key=key, throw=False).ys
+    )
+    start = time.perf_counter()
+    jax.block_until_ready(ensemble(jax.random.key(0)))
+    first_s = time.perf_counter() - start
+    med, _, _, _ = _common.time_call(ensemble, jax.random.key(1), repeats=3, min_total=0.5)
+    member_step_ms = 1e3 * med / (members * window)
+    return dict(
+        M=M,
+        N=N,
+        h=h,
+        fine_ms_per_step=fine_ms,
+        fit_s=fit_s,
+        fit_windows=windows,
+        window=window,
+        ensemble_ms_per_member_step=member_step_ms,
+        ensemble_first_call_s=first_s,
+    )
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--fast", action="store_true", help="a smoke run: M = 12, N = 6, small sizes")
+    p.add_argument(
+        "--out", default=_common.DEFAULT_OUT, help="output folder (default: %(default)s)"
+    )
+    args = p.parse_args(argv)
+    os.makedirs(args.out, exist_ok=True)
+    info = _common.machine_info()
+    cpu = jax.default_backend() == "cpu"
+    device = info["cpu_model"] if cpu else jax.devices()[0].device_kind
+    sizes = [(32, 8), (64, 16), (128, 32)] + ([] if cpu else [(256, 64), (512, 128)])
+    rows = []
+    for M, N in [(12, 6)] if args.fast else sizes:
+        extra = dict(windows=2, window=10, members=4) if args.fast else {}
+        rows.append(case(M, N, **extra))
+        print(rows[-1], flush=True)
+    _common.write_json(os.path.join(args.out, "transport_fit.json"), dict(machine=info, rows=rows))
+    cols = [
+        "M",
+        "N",
+        "h",
+        "fine_ms_per_step",
+        "fit_s",
+        "ensemble_ms_per_member_step",
+        "ensemble_first_call_s",
+    ]
+    with open(os.path.join(args.out, "transport_fit.md"), "w") as fh:
+        fh.write(f"Measured on {device}, jax {info['jax']}, {info['date'][:10]}.\n\n")
+        fh.write(_common.markdown_table(rows, cols, {k: ".3g" for k in cols[2:]}))
+
+
+if __name__ == "__main__":
+    main()
