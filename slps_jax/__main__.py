@@ -15,16 +15,6 @@ import sys
 import time
 
 
-def _methods():
-    import slps_jax as sj
-
-    methods = {"LiePoisson": sj.LiePoisson(), "Midpoint": sj.Midpoint()}
-    if hasattr(sj, "Strang"):
-        methods["Strang"] = sj.Strang()
-    methods["EulerMaruyama"] = sj.EulerMaruyama()
-    return methods
-
-
 def summary(n_samples=500, fast=False, seed=0):
     import functools
 
@@ -39,7 +29,9 @@ def summary(n_samples=500, fast=False, seed=0):
     key = jax.random.key(seed)
     levels = range(5, 8) if fast else range(5, 10)
     dts = [2.0**-k for k in levels]
-    methods = _methods()
+    from ._paper import paper_methods
+
+    methods = paper_methods()
     say(
         f"slps-jax {sj.__version__}, jax {jax.__version__} on {jax.default_backend()}, "
         f"dtype {y0.dtype}"

@@ -22,8 +22,8 @@ def _euler_hamiltonian(w, params):
 class EulerZeitlin(LiePoissonSystem):
     r"""Zeitlin's model of the incompressible Euler equations on the unit sphere, stochastic:
 
-    $dW = [P, W]\,dt + \sum_r [X_r, W]\circ dB_r$ (`noise=salt_noise(X)`, transport noise),
-    or $dW = [P, W](dt + c\circ dB)$ (`c=`), with $\Delta_N P = W$, in **physical time**
+    $dW = [P, W]/\hbar\,dt + \sum_r [W, X_r]\circ dB_r$ (`noise=salt_noise(X)`, transport
+    noise), or $dW = [P, W]/\hbar\,(dt + c\circ dB)$ (`c=`), with $\Delta_N P = W$, in **physical time**
     (seconds; quflow's "qtime" is $t/\hbar$, $\hbar = 2/\sqrt{N^2-1}$).
 
     The state `W` is the quantised vorticity, an element of su(N) (traceless skew-Hermitian

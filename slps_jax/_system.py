@@ -1,4 +1,4 @@
-"""Stochastic Lie–Poisson systems on so(3)* with a general Hamiltonian."""
+"""Stochastic Lie–Poisson systems with a general Hamiltonian, on so(3)*, so(n)* or su(N)*."""
 
 from __future__ import annotations
 
@@ -52,7 +52,8 @@ def differentiable_leaves(model):
 
 @jax.tree_util.register_pytree_node_class
 class LiePoissonSystem:
-    r"""A stochastic Lie–Poisson system on so(3)*: a drift Hamiltonian $H_0$ you supply and
+    r"""A stochastic Lie–Poisson system on so(3)* (or, with `algebra=`, so(n)* and su(N)*,
+    where $y \times \cdot$ reads $[Y, \cdot]$): a drift Hamiltonian $H_0$ you supply and
     its noise, either one noise proportional to the drift,
 
     $dy = y \times \nabla H_0(y)\,(dt + c \circ dW)$ (`c=`), or $s$ noises with their own

@@ -332,6 +332,10 @@ class LiePoisson(AbstractMethod):
       Jacobian by forward-mode autodiff at every update (quadratic convergence, 3 updates,
       but `n(n-1)/2` tangents each: 3–8x slower per step, measured in
       `benchmarks/so_n.py`).
+    - `second_order`: keep the second-order terms of the generating function, $c^2\Delta W^2$
+      of (41) for one noise and the $S_{rq}$ terms for several (default `True`). They make
+      the scheme converge to the Stratonovich solution; `False` shows their effect, a bias
+      that does not shrink with the step (`tests/test_several_noises.py`).
     - `unroll`: Newton updates made as straight-line code before the loop (default 0).
       `unroll=3` (the updates almost every step needs) makes a step on a CPU about 1.5x
       faster at about three times the compile time (`benchmarks/compile_time.py`): worth it for
@@ -349,9 +353,14 @@ class LiePoisson(AbstractMethod):
     scale: float | None = None
     unroll: int = 0
     jacobian: str = "auto"
+    second_order: bool = True
 
     def __post_init__(self):
         check_options(self)
+        if not isinstance(self.second_order, (bool, np.bool_)):
+            raise TypeError(
+                f"LiePoisson: second_order must be True or False, got {self.second_order!r}."
+            )
         if self.jacobian not in ("auto", "chart", "newton"):
             raise ValueError(
                 f"LiePoisson: jacobian must be 'auto', 'chart' or 'newton', got {self.jacobian!r}."
@@ -378,13 +387,8 @@ class LiePoisson(AbstractMethod):
                 f"s = {1.5 * norm:.3g}; the norm is conserved, so it suffices at the start."
             )
 
-    # The second-order terms of the generating function, c^2 dW^2 of (41) for one noise and
-    # the S_rq terms for several: they make the scheme converge to the Stratonovich
-    # solution (tests remove them).
-    _second_order = True
-
     def _kappa(self, cdw):
-        return cdw * cdw if self._second_order else 0.0 * cdw
+        return cdw * cdw if self.second_order else 0.0 * cdw
 
     def step(self, model, y, dt, dW):
         dtype = y.dtype
@@ -404,7 +408,7 @@ class LiePoisson(AbstractMethod):
                 return sine_chart_in_map(v, z, d, lam * tau, lam * lam * kappa, jacobian)
         else:
             # Any Hamiltonians: the generalised generating function, fields from the model.
-            second = 1.0 if self._second_order else 0.0
+            second = 1.0 if self.second_order else 0.0
 
             def sine_fn(v, lam, jacobian=True):
                 def fields(v):
@@ -439,7 +443,7 @@ class LiePoisson(AbstractMethod):
         # (the chart's base point: constant for derivatives, which the implicit function
         # theorem gives through the residual; eigh's derivative is singular here anyway)
         a0, gap = jax.tree_util.tree_map(jax.lax.stop_gradient, branch_point(alg.to_matrix(z)))
-        second = 1.0 if self._second_order else 0.0
+        second = 1.0 if self.second_order else 0.0
 
         # (unknowns and equations on the group's Lie algebra: u(N) for su(N), where A is
         # unitary and the in-map has a trace)
