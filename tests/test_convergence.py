@@ -7,16 +7,10 @@ import pytest
 from reference import exact_sde_solution, fitted_order
 
 import slps_jax as sj
+from slps_jax._methods import METHODS
 
 N_SAMPLES = 200
 LEVELS = [5, 6, 7, 8, 9]  # h = 2^-5 ... 2^-9
-
-
-class _NoKappa(sj.LiePoisson):
-    """Scheme (42) with its c^2 dW^2 term removed."""
-
-    def _kappa(self, cdw):
-        return 0.0 * cdw
 
 
 @pytest.fixture(scope="module")
@@ -53,16 +47,31 @@ def _rms_errors(study, method):
     return np.array(hs), np.array(errs)
 
 
-@pytest.mark.parametrize("method", [sj.LiePoisson(), sj.Midpoint()], ids=lambda m: type(m).__name__)
-def test_strong_order_one(study, method):
-    hs, errs = rms_errors(study, method)
+# Every method of the registry that runs on the paper's rigid body (`c=`): its declared
+# order for one noise proportional to the drift, `strong_orders.one` (`test_levy_order.py`
+# checks `increments` and `areas` for the same registry).
+ONE_NOISE = [cls for cls in METHODS if cls.requires <= sj.RigidBody.paper().structure]
+
+
+@pytest.mark.parametrize("cls", ONE_NOISE, ids=lambda cls: cls.__name__)
+def test_declared_strong_order_for_one_noise(study, cls):
+    """`one`: the fitted order within [0.85, 1.2] times the declared one, errors falling
+    with h; `inf` (an exact sampler): round-off at every h; `None` (Euler–Maruyama, the Ito
+    solution): no convergence to the Stratonovich solution."""
+    declared = cls.strong_orders.one
+    hs, errs = rms_errors(study, cls())
     order = fitted_order(hs, errs)
-    assert 0.85 <= order <= 1.2, (order, errs)
-    assert np.all(np.diff(errs) < 0)
+    if declared is None:
+        assert order <= 0.4, (order, errs)
+    elif declared == float("inf"):
+        assert np.max(errs) < 1e-13, errs
+    else:
+        assert 0.85 * declared <= order <= 1.2 * declared, (order, errs)
+        assert np.all(np.diff(errs) < 0), errs
 
 
 def test_without_kappa_term_no_convergence(study):
-    hs, errs = rms_errors(study, _NoKappa())
+    hs, errs = rms_errors(study, sj.LiePoisson(second_order=False))
     assert fitted_order(hs, errs) <= 0.4, errs
     _, errs_full = rms_errors(study, sj.LiePoisson())
     assert errs[-1] > 10 * errs_full[-1]
