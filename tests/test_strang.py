@@ -1,10 +1,11 @@
-"""The Strang splitting: sub-flows, local order, Casimir, strong order, jit/vmap/float32."""
+"""The Strang splitting: sub-flows, local order, Casimir, jit/vmap/float32 (its strong order:
+tests/test_convergence.py, with every method of the registry)."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from reference import exact_sde_solution, fitted_order, rigid_body_flow
+from reference import rigid_body_flow
 from scipy.integrate import solve_ivp
 
 import slps_jax as sj
@@ -86,40 +87,6 @@ def test_casimir_preserved_over_many_steps(paper):
     norms = np.linalg.norm(np.asarray(ys), axis=-1)
     drift = np.max(np.abs(norms / np.linalg.norm(y0) - 1.0))
     assert drift < 1e-13, drift
-
-
-# --------------------------------------------------------------------------------------
-# Strong order 1 against the exact time-change solution (as tests/test_convergence.py).
-
-N_SAMPLES = 200
-LEVELS = [5, 6, 7, 8, 9]  # h = 2^-5 ... 2^-9
-
-
-@pytest.fixture(scope="module")
-def strong_errors():
-    model, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
-    fine = sj.brownian_increments(
-        jax.random.key(42), 2 ** LEVELS[-1], 2.0 ** -LEVELS[-1], n_samples=N_SAMPLES
-    )
-    exact = exact_sde_solution(model.inertia, float(model.c), y0, np.asarray(fine.sum(1)), 1.0)
-    hs, errs = [], []
-    for level in LEVELS:
-        coarse = fine.reshape(N_SAMPLES, -1, 2 ** (LEVELS[-1] - level)).sum(-1)
-        h = 2.0**-level
-        run = jax.jit(
-            jax.vmap(lambda dW: sj.integrate(model, y0, dW, h, method=sj.Strang(), throw=False))
-        )
-        y_end = np.asarray(run(coarse))
-        errs.append(float(np.sqrt(np.mean(np.sum((y_end - exact) ** 2, -1)))))
-        hs.append(h)
-    return np.array(hs), np.array(errs)
-
-
-def test_strong_order_one(strong_errors):
-    hs, errs = strong_errors
-    order = fitted_order(hs, errs)
-    assert 0.85 <= order <= 1.2, (order, errs)
-    assert np.all(np.diff(errs) < 0), errs
 
 
 # --------------------------------------------------------------------------------------
