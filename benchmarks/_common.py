@@ -55,6 +55,14 @@ def machine_info():
     return info
 
 
+def device_name(info):
+    """What the results were measured on: the CPU model (`machine_info`), or the accelerator's
+    kind."""
+    import jax
+
+    return info["cpu_model"] if jax.default_backend() == "cpu" else jax.devices()[0].device_kind
+
+
 def compile_timed(fn, *args):
     """`jax.jit(fn)` compiled ahead of time for `args`: (compiled, seconds to lower+compile)."""
     import jax

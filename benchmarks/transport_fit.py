@@ -29,19 +29,12 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import _common  # noqa: E402
+from zeitlin import initial  # noqa: E402  (benchmarks/zeitlin.py: a random vorticity)
 
 import slps_jax as sj  # noqa: E402
 from slps_jax import zeitlin  # noqa: E402
 
 WINDOWS, WINDOW, MEMBERS = 8, 50, 32
-
-
-def initial(M, degrees=10, seed=0):
-    """Degrees 1..`degrees` (at most M - 1), coefficients N(0, 1/l^2)."""
-    L = min(degrees, M - 1)
-    el = np.floor(np.sqrt(np.arange(1, (L + 1) ** 2)))
-    omega = np.r_[0.0, np.random.default_rng(seed).normal(size=el.size) / el]
-    return zeitlin.shr2mat(omega, M)
 
 
 def case(M, N, windows=WINDOWS, window=WINDOW, members=MEMBERS):
@@ -50,7 +43,7 @@ def case(M, N, windows=WINDOWS, window=WINDOW, members=MEMBERS):
     run = lambda w: sj.integrate(
         sj.EulerZeitlin(M), w, np.zeros((steps, 1)), h, save_every=1, throw=False
     )
-    w0 = initial(M)
+    w0 = initial(M, degrees=range(1, min(10, M - 1) + 1), decay=1)
     jax.block_until_ready(run(w0))  # (compiles)
     start = time.perf_counter()
     fine = jax.block_until_ready(run(w0))
@@ -92,7 +85,7 @@ def main(argv=None):
     os.makedirs(args.out, exist_ok=True)
     info = _common.machine_info()
     cpu = jax.default_backend() == "cpu"
-    device = info["cpu_model"] if cpu else jax.devices()[0].device_kind
+    device = _common.device_name(info)
     sizes = [(32, 8), (64, 16), (128, 32)] + ([] if cpu else [(256, 64), (512, 128)])
     rows = []
     for M, N in [(12, 6)] if args.fast else sizes:

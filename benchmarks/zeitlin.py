@@ -60,12 +60,13 @@ TOL = 64 * float(np.finfo(np.float64).eps)  # the implicit methods' default tole
 EIGENBASIS_MAX_N = 512  # its table: N^3 numbers, 1.1 GB at N = 512 in float64
 
 
-def initial(N, degrees=range(1, 5), seed=0):
+def initial(N, degrees=range(1, 5), seed=0, decay=0):
+    """A random vorticity of `degrees`, coefficients N(0, 1) / l^decay (seed `seed`)."""
     rng = np.random.default_rng(seed)
     om = np.zeros((max(degrees) + 1) ** 2)  # (only these degrees: conversion tables of N L^2)
     for el in degrees:
         for m in range(-el, el + 1):
-            om[z.elm2ind(el, m)] = rng.normal()
+            om[z.elm2ind(el, m)] = rng.normal() / el**decay
     return z.shr2mat(om, N)
 
 
@@ -561,9 +562,7 @@ def main(argv=None):
         flush=True,
     )
     if args.breakdown:
-        device = (
-            info["cpu_model"] if jax.default_backend() == "cpu" else jax.devices()[0].device_kind
-        )
+        device = _common.device_name(info)
 
         def write_breakdown(rows):
             _common.write_json(
@@ -585,9 +584,7 @@ def main(argv=None):
     if args.scale:
         ns = (8,) if args.fast else (64, 128, 256, 512, 1024, 2048) if args.gpu else (64, 128, 256)
         ns = tuple(args.sizes) if args.sizes else ns
-        device = (
-            info["cpu_model"] if jax.default_backend() == "cpu" else jax.devices()[0].device_kind
-        )
+        device = _common.device_name(info)
 
         def write(rows):  # after every row: a run cut short keeps what it measured
             _common.write_csv(os.path.join(args.out, "zeitlin_scale.csv"), rows)

@@ -23,8 +23,8 @@ class EulerZeitlin(LiePoissonSystem):
     r"""Zeitlin's model of the incompressible Euler equations on the unit sphere, stochastic:
 
     $dW = [P, W]/\hbar\,dt + \sum_r [W, X_r]\circ dB_r$ (`noise=salt_noise(X)`, transport
-    noise), or $dW = [P, W]/\hbar\,(dt + c\circ dB)$ (`c=`), with $\Delta_N P = W$, in **physical time**
-    (seconds; quflow's "qtime" is $t/\hbar$, $\hbar = 2/\sqrt{N^2-1}$).
+    noise), or $dW = [P, W]/\hbar\,(dt + c\circ dB)$ (`c=`), with $\Delta_N P = W$, in
+    **physical time** (seconds; quflow's "qtime" is $t/\hbar$, $\hbar = 2/\sqrt{N^2-1}$).
 
     The state `W` is the quantised vorticity, an element of su(N) (traceless skew-Hermitian
     `(N, N)`, complex; build one with `zeitlin.shr2mat`). In the library's form
@@ -73,8 +73,7 @@ class EulerZeitlin(LiePoissonSystem):
                     noise,
                 )
         super().__init__(_euler_hamiltonian, None, c=c, noise=noise, algebra=su(int(N)))
-        if poisson != "auto":
-            zeitlin._route(poisson)
+        zeitlin._route(poisson)  # (refuses an unknown route)
         self.poisson = poisson
         self.tables = None
         if poisson == "eigenbasis":

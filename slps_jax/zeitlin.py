@@ -303,13 +303,11 @@ def solve_poisson(W, route="auto", eigenbasis=None):
     W = jnp.asarray(W)
     N = W.shape[-1]
     route = _route(route)
-    if route == "eigenbasis":
+    if route == "eigenbasis":  # (traceless already: the identity's inverse eigenvalue is 0)
         if eigenbasis is None:
             eigenbasis = poisson_eigenbasis(N, jnp.finfo(W.dtype).dtype)
-        P = _solve_by_eigenbasis(W, *eigenbasis)
-    else:
-        P = _solve_tridiagonal(W, route)
-    return _traceless(P)
+        return _solve_by_eigenbasis(W, *eigenbasis)
+    return _traceless(_solve_tridiagonal(W, route))
 
 
 @jax.jit
