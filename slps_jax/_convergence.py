@@ -75,11 +75,9 @@ class ConvergenceResult:
 
 
 @functools.partial(jax.jit, static_argnames=("n_fine",))
-def _brownian_endpoints(keys, fine_dt, bound, n_fine):
-    """$W(t_1)$ of each sample: its `n_fine` fine steps joined into one (`_noise`)."""
-    return jax.vmap(
-        lambda key: _noise.draw_joined(key, 0, n_fine, fine_dt, bound, fine_dt.dtype, 1).dW[0]
-    )(keys)
+def _brownian_endpoints(keys, path, n_fine):
+    """$W(t_1)$ of each sample: its first `n_fine` steps of `path` joined into one."""
+    return jax.vmap(lambda key: path.joined(key, n_fine).dW[0])(keys)
 
 
 @jax.jit
@@ -228,7 +226,6 @@ def _study(
     n_fine = _substeps(float(t1), fine_dt, "t1")
     dtype = real_dtype(y0.dtype)
     keys = _noise.sample_keys(key, int(n_samples))
-    bound = jnp.asarray(_noise.truncation_bound(fine_dt, truncate_k), dtype)
 
     for dt in dts:
         if n_fine % _substeps(float(dt), fine_dt, "dt"):
@@ -243,25 +240,21 @@ def _study(
         )
     areas = {n: check_levy_option(chosen.get(n, default), m, model) for n, m in methods.items()}
     ref_areas = is_method and check_levy_option(default, reference, model)
-    fine_terms = _noise.levy_area_terms(fine_dt, model.n_noises)
+    # (the paths at the finest step, with their areas for the runs that take them: the
+    # increments do not depend on whether the areas are drawn)
+    fine = _noise.BrownianPath.of(
+        fine_dt, model.n_noises, dtype, truncate_k=truncate_k, levy_area=True
+    )
 
     def final_states(method, dt, name="dt", areas=False):
         """The final states, the failed samples (a NumPy mask) and what failed, in words
         (`None` if nothing); with `areas`, the method gets the Lévy areas."""
         s = _substeps(dt, fine_dt, name)
+        path = (fine if areas else fine.without_areas()).coarsened(
+            jnp.asarray(s), jnp.asarray(dt, dtype)
+        )
         ys, fail_step, result, _, _ = ensemble_dynamic_jit(
-            method,
-            model,
-            y0,
-            keys,
-            jnp.asarray(dt, dtype),
-            bound,
-            1,
-            jnp.asarray(n_fine // s),
-            False,
-            jnp.asarray(s),
-            retry=retry,
-            terms=fine_terms if areas else None,
+            method, model, y0, keys, path, 1, jnp.asarray(n_fine // s), False, retry=retry
         )
         found = summary(fail_step, result)
         why = None if found is None else f"{found[0]} at dt={dt:g} ({found[3]})"
@@ -286,7 +279,7 @@ def _study(
         )
     elif callable(reference):
         # The time change: y(t1) = phi_{t1 + c W(t1)}(y0) for the deterministic flow phi.
-        w_t = _brownian_endpoints(keys, jnp.asarray(fine_dt, dtype), bound, n_fine)
+        w_t = _brownian_endpoints(keys, fine.without_areas(), n_fine)
         times = float(t1) + np.asarray(model.c) * np.asarray(w_t)
         y_ref = np.asarray(reference(times), dtype=np.float64)
         if y_ref.shape != (n_samples, *model.algebra.shape):
@@ -297,7 +290,7 @@ def _study(
         y_ref = jnp.asarray(y_ref, dtype)
         reference_error = math.nan
     else:
-        w_t = _brownian_endpoints(keys, jnp.asarray(fine_dt, dtype), bound, n_fine)
+        w_t = _brownian_endpoints(keys, fine.without_areas(), n_fine)
         y_ref = _exact_endpoints(model, y0, jnp.asarray(t1, dtype), w_t)
         reference_error = 0.0
 

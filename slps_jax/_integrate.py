@@ -249,40 +249,17 @@ def _integrate_jit(method, model, y0, noise, dt, save_every, want_stats, retry=N
     )
 
 
-def ensemble(
-    method,
-    model,
-    y0,
-    keys,
-    dt,
-    bound,
-    n_blocks,
-    block_len,
-    want_stats,
-    substeps=1,
-    retry=None,
-    terms=None,
-):
-    """Each sample draws its steps' noise from its key (`_noise.draw`; with `terms`, the
-    series length of the fine step's area sampler, also the Lévy areas). With
-    `substeps = m > 1`, step `n`'s noise joins the fine steps `n m, ..., n m + m - 1` of size
-    `dt / m` (`_noise.draw_joined`): coarse paths that are the very same Brownian paths as a
-    run with step `dt / m`."""
-    dtype = real_dtype(y0.dtype)
-    fine_dt = dt / substeps
+def ensemble(method, model, y0, keys, path, n_blocks, block_len, want_stats, retry=None):
+    """Each sample asks the Brownian path (`_noise.BrownianPath`) for its steps' noise, from
+    its key; the driver's step is `path.dt`."""
 
     def one(key):
-        def draw(n):
-            return _noise.draw_joined(
-                key, n, substeps, fine_dt, bound, dtype, model.n_noises, terms
-            )
-
         return _path(
             method,
             model,
             y0,
-            dt,
-            draw,
+            path.dt,
+            lambda n: path.evaluate(key, n),
             n_blocks,
             block_len,
             want_stats,
@@ -294,12 +271,11 @@ def ensemble(
 
 
 ensemble_jit = jax.jit(
-    ensemble,
-    static_argnames=("method", "n_blocks", "block_len", "want_stats", "substeps", "retry", "terms"),
+    ensemble, static_argnames=("method", "n_blocks", "block_len", "want_stats", "retry")
 )
-# Step count and substeps traced: one compilation for every step size of a study.
+# Step count traced (and the path's substeps): one compilation for every step size of a study.
 ensemble_dynamic_jit = jax.jit(
-    ensemble, static_argnames=("method", "n_blocks", "want_stats", "retry", "terms")
+    ensemble, static_argnames=("method", "n_blocks", "want_stats", "retry")
 )
 
 
@@ -514,13 +490,11 @@ def simulate_unreported(
             model,
             y0,
             keys,
-            jnp.asarray(dt, dtype),
-            jnp.asarray(p.bound, dtype),
+            p.path,
             n_steps // k,
             k,
             bool(newton_stats),
             retry=p.retry,
-            terms=p.terms,
         )
         sol = _solution(
             y0,

@@ -260,6 +260,94 @@ def draw_joined(sample_key, n, substeps, fine_dt, bound, dtype, n_noises, terms=
     )
 
 
+@jax.tree_util.register_pytree_node_class
+class BrownianPath:
+    r"""The Brownian motions of an ensemble, as the driver asks for them: the noise of step
+    `n` of the sample whose key is `key` is `evaluate(key, n)`, a `BrownianStep`. Everything
+    that decides it lives here: the step, the truncation of the increments, the Lévy areas
+    and the coarsening of fine steps into the driver's.
+
+    - `dt`: the driver's step, an array (or NumPy scalar) of the computation's floating dtype.
+    - `bound`: the truncation bound of the fine increments (`truncation_bound`), same dtype.
+    - `n_noises`: the number $s$ of Brownian motions (static).
+    - `substeps`: $m$: each step joins the fine steps $nm, \dots, nm + m - 1$ of size
+      $dt/m$ (`draw_joined`), so that a coarse run sees the very same Brownian motion as a
+      run with step $dt/m$. A Python int is static; an integer array is traced (one
+      program serves every step size of a convergence study).
+    - `terms`: the series length of the Lévy-area sampler of a fine step
+      (`levy_area_terms`), or `None`: no areas (static).
+
+    A pytree: `dt`, `bound` and a traced `substeps` are its leaves.
+    """
+
+    def __init__(self, dt, bound, n_noises, *, substeps=1, terms=None):
+        self.dt = dt
+        self.bound = bound
+        self.n_noises = n_noises
+        self.substeps = substeps
+        self.terms = terms
+
+    @classmethod
+    def of(cls, dt, n_noises, dtype, *, truncate_k, levy_area=False):
+        """The path of steps `dt` (a Python float) for `n_noises` noises in `dtype`: the
+        increments truncated at `truncation_bound(dt, truncate_k)`, and with `levy_area`
+        (and `n_noises > 1`) the Lévy areas."""
+        # (NumPy scalars: `jit` takes them as arguments in whatever mesh context it runs)
+        return cls(
+            np.asarray(dt, dtype),
+            np.asarray(truncation_bound(dt, truncate_k), dtype),
+            n_noises,
+            terms=levy_area_terms(dt, n_noises) if levy_area and n_noises > 1 else None,
+        )
+
+    @property
+    def levy_area(self):
+        """Whether the steps' noises carry their Lévy areas."""
+        return self.terms is not None
+
+    def coarsened(self, m, dt):
+        """The same Brownian motions in steps `dt` of `m` of this path's steps (`m` and `dt`
+        may be traced)."""
+        return BrownianPath(dt, self.bound, self.n_noises, substeps=m, terms=self.terms)
+
+    def without_areas(self):
+        """The same increments, without the Lévy areas (they are drawn from a stream of
+        their own, so the increments do not change)."""
+        return BrownianPath(self.dt, self.bound, self.n_noises, substeps=self.substeps)
+
+    def evaluate(self, key, n):
+        """The noise of step `n` (possibly traced) of the sample whose key is `key`."""
+        fine_dt = self.dt / self.substeps
+        return draw_joined(
+            key, n, self.substeps, fine_dt, self.bound, self.dt.dtype, self.n_noises, self.terms
+        )
+
+    def joined(self, key, n_steps):
+        r"""The noise of the first `n_steps` steps (a Python int) of the sample whose key is
+        `key`, joined into one step: for the increments, $W(n\,dt)$."""
+        return draw_joined(
+            key,
+            0,
+            n_steps * self.substeps,
+            self.dt / self.substeps,
+            self.bound,
+            self.dt.dtype,
+            self.n_noises,
+            self.terms,
+        )
+
+    def tree_flatten(self):
+        static = isinstance(self.substeps, int)
+        leaves = (self.dt, self.bound) + (() if static else (self.substeps,))
+        return leaves, (self.n_noises, self.terms, self.substeps if static else None)
+
+    @classmethod
+    def tree_unflatten(cls, aux, leaves):
+        n_noises, terms, substeps = aux
+        dt, bound, *rest = leaves
+        return cls(dt, bound, n_noises, substeps=rest[0] if rest else substeps, terms=terms)
+
+
 def brownian_increments(
     key, n_steps, dt, *, n_samples=None, truncate_k=4, dtype=None, n_noises=None, levy_area=False
 ):
@@ -324,36 +412,30 @@ def brownian_increments(
             raise TypeError(f"dtype must be a floating dtype such as jnp.float64, got {dtype!r}.")
         if jnp.dtype(dtype).itemsize == 8 and not jax.config.jax_enable_x64:
             raise ValueError("dtype=float64 needs jax.config.update('jax_enable_x64', True).")
-    bound = jnp.asarray(truncation_bound(dt, truncate_k), dtype)
-    terms = levy_area_terms(dt, n_noises) if levy_area and n_noises > 1 else None
+    s = 1 if n_noises is None else int(n_noises)
     return _brownian_paths(
         key,
-        jnp.asarray(dt, dtype),
-        bound,
+        BrownianPath.of(dt, s, dtype, truncate_k=truncate_k, levy_area=bool(levy_area)),
         n_samples=None if n_samples is None else int(n_samples),
         n_steps=int(n_steps),
-        n_noises=None if n_noises is None else int(n_noises),
+        one_noise=n_noises is None,
         levy_area=bool(levy_area),
-        terms=terms,
-        dtype=jnp.dtype(dtype),
     )
 
 
-@functools.partial(
-    jax.jit, static_argnames=("n_samples", "n_steps", "n_noises", "levy_area", "terms", "dtype")
-)
-def _brownian_paths(key, dt, bound, *, n_samples, n_steps, n_noises, levy_area, terms, dtype):
+@functools.partial(jax.jit, static_argnames=("n_samples", "n_steps", "one_noise", "levy_area"))
+def _brownian_paths(key, path, *, n_samples, n_steps, one_noise, levy_area):
     """`brownian_increments` after its checks: one program per shape, not one for each of
     its operations (a new `dt` of the same shape compiles nothing)."""
     steps = jnp.arange(n_steps, dtype=jnp.uint32)
-    s = 1 if n_noises is None else n_noises
+    s, dtype = path.n_noises, path.dt.dtype
 
     def one(k):
-        out = jax.vmap(lambda n: draw(k, n, dt, bound, dtype, s, terms))(steps)
+        out = jax.vmap(lambda n: path.evaluate(k, n))(steps)
         if levy_area:
-            area = out.area if terms is not None else jnp.zeros((n_steps, s, s), dtype)
+            area = out.area if path.levy_area else jnp.zeros((n_steps, s, s), dtype)
             return out.dW, area
-        return out.dW[:, 0] if n_noises is None else out.dW
+        return out.dW[:, 0] if one_noise else out.dW
 
     keys = sample_keys(key, 1 if n_samples is None else n_samples)
     out = jax.vmap(one)(keys)

@@ -147,8 +147,8 @@ class EnsemblePlan:
     """The validated arguments of an ensemble run: `y0` cast to the system's dtype, the step
     count, the checked key, `save_every` as a step count `k` (all `n_steps` when `None`),
     the samples run at a time (`chunk_size`: all of them unless in chunks), the retry, the
-    sharding, the Lévy-area series length `terms` (`None`: no areas) and the truncation bound
-    of the increments."""
+    sharding, and the Brownian path (`_noise.BrownianPath`: the step, the truncation, the
+    Lévy areas)."""
 
     model: LiePoissonSystem
     method: AbstractMethod
@@ -161,8 +161,7 @@ class EnsemblePlan:
     save_every: int
     retry: int | None
     sharding: object
-    terms: int | None
-    bound: float
+    path: _noise.BrownianPath
 
     @property
     def dtype(self):
@@ -205,10 +204,10 @@ def plan_ensemble(
         sharding = check_sharding(sharding, chunk_size, name="chunk_size")
     key = _noise.check_key(key)
     _noise.check_truncation(dt, truncate_k)
-    terms = (
-        _noise.levy_area_terms(dt, model.n_noises)
-        if check_levy_option(levy_area, method, model)
-        else None
+    levy_area = check_levy_option(levy_area, method, model)
+    save_every = check_save_every(save_every, n_steps)
+    path = _noise.BrownianPath.of(
+        dt, model.n_noises, real_dtype(y0.dtype), truncate_k=truncate_k, levy_area=levy_area
     )
     return EnsemblePlan(
         model,
@@ -219,9 +218,8 @@ def plan_ensemble(
         n_samples,
         chunk_size,
         key,
-        check_save_every(save_every, n_steps),
+        save_every,
         check_retry(retry_substeps),
         sharding,
-        terms,
-        _noise.truncation_bound(dt, truncate_k),
+        path,
     )

@@ -113,7 +113,6 @@ def _merge(a, b):
         "want_cov",
         "retry",
         "sharding",
-        "terms",
     ),
 )
 def _chunk(
@@ -124,8 +123,7 @@ def _chunk(
     model,
     y0,
     key,
-    dt,
-    bound,
+    path,
     n_blocks,
     block_len,
     chunk_size,
@@ -133,14 +131,13 @@ def _chunk(
     want_cov,
     retry,
     sharding,
-    terms,
 ):
     idx = offset + jnp.arange(chunk_size, dtype=jnp.uint32)
     keys = _noise.sample_keys(key, chunk_size, offset)
     if sharding is not None:
         keys = jax.lax.with_sharding_constraint(keys, sharding)
     ys, fail_step, _, _, _ = ensemble(
-        method, model, y0, keys, dt, bound, n_blocks, block_len, False, retry=retry, terms=terms
+        method, model, y0, keys, path, n_blocks, block_len, False, retry=retry
     )
     ys = jnp.concatenate([jnp.broadcast_to(y0, (chunk_size, 1, *y0.shape)), ys], axis=1)
     obs = _observe(observable, ys)
@@ -220,7 +217,7 @@ def ensemble_statistics(
     )
     method, y0, dt, n_steps, k = p.method, p.y0, p.dt, p.n_steps, p.save_every
     n_samples = p.n_samples
-    chunk_size, dtype = p.chunk_size, p.dtype
+    chunk_size = p.chunk_size
     if isinstance(statistics, str):
         statistics = (statistics,)
     unknown = [s for s in statistics if s not in STATISTICS]
@@ -266,8 +263,7 @@ def ensemble_statistics(
             model,
             y0,
             key,
-            jnp.asarray(dt, dtype),
-            jnp.asarray(p.bound, dtype),
+            p.path,
             n_blocks,
             k,
             chunk_size,
@@ -275,7 +271,6 @@ def ensemble_statistics(
             want_cov,
             p.retry,
             sharding,
-            p.terms,
         )
         for c in range(n_chunks):
             state = _chunk(
