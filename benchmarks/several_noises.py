@@ -9,7 +9,7 @@ No exact solution: the reference is `Midpoint` with Lévy areas on the very same
 paths at h_fine = 2^-14 (64x finer than the finest step studied); its own error is
 estimated by the same method at 2 h_fine and printed next to the errors. The paths' fine
 increments and areas are drawn once (as `simulate` draws them); a coarse step's are the fine
-ones joined by Chen's relation (`_noise.coarsen`). Every method is timed the same way: on
+ones joined by Chen's relation (`_brownian.coarsen`). Every method is timed the same way: on
 these precomputed increments (and areas).
 
 - Work-precision: RMS error at T against the reference vs run time (median of >= 3 blocking
@@ -60,7 +60,7 @@ import _common  # noqa: E402
 import work_precision as wp  # noqa: E402  (its diffrax import is guarded)
 
 import slps_jax as sj  # noqa: E402
-from slps_jax import _noise  # noqa: E402
+from slps_jax import _brownian  # noqa: E402
 
 INERTIA = jnp.asarray([1.0, 2.0, 3.0])
 CHI = 0.4 * np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.5, 1.0]])
@@ -154,17 +154,17 @@ def draw_paths(key, n_samples, n_steps, h, n_noises=3, batch=20):
     (untruncated increments here: `truncate_k=None`), `batch` samples at a time (the areas'
     normals of one batch are the memory high-water mark)."""
     dtype = jnp.float64
-    terms = _noise.levy_area_terms(h, n_noises)
+    terms = _brownian.levy_area_terms(h, n_noises)
     steps = jnp.arange(n_steps, dtype=jnp.uint32)
 
     def one(k):
         noise = jax.vmap(
-            lambda n: _noise.draw(k, n, jnp.asarray(h, dtype), jnp.inf, dtype, n_noises, terms)
+            lambda n: _brownian.draw(k, n, jnp.asarray(h, dtype), jnp.inf, dtype, n_noises, terms)
         )(steps)
         return noise.dW, noise.area
 
     return jax.jit(lambda keys: jax.lax.map(one, keys, batch_size=batch))(
-        _noise.sample_keys(key, n_samples)
+        _brownian.sample_keys(key, n_samples)
     )
 
 
@@ -213,24 +213,24 @@ def area_costs(fast):
     rows = []
     n_samples, n_steps = (50, 64) if fast else (500, 256)
     key = jax.random.key(5)
-    keys = _noise.sample_keys(key, n_samples)
+    keys = _brownian.sample_keys(key, n_samples)
     steps = jnp.arange(n_steps, dtype=jnp.uint32)
     for s in (3,) if fast else (2, 3, 5):
         for k in (8,) if fast else (6, 8, 10):
             h = jnp.asarray(2.0**-k)
-            terms = _noise.levy_area_terms(2.0**-k, s)
+            terms = _brownian.levy_area_terms(2.0**-k, s)
 
             def draws(keys, terms=terms, s=s, h=h):
                 return jax.vmap(
                     lambda kk: jax.vmap(
-                        lambda n: _noise.draw(kk, n, h, jnp.inf, jnp.float64, s, terms)
+                        lambda n: _brownian.draw(kk, n, h, jnp.inf, jnp.float64, s, terms)
                     )(steps)
                 )(keys)
 
             def incs(keys, s=s, h=h):
                 return jax.vmap(
                     lambda kk: jax.vmap(
-                        lambda n: _noise.increment(kk, n, h, jnp.inf, jnp.float64, s)
+                        lambda n: _brownian.increment(kk, n, h, jnp.inf, jnp.float64, s)
                     )(steps)
                 )(keys)
 
@@ -297,7 +297,7 @@ def so4_study(fast):
     for name, (method, areas) in methods.items():
         for k in ks:
             n, h = 2**k, 2.0**-k
-            d, a = _noise.coarsen(dW, A, n_fine // n)
+            d, a = _brownian.coarsen(dW, A, n_fine // n)
             compiled, compile_s = _common.compile_timed(solver(model, Y4, method, h, areas), d, a)
             med, _, _, y = _common.time_call(compiled, d, a)
             err = float(jnp.sqrt(jnp.mean(model.algebra.norm_sq(y - reference))))
@@ -342,7 +342,7 @@ def main(argv=None):
     if args.area_costs_only:
         costs = area_costs(fast)
         md = (
-            f"Drawing the Lévy areas (`_noise.draw`, jitted, per sample-step) against the "
+            f"Drawing the Lévy areas (`_brownian.draw`, jitted, per sample-step) against the "
             f"increments alone. {info['cpu_model']}, jax {info['jax']}, "
             f"{info['date'][:10]}.\n\n"
             + _common.markdown_table(
@@ -373,12 +373,12 @@ def main(argv=None):
     )
 
     # The paths: fine increments and areas, drawn once; a coarse step's are joined by Chen's
-    # relation (`_noise.coarsen`). Every method is timed on precomputed noise.
+    # relation (`_brownian.coarsen`). Every method is timed on precomputed noise.
     dW, A = draw_paths(jax.random.key(0), n_samples, n_fine, h_fine)
     cumulative = jnp.concatenate([jnp.zeros((n_samples, 1, 3)), jnp.cumsum(dW, axis=1)], 1)
 
     def coarse(n):
-        return _noise.coarsen(dW, A, n_fine // n)
+        return _brownian.coarsen(dW, A, n_fine // n)
 
     reference = jax.jit(solver(MODEL, Y0, sj.Midpoint(), h_fine, True))(dW, A)
     ref2 = jax.jit(solver(MODEL, Y0, sj.Midpoint(), 2 * h_fine, True))(*coarse(n_fine // 2))
@@ -638,7 +638,7 @@ def main(argv=None):
         + f"; lax.scan Heun {targets['speedup_vs_scan_heun']:.0f}x slower.\n"
     )
     md += (
-        "\nDrawing the Lévy areas (`_noise.draw`, jitted, per sample-step) against the "
+        "\nDrawing the Lévy areas (`_brownian.draw`, jitted, per sample-step) against the "
         "increments alone:\n\n"
         + _common.markdown_table(
             costs,

@@ -51,9 +51,9 @@ SCAN_HEUN = "lax.scan Heun"
 
 
 def _increments(key, h):
-    bound = jnp.asarray(sj._noise.truncation_bound(h, 4), jnp.float64)
+    bound = jnp.asarray(sj._brownian.truncation_bound(h, 4), jnp.float64)
     steps = jnp.arange(N_STEPS, dtype=jnp.uint32)
-    return jax.vmap(lambda n: sj._noise.increment(key, n, jnp.asarray(h), bound, jnp.float64))(
+    return jax.vmap(lambda n: sj._brownian.increment(key, n, jnp.asarray(h), bound, jnp.float64))(
         steps
     )
 

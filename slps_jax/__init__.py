@@ -27,6 +27,10 @@ from ._algebra import AbstractAlgebra as AbstractAlgebra
 from ._algebra import so as so
 from ._algebra import su as su
 
+# Brownian motion
+from ._brownian import BrownianStep as BrownianStep
+from ._brownian import brownian_increments as brownian_increments
+
 # Studies
 from ._calibrate import CalibrationResult as CalibrationResult
 from ._calibrate import calibrate as calibrate
@@ -63,8 +67,6 @@ from ._methods.strang import Strang4 as Strang4
 from ._model import PAPER_Y0 as PAPER_Y0
 from ._model import GeneralisedRigidBody as GeneralisedRigidBody
 from ._model import RigidBody as RigidBody
-from ._noise import BrownianStep as BrownianStep
-from ._noise import brownian_increments as brownian_increments
 from ._noise_hamiltonians import random_inertia_noise as random_inertia_noise
 from ._noise_hamiltonians import salt_noise as salt_noise
 from ._plan import default_method as default_method

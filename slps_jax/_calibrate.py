@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from . import _noise
+from . import _brownian
 from ._failures import message
 from ._integrate import simulate_unreported
 from ._model import RigidBody
@@ -282,7 +282,7 @@ def calibrate(
     )
     if weight.shape != observed.shape or not bool(jnp.all(jnp.isfinite(weight) & (weight > 0))):
         raise ValueError("observed_stderr must be positive and have the shape of observed.")
-    key = _noise.check_key(key)
+    key = _brownian.check_key(key)
     unknown = [n for n in fixed if n not in all_names]
     if unknown or len(set(fixed)) == len(all_names):
         raise ValueError(f"fixed must name some (not all) of {all_names}, got {fixed!r}.")

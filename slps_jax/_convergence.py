@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _noise
+from . import _brownian
 from ._checks import check_count, check_positive, check_retry, real_dtype
 from ._exact import exact_flow, exact_solution
 from ._failures import message, summary
@@ -214,7 +214,7 @@ def _study(
         reference_factor = check_count("reference_factor", reference_factor, minimum=2)
     n_samples = check_count("n_samples", n_samples, minimum=2)
     retry = check_retry(retry_substeps)
-    key = _noise.check_key(key)
+    key = _brownian.check_key(key)
     fine_dt = float(dts[-1])
     if is_method:
         fine_dt = (
@@ -222,10 +222,10 @@ def _study(
             if reference_dt is not None
             else fine_dt / (64 if reference_factor is None else reference_factor)
         )
-    _noise.check_truncation(fine_dt, truncate_k)
+    _brownian.check_truncation(fine_dt, truncate_k)
     n_fine = _substeps(float(t1), fine_dt, "t1")
     dtype = real_dtype(y0.dtype)
-    keys = _noise.sample_keys(key, int(n_samples))
+    keys = _brownian.sample_keys(key, int(n_samples))
 
     for dt in dts:
         if n_fine % _substeps(float(dt), fine_dt, "dt"):
@@ -242,7 +242,7 @@ def _study(
     ref_areas = is_method and check_levy_option(default, reference, model)
     # (the paths at the finest step, with their areas for the runs that take them: the
     # increments do not depend on whether the areas are drawn)
-    fine = _noise.BrownianPath.of(
+    fine = _brownian.BrownianPath.of(
         fine_dt, model.n_noises, dtype, truncate_k=truncate_k, levy_area=True
     )
 

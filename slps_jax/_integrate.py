@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _noise
+from . import _brownian
 from ._batching import batched_like
 from ._checks import (
     check_positive,
@@ -63,7 +63,7 @@ def _step(method, model, dt, carry, dW, live, *, want_stats, retry):
         # A failed sample idles at its last good state: with dt = dW = 0 every method's
         # step is trivial, so it costs no Newton iterations.
         y_new, info = method.step(
-            model, y, jnp.where(act, dt, 0.0).astype(dtype), _noise.where(act, dW)
+            model, y, jnp.where(act, dt, 0.0).astype(dtype), _brownian.where(act, dW)
         )
         code = finite_result(y_new, info.result)
         it = jnp.where(act, info.iterations, 0)
@@ -250,7 +250,7 @@ def _integrate_jit(method, model, y0, noise, dt, save_every, want_stats, retry=N
 
 
 def ensemble(method, model, y0, keys, path, n_blocks, block_len, want_stats, retry=None):
-    """Each sample asks the Brownian path (`_noise.BrownianPath`) for its steps' noise, from
+    """Each sample asks the Brownian path (`_brownian.BrownianPath`) for its steps' noise, from
     its key; the driver's step is `path.dt`."""
 
     def one(key):
@@ -354,7 +354,7 @@ def integrate(
     retry = check_retry(retry_substeps)
     dtype = real_dtype(y0.dtype)
     dt = jnp.asarray(dt if dt_np is None else float(dt_np), dtype)
-    noise = _noise.BrownianStep(dW.astype(dtype), None if area is None else area.astype(dtype))
+    noise = _brownian.BrownianStep(dW.astype(dtype), None if area is None else area.astype(dtype))
     ys, fail_step, result, _, _ = _integrate_jit(method, model, y0, noise, dt, k, False, retry)
     if throw:
         report("integrate", True, retry is not None, fail_step, result)
@@ -481,7 +481,7 @@ def simulate_unreported(
     method, y0, dt, n_steps, k, dtype = p.method, p.y0, p.dt, p.n_steps, p.save_every, p.dtype
     with automatic(p.sharding, (model, y0, p.key)) as (sharding, (model, y0, key)):
         keys = (
-            _noise.sample_keys(key, p.n_samples)
+            _brownian.sample_keys(key, p.n_samples)
             if sharding is None
             else sharded_keys(key, p.n_samples, sharding)
         )

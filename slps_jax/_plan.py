@@ -13,7 +13,7 @@ import dataclasses
 
 import numpy as np
 
-from . import _noise
+from . import _brownian
 from ._algebra import SO3_VECTORS
 from ._checks import (
     check_count,
@@ -147,7 +147,7 @@ class EnsemblePlan:
     """The validated arguments of an ensemble run: `y0` cast to the system's dtype, the step
     count, the checked key, `save_every` as a step count `k` (all `n_steps` when `None`),
     the samples run at a time (`chunk_size`: all of them unless in chunks), the retry, the
-    sharding, and the Brownian path (`_noise.BrownianPath`: the step, the truncation, the
+    sharding, and the Brownian path (`_brownian.BrownianPath`: the step, the truncation, the
     Lévy areas)."""
 
     model: LiePoissonSystem
@@ -161,7 +161,7 @@ class EnsemblePlan:
     save_every: int
     retry: int | None
     sharding: object
-    path: _noise.BrownianPath
+    path: _brownian.BrownianPath
 
     @property
     def dtype(self):
@@ -202,11 +202,11 @@ def plan_ensemble(
             )
         chunk_size = min(check_count("chunk_size", chunk_size), n_samples)
         sharding = check_sharding(sharding, chunk_size, name="chunk_size")
-    key = _noise.check_key(key)
-    _noise.check_truncation(dt, truncate_k)
+    key = _brownian.check_key(key)
+    _brownian.check_truncation(dt, truncate_k)
     levy_area = check_levy_option(levy_area, method, model)
     save_every = check_save_every(save_every, n_steps)
-    path = _noise.BrownianPath.of(
+    path = _brownian.BrownianPath.of(
         dt, model.n_noises, real_dtype(y0.dtype), truncate_k=truncate_k, levy_area=levy_area
     )
     return EnsemblePlan(

@@ -3,7 +3,7 @@
 The driver calls `robust_step` for every step when `retry_substeps = k` (the default, 4) and
 the method can fail (`can_fail`; not exact flows and compositions of exact rotations).
 A step that fails is redone from its start as `k` equal substeps of `(dt/k, dW/k)` (and
-areas `A/k`: `_noise.scale`, which joined by Chen's relation give the step's), then
+areas `A/k`: `_brownian.scale`, which joined by Chen's relation give the step's), then
 `k^2`, then `k^3`, before the sample is given up. The substeps are the scheme run on a finer
 grid through the same point `W(t_{n+1})`: for a system whose noise is proportional to the
 drift, the flow of the time `tau = dt + c dW` is a group, `phi_tau = phi_{tau/m}^m`, so `m`
@@ -32,7 +32,7 @@ import jax
 import jax.numpy as jnp
 from jax.flatten_util import ravel_pytree
 
-from . import _noise
+from . import _brownian
 from ._batching import batched_like
 from ._checks import real_dtype
 from ._methods.base import finite_result
@@ -66,11 +66,11 @@ def _attempts(method, model, y, dt, dW, act, k, m0, jacobians=False):
     def body(s):
         i, m, yc, code, its, res, going, jac = s
         mf = m.astype(dtype)
-        # (dt/m, dW/m, A/m): the step's noise split evenly (`_noise.scale`)
+        # (dt/m, dW/m, A/m): the step's noise split evenly (`_brownian.scale`)
         y2, info, d = substep(
             yc,
             jnp.where(going, dt / mf, 0.0).astype(dtype),
-            _noise.where(going, _noise.scale(dW, 1.0 / mf)),
+            _brownian.where(going, _brownian.scale(dW, 1.0 / mf)),
         )
         c2 = finite_result(y2, info.result)
         ok = going & (c2 == RESULTS.successful)
@@ -184,11 +184,11 @@ def _robust_step_jvp(method, k, primals, tangents):
     model, y, dt, dW, act = primals
     t_model, t_y, t_dt, t_dW, _ = tangents
     dtype = real_dtype(y.dtype)
-    h, w = jnp.where(act, dt, 0.0).astype(dtype), _noise.where(act, dW)
+    h, w = jnp.where(act, dt, 0.0).astype(dtype), _brownian.where(act, dW)
     (y1, info), (t_y1, _) = jax.jvp(
         lambda mdl, ys, h, w: method.step(mdl, ys, h, w),
         (model, y, h, w),
-        (t_model, t_y, jnp.where(act, t_dt, 0.0), _noise.where(act, t_dW)),
+        (t_model, t_y, jnp.where(act, t_dt, 0.0), _brownian.where(act, t_dW)),
     )
     code1 = finite_result(y1, info.result)
     need = act & (code1 != RESULTS.successful)

@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _noise
+from . import _brownian
 from ._failures import message
 from ._integrate import ensemble
 from ._plan import plan_ensemble
@@ -133,7 +133,7 @@ def _chunk(
     sharding,
 ):
     idx = offset + jnp.arange(chunk_size, dtype=jnp.uint32)
-    keys = _noise.sample_keys(key, chunk_size, offset)
+    keys = _brownian.sample_keys(key, chunk_size, offset)
     if sharding is not None:
         keys = jax.lax.with_sharding_constraint(keys, sharding)
     ys, fail_step, _, _, _ = ensemble(

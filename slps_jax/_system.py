@@ -8,8 +8,8 @@ import numpy as np
 
 from . import _components
 from ._algebra import SO3, AbstractAlgebra
+from ._brownian import as_step
 from ._checks import concrete, float_dtype, real_array, real_dtype
-from ._noise import as_step
 from ._noise_hamiltonians import as_noise
 
 # What a system offers, which methods may declare they need (`AbstractMethod.requires`).

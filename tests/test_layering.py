@@ -92,6 +92,6 @@ def test_every_module_has_a_layer_and_imports_none_above_it():
 def test_the_checker_sees_imports():
     # the parser itself: relative, absolute and function-level imports are found
     found = _imports(PACKAGE / "_stream.py")
-    assert {"_noise", "_integrate", "_plan", "_failures", "_progress"} <= found, found
+    assert {"_brownian", "_integrate", "_plan", "_failures", "_progress"} <= found, found
     assert "__init__" in _imports(PACKAGE / "_paper.py")
     assert "_components" in _imports(PACKAGE / "_methods" / "heun.py")

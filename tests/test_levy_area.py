@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import slps_jax as sj
-from slps_jax import _noise
+from slps_jax import _brownian
 from slps_jax._methods.base import AbstractMethod, StepInfo, StrongOrders
 from slps_jax._solution import RESULTS
 
@@ -69,7 +69,7 @@ def test_conditional_variance_recovered_by_regression(sampled):
 def test_terms_rule():
     # sqrt(s) h / (sqrt(12) pi p) <= h^(3/2), smallest p: the note's 18 and 42 normals for s = 3
     for h, p in ((2.0**-7, 2), (2.0**-8, 3), (2.0**-10, 6)):
-        assert _noise.levy_area_terms(h, 3) == p
+        assert _brownian.levy_area_terms(h, 3) == p
         assert math.sqrt(3) * h / (math.sqrt(12) * math.pi * p) <= h**1.5
         assert math.sqrt(3) * h / (math.sqrt(12) * math.pi * (p - 1 or 0.5)) > h**1.5
 
@@ -103,21 +103,21 @@ def test_joined_steps_follow_chen_and_split_steps_give_the_step_back():
     fine_dW, fine_A = (
         np.asarray(x) for x in sj.brownian_increments(key, 8, 2.0**-6, n_noises=3, levy_area=True)
     )
-    sample_key = _noise.sample_keys(key, 1)[0]
-    terms = _noise.levy_area_terms(2.0**-6, 3)
+    sample_key = _brownian.sample_keys(key, 1)[0]
+    terms = _brownian.levy_area_terms(2.0**-6, 3)
     for n, m in ((0, 8), (1, 4)):
-        got = _noise.draw_joined(
+        got = _brownian.draw_joined(
             sample_key, n, m, jnp.asarray(2.0**-6), jnp.inf, jnp.float64, 3, terms
         )
         want = _chen(fine_dW[n * m : (n + 1) * m], fine_A[n * m : (n + 1) * m])
         np.testing.assert_allclose(got.dW, want[0], rtol=0, atol=1e-15)
         np.testing.assert_allclose(got.area, want[1], rtol=0, atol=1e-15)
     # m equal substeps (dW/m, A/m) joined give the step back (parallel increments)
-    step = _noise.BrownianStep(jnp.asarray(fine_dW[0]), jnp.asarray(fine_A[0]))
-    part = _noise.scale(step, 1 / 4)
+    step = _brownian.BrownianStep(jnp.asarray(fine_dW[0]), jnp.asarray(fine_A[0]))
+    part = _brownian.scale(step, 1 / 4)
     joined = part
     for _ in range(3):
-        joined = _noise.join(joined, part)
+        joined = _brownian.join(joined, part)
     np.testing.assert_allclose(joined.dW, step.dW, atol=1e-16)
     np.testing.assert_allclose(joined.area, step.area, atol=1e-16)
 
@@ -251,7 +251,7 @@ def test_coarsen_is_join_over_blocks():
             jax.random.key(9), 12, 0.05, n_samples=2, n_noises=3, levy_area=True
         )
     )
-    cdW, cA = _noise.coarsen(jnp.asarray(dW), jnp.asarray(A), 4)
+    cdW, cA = _brownian.coarsen(jnp.asarray(dW), jnp.asarray(A), 4)
     assert cdW.shape == (2, 3, 3) and cA.shape == (2, 3, 3, 3)
     for i in range(2):
         for n in range(3):

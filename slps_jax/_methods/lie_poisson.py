@@ -10,9 +10,9 @@ import numpy as np
 
 from .. import _components as comp
 from .._algebra import SO3_VECTORS, adjoint
+from .._brownian import scale
 from .._checks import check_options, real_dtype
 from .._newton import implicit_root, newton, solve_array
-from .._noise import scale
 from .._solution import RESULTS
 from .._system import NOISE_PROPORTIONAL_TO_DRIFT, QUADRATIC, RIGID_BODY
 from .base import AbstractMethod, StepInfo, StrongOrders, default_tol, finite_result

@@ -10,8 +10,8 @@ import jax.numpy as jnp
 from .. import _components as comp
 from .._algebra import SO3_VECTORS
 from .._batching import batched_like
+from .._brownian import scale
 from .._checks import check_options
-from .._noise import scale
 from .._solution import RESULTS
 from .base import AbstractMethod, StepInfo, StrongOrders, default_tol, finite_result
 from .composition import TRIPLE_JUMP, combine
@@ -131,7 +131,7 @@ def _check_unit_ball(name, y0):
 
 class _SymmetricLiePoisson(AbstractMethod):
     requires = frozenset({SO3_VECTORS})  # (the sine chart of so(3); so(n): LiePoisson)
-    # (each substep with weight w gets the increments and areas times w: `_noise.scale`)
+    # (each substep with weight w gets the increments and areas times w: `_brownian.scale`)
     strong_orders = StrongOrders(one=1.0, increments=0.5, areas=1.0)
     poisson = True
 

@@ -8,7 +8,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from .._noise import as_step
+from .._brownian import as_step
 from .base import AbstractMethod, StrongOrders, explicit_info
 
 

@@ -8,7 +8,7 @@ import jax
 import jax.numpy as jnp
 
 from .. import _components as comp
-from .._noise import as_step
+from .._brownian import as_step
 from .._system import LINEAR_NOISE, NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
 from .base import AbstractMethod, StrongOrders, explicit_info
 from .composition import TRIPLE_JUMP
