@@ -67,6 +67,7 @@ from ._methods.strang import Strang4 as Strang4
 from ._model import PAPER_Y0 as PAPER_Y0
 from ._model import GeneralisedRigidBody as GeneralisedRigidBody
 from ._model import RigidBody as RigidBody
+from ._noise_hamiltonians import AbstractNoise as AbstractNoise
 from ._noise_hamiltonians import random_inertia_noise as random_inertia_noise
 from ._noise_hamiltonians import salt_noise as salt_noise
 from ._plan import default_method as default_method

@@ -103,14 +103,14 @@ class RigidBody(LiePoissonSystem):
         return jnp.asarray(y) / self.inertia
 
     def inverse_inertia(self):
-        """$I^{-1}$ as component tuple (private helper for the integrators)."""
-        return _components.vec(1.0 / self.inertia)
+        """$I^{-1}$, the inverse principal moments, shape `(3,)`."""
+        return 1.0 / self.inertia
 
     def gradient_components(self, v):
-        return _components.mul(self.inverse_inertia(), v)
+        return _components.mul(_components.vec(self.inverse_inertia()), v)
 
     def gradient_hessian_components(self, v):
-        d = self.inverse_inertia()
+        d = _components.vec(self.inverse_inertia())
         z = jnp.zeros_like(d[0])
         return _components.mul(d, v), ((d[0], z, z), (z, d[1], z), (z, z, d[2]))
 

@@ -2,10 +2,10 @@
 $dy = y \\times \\nabla H_0(y)\\,dt + \\sum_r y \\times \\nabla H_r(y) \\circ dW_r$.
 
 A noise family is a pytree whose leaves are its parameters (so `jax.grad` reaches them) and
-which gives the integrators, on components (tuples of arrays, see `_components`), the one combination
-they need: $u(v) = \\sum_r w_r \\nabla H_r(v)$ for weights $w$ (a step's increments) and its
-Jacobian $\\partial u/\\partial v$. Closed forms where they exist (`salt_noise`,
-`random_inertia_noise`), derivatives by JAX otherwise (`FunctionNoise`).
+which gives the integrators the one combination they need: $u(y) = \\sum_r w_r \\nabla H_r(y)$
+for weights $w$ (a step's increments), and its Jacobian $\\partial u/\\partial y$. A family
+writes `values` and `gradient`; the Jacobian comes from JAX unless it has a closed form
+(`salt_noise`, `random_inertia_noise`).
 """
 
 from __future__ import annotations
@@ -14,37 +14,44 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _components
 from ._checks import concrete, float_dtype, numeric_array
 
 
 class AbstractNoise:
-    """What a noise family provides.
+    """A noise family: the extension point for noise Hamiltonians with closed forms or
+    parameters of their own (`LiePoissonSystem(..., noise=family)`, `RigidBody(..., noise=)`,
+    `EulerZeitlin(N, noise=)`).
+
+    A subclass is a pytree (`jax.tree_util.register_pytree_node_class`, its parameters the
+    leaves) and writes `n_noises`, `values` and `gradient`; everything else has a default.
 
     - `n_noises`: the number $s$ of noises (static).
-    - `values(y, params)`: $(H_1(y), \\dots, H_s(y))$ for `y` of shape `(3,)`.
-    - `gradient_components(v, w, params)`: $u = \\sum_r w_r \\nabla H_r(v)$ on components.
-    - `gradient_jacobian_components(v, w, params)`: $(u, \\partial u/\\partial v)$ on components.
-    - `gradient(y, w, params, algebra)`: $u$ for a state array of any algebra (matrix methods).
+    - `values(y, params)`: $(H_1(y), \\dots, H_s(y))$ for one state `y`.
+    - `gradient(y, w, params, algebra)`: $u = \\sum_r w_r \\nabla H_r(y)$, a state.
+    - `gradient_jacobian(y, w, params, algebra)`: $(u, \\partial u/\\partial y)$, the
+      Jacobian of shape `shape + shape` (by JAX unless overridden with a closed form).
     - `check_algebra(algebra)`: raise `ValueError` if the family does not fit its states.
 
     `params` are the system's parameters (families with their own leaves ignore them).
     """
 
     n_noises: int
-    linear = False  # all H_r linear: u does not depend on v
+    linear = False  # all H_r linear: u does not depend on y (SALT; enables closed forms)
 
     def values(self, y, params):
         raise NotImplementedError
 
-    def gradient_components(self, v, w, params):
-        raise NotImplementedError
-
-    def gradient_jacobian_components(self, v, w, params):
-        raise NotImplementedError
-
     def gradient(self, y, w, params, algebra):
         raise NotImplementedError
+
+    def gradient_jacobian(self, y, w, params, algebra):
+        r"""$(u, \partial u/\partial y)$ at one state `y`, in one forward-mode pass."""
+
+        def u(x):
+            return self.gradient(x, w, params, algebra)
+
+        jac, g = jax.jacfwd(lambda x: (u(x), u(x)), has_aux=True)(y)
+        return g, jac
 
     def check_algebra(self, algebra):
         pass
@@ -58,12 +65,6 @@ class AbstractNoise:
     def area_gradient(self, y, area, params, algebra):
         r"""$\nabla G_A(y)$ (`area_hamiltonian`), by JAX."""
         return algebra.gradient(jax.grad(self.area_hamiltonian)(y, area, params, algebra))
-
-
-def _weighted(w, rows):
-    """$\\sum_r w_r\\,\\mathrm{rows}_r$ for `rows` of shape `(s, 3)`, on components."""
-    total = jnp.tensordot(w, rows, axes=1)
-    return _components.vec(total)
 
 
 def _parameter_matrix(name, x, what, matrices=False):
@@ -149,15 +150,12 @@ class SaltNoise(_ParameterNoise):
         # <X_r, Y> = (1/2) Re tr(X_r^H Y) on so(n) and su(N)
         return 0.5 * jnp.sum(jnp.real(jnp.conj(self.chi) * y), axis=(-2, -1))
 
-    def gradient_components(self, v, w, params):
-        return _weighted(w, self.chi)
-
     def gradient(self, y, w, params, algebra):
         return jnp.tensordot(w, self.chi, axes=1).astype(y.dtype)
 
-    def gradient_jacobian_components(self, v, w, params):
-        zero = jnp.zeros_like(v[0])
-        return self.gradient_components(v, w, params), ((zero,) * 3,) * 3
+    def gradient_jacobian(self, y, w, params, algebra):
+        u = self.gradient(y, w, params, algebra)
+        return u, jnp.zeros(u.shape + y.shape, u.dtype)  # (constant: linear Hamiltonians)
 
     def area_gradient(self, y, area, params, algebra):
         r"""$\nabla G_A = \tfrac12\sum_{q,r} A_{qr}[\chi_q, \chi_r]
@@ -192,20 +190,12 @@ class RandomInertiaNoise(_ParameterNoise):
     def values(self, y, params):
         return 0.5 * self.sigma @ (y * y)
 
-    def gradient_components(self, v, w, params):
-        return _components.mul(_weighted(w, self.sigma), v)
-
-    def gradient_jacobian_components(self, v, w, params):
-        d = _weighted(w, self.sigma)
-        zero = 0.0 * (v[0] + d[0])
-        return _components.mul(d, v), (
-            (d[0] + zero, zero, zero),
-            (zero, d[1] + zero, zero),
-            (zero, zero, d[2] + zero),
-        )
-
     def gradient(self, y, w, params, algebra):
         return (w @ self.sigma) * y
+
+    def gradient_jacobian(self, y, w, params, algebra):
+        d = w @ self.sigma
+        return d * y, jnp.diag(d)
 
 
 def random_inertia_noise(sigma):
@@ -247,14 +237,6 @@ class FunctionNoise(AbstractNoise):
 
     def _weighted_h(self, w, params):
         return lambda y: jnp.dot(w, self.fn(y, params))
-
-    def gradient_components(self, v, w, params):
-        return _components.vec(jax.grad(self._weighted_h(w, params))(_components.unvec(v)))
-
-    def gradient_jacobian_components(self, v, w, params):
-        grad = jax.grad(self._weighted_h(w, params))
-        jac, u = jax.jacfwd(lambda x: (grad(x), grad(x)), has_aux=True)(_components.unvec(v))
-        return _components.vec(u), _components.mat(jac)
 
     def gradient(self, y, w, params, algebra):
         return algebra.gradient(jax.grad(self._weighted_h(w, params))(y))

@@ -15,7 +15,7 @@ from ._noise_hamiltonians import as_noise
 # What a system offers, which methods may declare they need (`AbstractMethod.requires`).
 NOISE_PROPORTIONAL_TO_DRIFT = "noise proportional to the drift"  # one noise, H_1 = c H_0
 RIGID_BODY = "rigid body"  # H_0 = y^T I^{-1} y / 2 on so(3)*, `inverse_inertia()` available
-LINEAR_NOISE = "linear noise"  # H_r = <chi_r, y> (SALT), `noise.chi` available
+LINEAR_NOISE = "linear noise"  # every H_r linear (SALT): the noise gradient does not depend on y
 # (and what the algebra offers, `AbstractAlgebra.structure`: SO3_VECTORS)
 QUADRATIC = "quadratic Hamiltonians"  # H_0 and every H_r quadratic: y -> y/s is a time change
 
@@ -270,6 +270,16 @@ class LiePoissonSystem:
         jac, g = jax.jacfwd(lambda u: (grad(u), grad(u)), has_aux=True)(_components.unvec(v))
         return _components.vec(g), _components.mat(jac)
 
+    def _noise_components(self, v, w, jacobian=False):
+        r"""$u(v) = \sum_r w_r \nabla H_r(v)$, and with `jacobian` $(u, \partial u/\partial v)$,
+        on components: the noise family's arrays (`AbstractNoise.gradient`,
+        `gradient_jacobian`) taken apart."""
+        y = _components.unvec(v)
+        if not jacobian:
+            return _components.vec(self.noise.gradient(y, w, self.params, self.algebra))
+        u, ju = self.noise.gradient_jacobian(y, w, self.params, self.algebra)
+        return _components.vec(u), _components.mat(ju)
+
     def step_gradient_components(self, v, dt, noise):
         r"""$\nabla K(v)$ of a step's Hamiltonian $K = h H_0 + \sum_r \Delta W_r H_r$
         (plus $G_A$ with areas; the step's flow to first order is that of $K$), on
@@ -279,7 +289,7 @@ class LiePoissonSystem:
             return _components.scale(dt + self.noise_time(noise.dW), self.gradient_components(v))
         g = _components.add(
             _components.scale(dt, self.gradient_components(v)),
-            self.noise.gradient_components(v, noise.dW, self.params),
+            self._noise_components(v, noise.dW),
         )
         return (
             _components.add(g, self._area_components(v, noise.area, False))
@@ -294,7 +304,7 @@ class LiePoissonSystem:
         if self.noise is None:
             tau = dt + self.noise_time(noise.dW)
             return _components.scale(tau, g), _components.mscale(tau, hess)
-        u, ju = self.noise.gradient_jacobian_components(v, noise.dW, self.params)
+        u, ju = self._noise_components(v, noise.dW, jacobian=True)
         g, hess = (
             _components.add(_components.scale(dt, g), u),
             _components.madd(_components.mscale(dt, hess), ju),
@@ -318,7 +328,7 @@ class LiePoissonSystem:
                 _components.scale(cdw, g),
                 _components.mscale(cdw, hess),
             )
-        u, ju = self.noise.gradient_jacobian_components(v, noise.dW, self.params)
+        u, ju = self._noise_components(v, noise.dW, jacobian=True)
         k = _components.add(_components.scale(dt, self.gradient_components(v)), u)
         if self._has_area(noise):
             k = _components.add(k, self._area_components(v, noise.area, False))

@@ -46,6 +46,86 @@ def paths(model, dW, dt, method, **kw):
 
 
 # --------------------------------------------------------------------------------------
+# The step's fields and their Jacobians, which the implicit methods solve with.
+
+
+def quartic_noise(y, inertia):  # two nonlinear noise Hamiltonians (derivatives by JAX)
+    return jnp.stack([0.1 * jnp.sum(y**4), 0.2 * y[0] * y[1] * y[2]])
+
+
+@pytest.mark.parametrize(
+    "model",
+    [
+        sj.RigidBody(INERTIA, 0.3),
+        salt(),
+        sj.RigidBody(INERTIA, noise=sj.random_inertia_noise(CHI)),
+        sj.LiePoissonSystem(rigid_body_h, INERTIA, noise=quartic_noise),
+    ],
+    ids=["c", "salt", "random_inertia", "function"],
+)
+def test_step_jacobians_are_the_derivatives_of_the_step_gradient(model):
+    # Closed forms (the rigid body, SALT, random inertia) and the forward-mode passes
+    # against reverse-over-forward autodiff of the step's gradient and of the family's u.
+    s = model.n_noises
+    dW = jnp.linspace(-0.3, 0.4, s)
+    area = jnp.triu(jnp.full((s, s), 0.05), 1)
+    steps = [sj.BrownianStep(dW)] + ([sj.BrownianStep(dW, area - area.T)] if s > 1 else [])
+    v, unvec, unmat = _components.vec(Y0), _components.unvec, _components.unmat
+    for step in steps:
+        g, jac = model.step_gradient_hessian_components(v, 0.1, step)
+        np.testing.assert_allclose(unvec(g), model.step_gradient(Y0, 0.1, step), atol=1e-15)
+        np.testing.assert_allclose(
+            unmat(jac), jax.jacrev(lambda y: model.step_gradient(y, 0.1, step))(Y0), atol=1e-14
+        )
+    k, u, ju = model.step_fields_components(v, 0.1, steps[-1])
+    np.testing.assert_allclose(unvec(k), model.step_gradient(Y0, 0.1, steps[-1]), atol=1e-15)
+    u_of = lambda y: model.step_gradient(y, 0.0, sj.BrownianStep(dW))
+    np.testing.assert_allclose(unvec(u), u_of(Y0), atol=1e-15)
+    np.testing.assert_allclose(unmat(ju), jax.jacrev(u_of)(Y0), atol=1e-14)
+
+
+@jax.tree_util.register_pytree_node_class
+class Axes(sj.AbstractNoise):
+    """SALT written as a user's family: `values` and `gradient` only (Jacobians and the
+    Lévy-area term from JAX)."""
+
+    linear = True
+
+    def __init__(self, chi):
+        self.chi = chi
+
+    @property
+    def n_noises(self):
+        return self.chi.shape[0]
+
+    def values(self, y, params):
+        return self.chi @ y
+
+    def gradient(self, y, w, params, algebra):
+        return w @ self.chi
+
+    def tree_flatten(self):
+        return (self.chi,), None
+
+    @classmethod
+    def tree_unflatten(cls, aux, children):
+        return cls(*children)
+
+
+@pytest.mark.parametrize("method", [sj.LiePoisson(), sj.Midpoint(), sj.SaltSplitting()])
+def test_a_family_of_ones_own_runs_as_the_built_in_one(method):
+    # The closed forms of salt_noise (its zero Jacobian, its constant area term) against
+    # JAX's derivatives of the same Hamiltonians, through whole runs with Lévy areas.
+    mine = sj.RigidBody(INERTIA, noise=Axes(jnp.asarray(CHI)))
+    run = lambda model: (
+        sj.simulate(
+            model, Y0, t1=0.25, dt=2.0**-6, n_samples=4, key=jax.random.key(1), method=method
+        ).ys
+    )
+    np.testing.assert_allclose(run(mine), run(salt()), atol=1e-13)
+
+
+# --------------------------------------------------------------------------------------
 # The generalised generating function against scheme (42).
 
 

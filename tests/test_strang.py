@@ -67,7 +67,7 @@ def test_axis_vector_fields_sum_to_full_vector_field(paper):
     total = sum(
         jax.jvp(
             lambda t, a=axis: _components.unvec(
-                axis_flow(_components.vec(y), model.inverse_inertia(), a, t)
+                axis_flow(_components.vec(y), _components.vec(model.inverse_inertia()), a, t)
             ),
             (jnp.asarray(0.0),),
             (jnp.asarray(1.0),),

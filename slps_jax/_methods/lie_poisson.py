@@ -398,7 +398,7 @@ class LiePoisson(AbstractMethod):
         z = comp.vec(y)
         if _ANALYTIC <= model.structure:
             lam = 1.0 if self.scale is None else self.scale
-            d = model.inverse_inertia()
+            d = comp.vec(model.inverse_inertia())
             cdw = model.noise_time(dW)
             tau = lam * (dt + cdw)
             kappa = lam * lam * self._kappa(cdw)

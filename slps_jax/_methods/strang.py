@@ -86,7 +86,7 @@ def _strang_flow(yc, inv_i, tau):
 
 
 def _composed_step(model, y, tau, weights):
-    inv_i = model.inverse_inertia()
+    inv_i = comp.vec(model.inverse_inertia())
     yc = comp.vec(y)
     # A loop, not an unrolled chain, even for one Strang step: each flow reads every
     # component twice, and XLA's CPU backend fuses an unrolled chain of flows (with whatever
@@ -161,9 +161,9 @@ class SaltSplitting(AbstractMethod):
     poisson = True
 
     def step(self, model, y, dt, dW):
-        inv_i = model.inverse_inertia()
+        inv_i = comp.vec(model.inverse_inertia())
         noise = as_step(dW)
-        u = noise.dW @ model.noise.chi.astype(y.dtype)
+        u = model.noise_gradient(y, noise)  # (constant: linear Hamiltonians)
         if noise.area is not None:  # the area term's rotation axis (`area_gradient`)
             u = u + model.area_gradient(y, noise.area)
         u = comp.vec(u)
