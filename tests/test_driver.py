@@ -1,4 +1,4 @@
-"""The driver: invariants, determinism, saving, failures, bad input."""
+"""The driver: invariants, determinism, saving, failures (bad input: `test_robustness.py`)."""
 
 import warnings
 
@@ -289,64 +289,6 @@ def test_float32(paper):
     )
     assert y32.dtype == jnp.float32
     assert np.max(np.abs(np.asarray(y32, np.float64) - y64)) < 1e-5
-
-
-BAD_SIMULATE = [
-    (dict(dt=0.0), "dt"),
-    (dict(dt=-0.1), "dt"),
-    (dict(dt=float("nan")), "dt"),
-    (dict(t1=1.0, dt=0.3), "multiple"),
-    (dict(t1=-1.0), "t1"),
-    (dict(n_samples=0), "n_samples"),
-    (dict(n_samples=2.5), "n_samples"),
-    (dict(save_every=3), "save_every"),
-    (dict(save_every=0), "save_every"),
-    (dict(truncate_k=-1), "truncate_k"),
-    (dict(y0=[0.1, 0.2]), "y0"),
-    (dict(y0=[0.1, float("nan"), 0.0]), "y0"),
-    (dict(y0=[0.8, 0.8, 0.0]), r"\|y0\|"),
-]
-
-
-@pytest.mark.parametrize("bad,match", BAD_SIMULATE)
-def test_simulate_rejects_bad_input(paper, bad, match):
-    model, y0 = paper
-    kwargs = dict(t1=1.0, dt=0.1, n_samples=4, key=jax.random.key(0), y0=y0, method=LP)
-    kwargs.update(bad)
-    y0 = kwargs.pop("y0")
-    with pytest.raises(ValueError, match=match):
-        sj.simulate(model, y0, **kwargs)
-
-
-@pytest.mark.parametrize(
-    "inertia,c,match",
-    [
-        ([1.0, 2.0], 0.2, "inertia"),
-        ([1.0, -2.0, 3.0], 0.2, "inertia"),
-        ([1.0, np.inf, 3.0], 0.2, "inertia"),
-        ([1.0, 0.0, 3.0], 0.2, "inertia"),
-        ([1.0, 2.0, 3.0], np.nan, "c"),
-        ([1.0, 2.0, 3.0], [0.1, 0.2], "c"),
-    ],
-)
-def test_rigid_body_rejects_bad_input(inertia, c, match):
-    with pytest.raises(ValueError, match=match):
-        sj.RigidBody(inertia, c)
-
-
-def test_integrate_rejects_bad_input(paper):
-    model, y0 = paper
-    dW = jnp.zeros(10)
-    with pytest.raises(ValueError, match="dt"):
-        sj.integrate(model, y0, dW, 0.0, method=LP)
-    with pytest.raises(ValueError, match="dW"):
-        sj.integrate(model, y0, jnp.zeros((2, 5)), 0.1, method=LP)
-    with pytest.raises(ValueError, match="save_every"):
-        sj.integrate(model, y0, dW, 0.1, save_every=3, method=LP)
-    with pytest.raises(TypeError, match="call it"):
-        sj.integrate(model, y0, dW, 0.1, method=sj.LiePoisson)
-    with pytest.raises(ValueError, match="max_iter"):
-        sj.LiePoisson(max_iter=0)
 
 
 def test_model_is_a_pytree_and_gradients_reach_it(paper):

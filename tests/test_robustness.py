@@ -244,21 +244,29 @@ def no_compile():
 
 KEY = jax.random.key(0)
 BAD_SIMULATE = [
+    (dict(dt=0.0), ValueError, "dt"),
+    (dict(dt=-0.1), ValueError, "dt"),
+    (dict(dt=float("nan")), ValueError, "dt"),
     (dict(dt="0.1"), TypeError, "dt"),
     (dict(dt=True), TypeError, "dt"),
     (dict(dt=np.inf), ValueError, "dt"),
     (dict(dt=[0.1, 0.2]), ValueError, "dt"),
     (dict(t1=np.nan), ValueError, "t1"),
     (dict(t1=0.0), ValueError, "t1"),
+    (dict(t1=-1.0), ValueError, "t1"),
     (dict(t1=1.0, dt=0.3), ValueError, r"multiple.*dt="),
     (dict(n_samples=-3), ValueError, "n_samples"),
+    (dict(n_samples=0), ValueError, "n_samples"),
+    (dict(n_samples=2.5), ValueError, "n_samples"),
     (dict(n_samples=True), ValueError, "n_samples"),
     (dict(n_samples=10.0), ValueError, r"n_samples.*int"),
     (dict(save_every=4), ValueError, r"save_every=4 must divide .* 10; the nearest divisors"),
     (dict(save_every=2.0), ValueError, "save_every"),
+    (dict(save_every=0), ValueError, "save_every"),
     (dict(save_every=True), ValueError, "save_every"),
     (dict(truncate_k=True), ValueError, "truncate_k"),
     (dict(truncate_k=np.inf), ValueError, "truncate_k"),
+    (dict(truncate_k=-1), ValueError, "truncate_k"),
     (dict(key=3), TypeError, r"jax.random.key\(3\)"),
     (dict(key=np.uint32(3)), TypeError, "jax.random.key"),
     (dict(key=True), TypeError, "jax.random.key"),
@@ -266,10 +274,13 @@ BAD_SIMULATE = [
     (dict(key=jax.random.split(KEY, 3)), ValueError, "single key"),
     (dict(key=jnp.stack([jax.random.PRNGKey(0)] * 2)), ValueError, "single key"),
     (dict(y0=np.zeros((2, 3))), ValueError, r"y0.*\(3,\).*vmap"),
+    (dict(y0=[0.1, 0.2]), ValueError, "y0"),
     (dict(y0=[0.1, np.inf, 0.0]), ValueError, "y0"),
+    (dict(y0=[0.1, np.nan, 0.0]), ValueError, "y0"),
     (dict(y0=[0.1j, 0.2, 0.0]), TypeError, "y0"),
     (dict(y0="abc"), TypeError, "y0"),
     (dict(y0=[0.6, 0.6, 0.6]), ValueError, r"scale=s"),
+    (dict(y0=[0.8, 0.8, 0.0]), ValueError, r"\|y0\|"),
     (dict(method=sj.Midpoint), TypeError, "call it"),
     (dict(method="LiePoisson"), TypeError, "method"),
     (dict(model=(1.0, 2.0, 3.0)), TypeError, "RigidBody"),
@@ -297,8 +308,11 @@ BAD_INTEGRATE = [
     (dict(dt=None), TypeError, "dt"),
     (dict(save_every=0), ValueError, "save_every"),
     (dict(save_every=7), ValueError, "nearest divisors"),
+    (dict(save_every=3), ValueError, "save_every"),
     (dict(y0=[0.1, 0.2, 0.3, 0.4]), ValueError, "y0"),
     (dict(retry_substeps=0), ValueError, "retry_substeps"),
+    (dict(dt=0.0), ValueError, "dt"),
+    (dict(method=sj.LiePoisson), TypeError, "call it"),
 ]
 
 
@@ -411,9 +425,15 @@ def test_exact_solution_rejects_bad_input(paper, bad, exc, match):
         ([1.0, 2.0, 3.0], "0.2", TypeError, "c"),
         ([1.0, 2.0, 3.0], np.inf, ValueError, "c"),
         ([1.0, 2.0, 3.0], object(), TypeError, "c"),
+        ([1.0, 2.0], 0.2, ValueError, "inertia"),
+        ([1.0, -2.0, 3.0], 0.2, ValueError, "inertia"),
+        ([1.0, np.inf, 3.0], 0.2, ValueError, "inertia"),
+        ([1.0, 0.0, 3.0], 0.2, ValueError, "inertia"),
+        ([1.0, 2.0, 3.0], np.nan, ValueError, "c"),
+        ([1.0, 2.0, 3.0], [0.1, 0.2], ValueError, "c"),
     ],
 )
-def test_rigid_body_rejects_more_bad_input(inertia, c, exc, match):
+def test_rigid_body_rejects_bad_input(inertia, c, exc, match):
     with pytest.raises(exc, match=match):
         sj.RigidBody(inertia, c)
 
