@@ -15,10 +15,10 @@ import optax
 
 from . import _brownian
 from ._failures import message
-from ._integrate import simulate_unreported
+from ._integrate import run_ensemble
 from ._model import RigidBody
 from ._noise_hamiltonians import _ParameterNoise
-from ._plan import check_levy_option, check_method
+from ._plan import check_levy_option, check_method, plan_ensemble
 
 
 def moments(ys):
@@ -135,7 +135,8 @@ class _Fit:
         """The weighted residuals of the statistics at the free parameters `theta`, and (aux)
         the number of failed samples (raised by `calibrate`, with its own advice)."""
         model = _model(self.full(theta, theta_all), self.family, self.shape)
-        sol = simulate_unreported(
+        p = plan_ensemble(
+            "simulate",
             model,
             self.y0,
             t1=self.t1,
@@ -145,11 +146,11 @@ class _Fit:
             method=self.method,
             save_every=self.every,
             truncate_k=self.truncate_k,
-            newton_stats=False,
             retry_substeps=self.retry_substeps,
             sharding=None,
             levy_area=self.levy_area,
         )
+        sol = run_ensemble(p, newton_stats=False, saved=True)
         stats = jax.vmap(self.statistic, in_axes=1)(sol.ys[:, np.asarray(self.saved)])
         return ((stats - observed) * weight).ravel(), jnp.sum(sol.fail_step >= 0)
 

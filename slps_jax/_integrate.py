@@ -426,43 +426,6 @@ def simulate(
     **Returns:** a `Solution`.
     """
     check_throw(throw)
-    sol = simulate_unreported(
-        model,
-        y0,
-        t1=t1,
-        dt=dt,
-        n_samples=n_samples,
-        key=key,
-        method=method,
-        save_every=save_every,
-        truncate_k=truncate_k,
-        newton_stats=newton_stats,
-        retry_substeps=retry_substeps,
-        sharding=sharding,
-        levy_area=levy_area,
-    )
-    report("simulate", throw, retry_substeps is not None, sol.fail_step, sol.result)
-    return sol
-
-
-def simulate_unreported(
-    model,
-    y0,
-    *,
-    t1,
-    dt,
-    n_samples,
-    key,
-    method,
-    save_every,
-    truncate_k,
-    newton_stats,
-    retry_substeps,
-    sharding,
-    levy_area="auto",
-):
-    """`simulate` without the failure report (for callers that report failures their own
-    way, such as `calibrate`)."""
     p = plan_ensemble(
         "simulate",
         model,
@@ -478,6 +441,16 @@ def simulate_unreported(
         sharding=sharding,
         levy_area=levy_area,
     )
+    sol = run_ensemble(p, newton_stats=newton_stats, saved=save_every is not None)
+    report("simulate", throw, retry_substeps is not None, sol.fail_step, sol.result)
+    return sol
+
+
+def run_ensemble(p, *, newton_stats, saved):
+    """The ensemble of a checked plan (`plan_ensemble`) as a `Solution`, without the failure
+    report (`simulate`, and `calibrate`, which reports failures its own way); `saved`: the
+    states at every `p.save_every` steps, not only the final ones."""
+    model = p.model
     method, y0, dt, n_steps, k, dtype = p.method, p.y0, p.dt, p.n_steps, p.save_every, p.dtype
     with automatic(p.sharding, (model, y0, p.key)) as (sharding, (model, y0, key)):
         keys = (
@@ -506,7 +479,7 @@ def simulate_unreported(
             jnp.asarray(dt, dtype),
             jnp.asarray([n_steps * dt], dtype),
             n_steps=n_steps,
-            save_every=None if save_every is None else k,
+            save_every=k if saved else None,
             retried=p.retry is not None,
             newton_stats=bool(newton_stats),
         )
