@@ -11,7 +11,6 @@ not flip the flag).
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jax import lax
 
 
@@ -111,9 +110,3 @@ def salt_so_n_fields(grad_h0, X):
         return Y @ G - G @ Y, Y[None] @ X - X @ Y[None]
 
     return vector_fields
-
-
-def fitted_order(hs, errors):
-    """Least-squares slope of log(error) against log(h)."""
-    slope, _ = np.polyfit(np.log(np.asarray(hs, float)), np.log(np.asarray(errors, float)), 1)
-    return float(slope)

@@ -28,5 +28,6 @@ def exact_sde_solution(inertia, c, y0, w_t, t):
 
 
 def fitted_order(hs, errors):
-    slope, _ = np.polyfit(np.log(hs), np.log(errors), 1)
-    return slope
+    """Least-squares slope of log(error) against log(h)."""
+    slope, _ = np.polyfit(np.log(np.asarray(hs, float)), np.log(np.asarray(errors, float)), 1)
+    return float(slope)

@@ -21,11 +21,11 @@ import pytest
 from levy_reference import (
     coarsen,
     fine_path,
-    fitted_order,
     salt_rigid_body_fields,
     salt_so_n_fields,
     wong_zakai_solution,
 )
+from reference import fitted_order
 
 import slps_jax as sj
 from slps_jax._methods import METHODS
