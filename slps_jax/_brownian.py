@@ -263,7 +263,7 @@ def draw_joined(sample_key, n, substeps, fine_dt, bound, dtype, n_noises, terms=
 @jax.tree_util.register_pytree_node_class
 class BrownianPath:
     r"""The Brownian motions of an ensemble, as the driver asks for them: the noise of step
-    `n` of the sample whose key is `key` is `evaluate(key, n)`, a `BrownianStep`. Everything
+    `n` of the sample whose key is `key` is `sampler(key)(n)`, a `BrownianStep`. Everything
     that decides it lives here: the step, the truncation of the increments, the Lévy areas
     and the coarsening of fine steps into the driver's.
 
@@ -315,26 +315,21 @@ class BrownianPath:
         their own, so the increments do not change)."""
         return BrownianPath(self.dt, self.bound, self.n_noises, substeps=self.substeps)
 
-    def evaluate(self, key, n):
-        """The noise of step `n` (possibly traced) of the sample whose key is `key`."""
+    def sampler(self, key):
+        """The noise of the steps of the sample whose key is `key`: a function of the step
+        index `n` (possibly traced) returning its `BrownianStep`. The fine step is computed
+        here, once, not at every step."""
         fine_dt = self.dt / self.substeps
-        return draw_joined(
-            key, n, self.substeps, fine_dt, self.bound, self.dt.dtype, self.n_noises, self.terms
-        )
+        return lambda n: self._draw(key, n, self.substeps, fine_dt)
 
     def joined(self, key, n_steps):
         r"""The noise of the first `n_steps` steps (a Python int) of the sample whose key is
         `key`, joined into one step: for the increments, $W(n\,dt)$."""
-        return draw_joined(
-            key,
-            0,
-            n_steps * self.substeps,
-            self.dt / self.substeps,
-            self.bound,
-            self.dt.dtype,
-            self.n_noises,
-            self.terms,
-        )
+        return self._draw(key, 0, n_steps * self.substeps, self.dt / self.substeps)
+
+    def _draw(self, key, n, m, fine_dt):
+        """Coarse step `n` made of `m` fine steps of size `fine_dt` (`draw_joined`)."""
+        return draw_joined(key, n, m, fine_dt, self.bound, self.dt.dtype, self.n_noises, self.terms)
 
     def tree_flatten(self):
         static = isinstance(self.substeps, int)
@@ -431,7 +426,7 @@ def _brownian_paths(key, path, *, n_samples, n_steps, one_noise, levy_area):
     s, dtype = path.n_noises, path.dt.dtype
 
     def one(k):
-        out = jax.vmap(lambda n: path.evaluate(k, n))(steps)
+        out = jax.vmap(path.sampler(k))(steps)
         if levy_area:
             area = out.area if path.levy_area else jnp.zeros((n_steps, s, s), dtype)
             return out.dW, area

@@ -259,7 +259,7 @@ def ensemble(method, model, y0, keys, path, n_blocks, block_len, want_stats, ret
             model,
             y0,
             path.dt,
-            lambda n: path.evaluate(key, n),
+            path.sampler(key),
             n_blocks,
             block_len,
             want_stats,
