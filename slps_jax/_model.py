@@ -8,7 +8,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _components
 from ._algebra import so
 from ._checks import concrete, float_dtype, real_array
 from ._system import QUADRATIC, RIGID_BODY, LiePoissonSystem, _noise_or_c
@@ -106,13 +105,10 @@ class RigidBody(LiePoissonSystem):
         """$I^{-1}$, the inverse principal moments, shape `(3,)`."""
         return 1.0 / self.inertia
 
-    def gradient_components(self, v):
-        return _components.mul(_components.vec(self.inverse_inertia()), v)
-
-    def gradient_hessian_components(self, v):
-        d = _components.vec(self.inverse_inertia())
-        z = jnp.zeros_like(d[0])
-        return _components.mul(d, v), ((d[0], z, z), (z, d[1], z), (z, z, d[2]))
+    @property
+    def quadratic_drift(self):
+        r"""$I^{-1}$: $H(y) = \tfrac12 y\cdot I^{-1}y$ is diagonal and quadratic."""
+        return self.inverse_inertia()
 
 
 PAPER_Y0 = (0.7, 0.7, 0.0)

@@ -7,7 +7,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from . import _components
+from ._algebra.so3 import solve3
 from ._batching import batched_like
 from ._solution import RESULTS
 
@@ -49,11 +49,23 @@ def solve_linear(jac, r):
     (far cheaper than a batched LU under `vmap`), LU otherwise."""
     n = len(r)
     if n == 3:
-        return _components.solve3(jac, r)
+        return solve3(jac, r)
     mat = jnp.stack([jnp.stack(jnp.broadcast_arrays(*row), axis=-1) for row in jac], axis=-2)
     rhs = jnp.stack(jnp.broadcast_arrays(*r), axis=-1)
     x = jnp.linalg.solve(mat, rhs[..., None])[..., 0]
     return tuple(x[..., i] for i in range(n))
+
+
+def identity_plus(s, jac):
+    """`Id + s jac` for a Jacobian in either form `newton` takes: rows of components, or an
+    array."""
+    if isinstance(jac, tuple):
+        n = len(jac)
+        return tuple(
+            tuple(s * jac[i][j] + 1.0 if i == j else s * jac[i][j] for j in range(n))
+            for i in range(n)
+        )
+    return jnp.eye(jac.shape[-1], dtype=jac.dtype) + s * jac
 
 
 def newton(fn, x0, *, tol, max_iter, active=True, admissible=None, continuation=0, unroll=0):

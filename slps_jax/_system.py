@@ -6,7 +6,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _components
 from ._algebra import SO3, AbstractAlgebra
 from ._brownian import as_step
 from ._checks import concrete, float_dtype, real_array, real_dtype
@@ -137,6 +136,11 @@ class LiePoissonSystem:
         """The number $s$ of independent noises (1 with `c=`)."""
         return 1 if self.noise is None else self.noise.n_noises
 
+    # What the system states in closed form, for the algebra's fast paths (`SO3Algebra`).
+    quadratic_drift = None
+    r"""`D` (the state's shape) when $H_0(y) = \tfrac12\langle y, D \odot y\rangle$, so
+    that $\nabla H_0(y) = D \odot y$; `None` otherwise (derivatives by JAX)."""
+
     @property
     def structure(self):
         """The structures the system offers (methods declare which they need)."""
@@ -218,7 +222,9 @@ class LiePoissonSystem:
         r"""$\nabla G_A(y)$ (`area_hamiltonian`) for one state `y`."""
         return self.noise.area_gradient(y, area, self.params, self.algebra)
 
-    def _has_area(self, noise):
+    def has_area(self, noise):
+        """Whether the step `noise` brings Lévy areas that enter the step (noises of the
+        system's own: with one noise `c=` there is no area)."""
         return noise.area is not None and self.noise is not None
 
     def step_hamiltonian(self, y, dt, noise):
@@ -228,7 +234,7 @@ class LiePoissonSystem:
         if self.noise is None:
             return (dt + self.noise_time(noise.dW)) * self.hamiltonian(y)
         k = dt * self.hamiltonian(y) + jnp.dot(noise.dW, self.noise.values(y, self.params))
-        return k + self.area_hamiltonian(y, noise.area) if self._has_area(noise) else k
+        return k + self.area_hamiltonian(y, noise.area) if self.has_area(noise) else k
 
     def step_gradient(self, y, dt, noise):
         r"""$\nabla K(y)$ for one state `y`."""
@@ -236,7 +242,7 @@ class LiePoissonSystem:
         if self.noise is None:
             return (dt + self.noise_time(noise.dW)) * self.gradient(y)
         g = dt * self.gradient(y) + self.noise_gradient(y, noise)
-        return g + self.area_gradient(y, noise.area) if self._has_area(noise) else g
+        return g + self.area_gradient(y, noise.area) if self.has_area(noise) else g
 
     def noise_time(self, dW):
         r"""$c\,\Delta W$: how far one step's noise moves the random time
@@ -244,95 +250,6 @@ class LiePoissonSystem:
         `dW` is the step's increments, shape `(n_noises,) = (1,)` (a scalar, or the step's
         `BrownianStep`, is accepted)."""
         return self.c * jnp.reshape(as_step(dW).dW, ())
-
-    # Component forms for the integrators (tuples of arrays: see `_components`). Subclasses with a
-    # closed form override the drift's; noise families give theirs.
-
-    def gradient_components(self, v):
-        r"""$\nabla H_0(v)$ on components."""
-        return _components.vec(jax.grad(self._h)(_components.unvec(v)))
-
-    def gradient_hessian_components(self, v):
-        r"""$(\nabla H_0(v), \nabla^2 H_0(v))$ on components, in one forward-mode pass."""
-        grad = jax.grad(self._h)
-        hess, g = jax.jacfwd(lambda u: (grad(u), grad(u)), has_aux=True)(_components.unvec(v))
-        return _components.vec(g), _components.mat(hess)
-
-    def _area_components(self, v, area, hessian):
-        """$\nabla G_A(v)$ on components, and with `hessian` its Jacobian (zero for linear
-        noise: the gradient is constant)."""
-        grad = lambda u: self.area_gradient(u, area)
-        if not hessian:
-            return _components.vec(grad(_components.unvec(v)))
-        if self.noise.linear:
-            zero = jnp.zeros_like(v[0])
-            return _components.vec(grad(_components.unvec(v))), ((zero,) * 3,) * 3
-        jac, g = jax.jacfwd(lambda u: (grad(u), grad(u)), has_aux=True)(_components.unvec(v))
-        return _components.vec(g), _components.mat(jac)
-
-    def _noise_components(self, v, w, jacobian=False):
-        r"""$u(v) = \sum_r w_r \nabla H_r(v)$, and with `jacobian` $(u, \partial u/\partial v)$,
-        on components: the noise family's arrays (`AbstractNoise.gradient`,
-        `gradient_jacobian`) taken apart."""
-        y = _components.unvec(v)
-        if not jacobian:
-            return _components.vec(self.noise.gradient(y, w, self.params, self.algebra))
-        u, ju = self.noise.gradient_jacobian(y, w, self.params, self.algebra)
-        return _components.vec(u), _components.mat(ju)
-
-    def step_gradient_components(self, v, dt, noise):
-        r"""$\nabla K(v)$ of a step's Hamiltonian $K = h H_0 + \sum_r \Delta W_r H_r$
-        (plus $G_A$ with areas; the step's flow to first order is that of $K$), on
-        components. With `c=`, $K = \tau H_0$, $\tau = h + c\Delta W$."""
-        noise = as_step(noise)
-        if self.noise is None:
-            return _components.scale(dt + self.noise_time(noise.dW), self.gradient_components(v))
-        g = _components.add(
-            _components.scale(dt, self.gradient_components(v)),
-            self._noise_components(v, noise.dW),
-        )
-        return (
-            _components.add(g, self._area_components(v, noise.area, False))
-            if self._has_area(noise)
-            else g
-        )
-
-    def step_gradient_hessian_components(self, v, dt, noise):
-        r"""$(\nabla K(v), \nabla^2 K(v))$ on components."""
-        noise = as_step(noise)
-        g, hess = self.gradient_hessian_components(v)
-        if self.noise is None:
-            tau = dt + self.noise_time(noise.dW)
-            return _components.scale(tau, g), _components.mscale(tau, hess)
-        u, ju = self._noise_components(v, noise.dW, jacobian=True)
-        g, hess = (
-            _components.add(_components.scale(dt, g), u),
-            _components.madd(_components.mscale(dt, hess), ju),
-        )
-        if self._has_area(noise):
-            ga, ha = self._area_components(v, noise.area, True)
-            g, hess = _components.add(g, ga), _components.madd(hess, ha)
-        return g, hess
-
-    def step_fields_components(self, v, dt, noise):
-        r"""$(\nabla K(v), u(v), \partial u/\partial v)$ on components, with
-        $u = \sum_r \Delta W_r \nabla H_r$ the increments' part of the noise (the areas'
-        $\nabla G_A$ is in $\nabla K$ only): what scheme (42) with several noises needs
-        (`sine_chart_in_map_noise`)."""
-        noise = as_step(noise)
-        if self.noise is None:
-            cdw = self.noise_time(noise.dW)
-            g, hess = self.gradient_hessian_components(v)
-            return (
-                _components.scale(dt + cdw, g),
-                _components.scale(cdw, g),
-                _components.mscale(cdw, hess),
-            )
-        u, ju = self._noise_components(v, noise.dW, jacobian=True)
-        k = _components.add(_components.scale(dt, self.gradient_components(v)), u)
-        if self._has_area(noise):
-            k = _components.add(k, self._area_components(v, noise.area, False))
-        return k, u, ju
 
 
 def _noise_or_c(c, noise, params, leaves, algebra=SO3):

@@ -1,13 +1,13 @@
 """The so(3) / SO(3) toolkit: `hat`, `vee`, `skew`, `sym`, `exp`, `log`, `cayley`,
 `cayley_inv`. The functions take arrays whose last axis has length 3 (vectors) or whose last
 two axes are 3x3 (matrices), and broadcast over leading axes; underneath, every formula is
-written once on components (`_components`)."""
+written once on components (the so(3) algebra's module)."""
 
 from __future__ import annotations
 
 import jax.numpy as jnp
 
-from . import _components as c
+from ._algebra import so3 as c
 
 
 def hat(v):

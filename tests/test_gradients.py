@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import slps_jax as sj
-from slps_jax import _components
+from slps_jax._algebra import so3 as comp
 from slps_jax._methods.lie_poisson import branch_rotation, sine_chart_in_map
 
 Y0 = jnp.asarray(sj.PAPER_Y0)
@@ -78,13 +78,13 @@ def test_implicit_gradient_equals_gradient_of_unrolled_newton(paper):
         return sj.LiePoisson().step(model, y, dt, p[4])[0]
 
     def unrolled(p):
-        d, cdw = _components.vec(1.0 / p[:3]), p[3] * p[4]
-        tau, kappa, z = dt + cdw, cdw * cdw, _components.vec(y)
+        d, cdw = comp.vec(1.0 / p[:3]), p[3] * p[4]
+        tau, kappa, z = dt + cdw, cdw * cdw, comp.vec(y)
         v = z
         for _ in range(12):
             r, jac = sine_chart_in_map(v, z, d, tau, kappa)
-            v = tuple(vi - di for vi, di in zip(v, _components.solve3(jac, r)))
-        return _components.unvec(_components.mv(branch_rotation(v)[0], z))
+            v = tuple(vi - di for vi, di in zip(v, comp.solve3(jac, r)))
+        return comp.unvec(comp.mv(branch_rotation(v)[0], z))
 
     p = jnp.asarray(np.concatenate([I_PAPER, [0.2, dW]]))
     np.testing.assert_allclose(library(p), unrolled(p), atol=1e-15)

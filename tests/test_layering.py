@@ -94,4 +94,4 @@ def test_the_checker_sees_imports():
     found = _imports(PACKAGE / "_stream.py")
     assert {"_brownian", "_integrate", "_plan", "_failures", "_progress"} <= found, found
     assert "__init__" in _imports(PACKAGE / "_paper.py")
-    assert "_components" in _imports(PACKAGE / "_methods" / "heun.py")
+    assert "_algebra" in _imports(PACKAGE / "_methods" / "strang.py")

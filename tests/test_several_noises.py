@@ -13,7 +13,7 @@ import pytest
 import scipy.linalg
 
 import slps_jax as sj
-from slps_jax import _components
+from slps_jax._algebra import so3 as comp
 from slps_jax._methods import METHODS
 from slps_jax._methods.lie_poisson_sym import _solve_rotation
 from slps_jax.so3 import hat, skew, vee
@@ -70,14 +70,14 @@ def test_step_jacobians_are_the_derivatives_of_the_step_gradient(model):
     dW = jnp.linspace(-0.3, 0.4, s)
     area = jnp.triu(jnp.full((s, s), 0.05), 1)
     steps = [sj.BrownianStep(dW)] + ([sj.BrownianStep(dW, area - area.T)] if s > 1 else [])
-    v, unvec, unmat = _components.vec(Y0), _components.unvec, _components.unmat
+    v, unvec, unmat = comp.vec(Y0), comp.unvec, comp.unmat
     for step in steps:
-        g, jac = model.step_gradient_hessian_components(v, 0.1, step)
+        g, jac = model.algebra.step_gradient_hessian_local(model, v, 0.1, step)
         np.testing.assert_allclose(unvec(g), model.step_gradient(Y0, 0.1, step), atol=1e-15)
         np.testing.assert_allclose(
             unmat(jac), jax.jacrev(lambda y: model.step_gradient(y, 0.1, step))(Y0), atol=1e-14
         )
-    k, u, ju = model.step_fields_components(v, 0.1, steps[-1])
+    k, u, ju = model.algebra.step_fields_local(model, v, 0.1, steps[-1])
     np.testing.assert_allclose(unvec(k), model.step_gradient(Y0, 0.1, steps[-1]), atol=1e-15)
     u_of = lambda y: model.step_gradient(y, 0.0, sj.BrownianStep(dW))
     np.testing.assert_allclose(unvec(u), u_of(Y0), atol=1e-15)
@@ -183,17 +183,15 @@ def test_adjoint_step_for_a_salt_hamiltonian():
     def s_bar(a):  # the first-order generating function of psi_{-K/2}
         return 0.5 * jnp.trace(a) + 0.5 * k_step(so3_vee_skew(a))
 
-    b, info = _solve_rotation(model, _components.vec(-z), 0.5 * dt, 0.5 * dW, -1.0, 1e-14, 12, True)
+    b, info = _solve_rotation(model, comp.vec(-z), 0.5 * dt, 0.5 * dW, -1.0, 1e-14, 12, True)
     assert bool(info.ok)
-    a = _components.unmat(b).T
+    a = comp.unmat(b).T
     out = vee(-2.0 * skew(jax.grad(s_bar)(a) @ a.T))
     np.testing.assert_allclose(out, z, atol=1e-14)
     np.testing.assert_allclose(a.T @ a, np.eye(3), atol=1e-14)
     # the even-Hamiltonian shortcut (in-map of -K/2 at -z) gives another, wrong, rotation
-    b_even, _ = _solve_rotation(
-        model, _components.vec(-z), -0.5 * dt, -0.5 * dW, 1.0, 1e-14, 12, True
-    )
-    assert np.abs(_components.unmat(b_even) - _components.unmat(b)).max() > 1e-3
+    b_even, _ = _solve_rotation(model, comp.vec(-z), -0.5 * dt, -0.5 * dW, 1.0, 1e-14, 12, True)
+    assert np.abs(comp.unmat(b_even) - comp.unmat(b)).max() > 1e-3
 
 
 def so3_vee_skew(a):

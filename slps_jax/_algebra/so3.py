@@ -1,19 +1,219 @@
-"""so(3)* as 3-vectors: the fast component path of the rigid body."""
+"""so(3)* as 3-vectors, with every closed form of so(3) and SO(3) in one place.
+
+Formulas are written once on *components*: a vector is a tuple of three arrays, a matrix a
+tuple of three rows (`vec`, `mat` and their inverses convert from and to arrays). Under
+`vmap` each component becomes one array over the batch, so the integrators' hot loops are
+element-wise arithmetic on long vectors (structure of arrays) rather than many tiny batched
+3x3 products, which XLA executes poorly on CPU; arrays of shape `(B, 3)` inside a loop
+(where batching puts the batch axis first) would be strided. The public toolkit
+`slps_jax.so3` is these formulas on arrays; `SO3Algebra` gives the methods a system's step
+on components (its `local` form), from what the system states in closed form.
+"""
 
 from __future__ import annotations
 
+import math
+
+import jax
 import jax.numpy as jnp
 
-from .. import so3
+from .._brownian import as_step
 from .base import SO3_VECTORS, AbstractAlgebra
+
+
+def vec(x):
+    """Array `(..., 3)` -> tuple of three arrays."""
+    return (x[..., 0], x[..., 1], x[..., 2])
+
+
+def unvec(v):
+    """Tuple of three arrays -> array `(..., 3)`."""
+    return jnp.stack(jnp.broadcast_arrays(*v), axis=-1)
+
+
+def mat(m):
+    """Array `(..., 3, 3)` -> tuple of three rows."""
+    return tuple(tuple(m[..., i, j] for j in range(3)) for i in range(3))
+
+
+def unmat(m):
+    """Tuple of three rows -> array `(..., 3, 3)`."""
+    return jnp.stack([unvec(row) for row in m], axis=-2)
+
+
+def add(a, b):
+    return tuple(x + y for x, y in zip(a, b))
+
+
+def sub(a, b):
+    return tuple(x - y for x, y in zip(a, b))
+
+
+def scale(s, a):
+    return tuple(s * x for x in a)
+
+
+def mul(a, b):
+    """Component-wise product (a diagonal matrix times a vector)."""
+    return tuple(x * y for x, y in zip(a, b))
+
+
+def dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def cross(a, b):
+    return (
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    )
+
+
+def mv(m, x):
+    """Matrix times vector."""
+    return tuple(dot(row, x) for row in m)
+
+
+def mtv(m, x):
+    """Transposed matrix times vector."""
+    return tuple(m[0][j] * x[0] + m[1][j] * x[1] + m[2][j] * x[2] for j in range(3))
+
+
+def transpose(m):
+    return tuple(tuple(m[i][j] for i in range(3)) for j in range(3))
+
+
+def mm(a, b):
+    """Matrix product."""
+    return tuple(
+        tuple(a[i][0] * b[0][j] + a[i][1] * b[1][j] + a[i][2] * b[2][j] for j in range(3))
+        for i in range(3)
+    )
+
+
+def madd(*ms):
+    return tuple(tuple(sum(m[i][j] for m in ms) for j in range(3)) for i in range(3))
+
+
+def mscale(s, m):
+    return tuple(tuple(s * m[i][j] for j in range(3)) for i in range(3))
+
+
+def diag_left(d, m):
+    """`diag(d) @ m`."""
+    return tuple(tuple(d[i] * m[i][j] for j in range(3)) for i in range(3))
+
+
+def diag_right(m, d):
+    """`m @ diag(d)`."""
+    return tuple(tuple(m[i][j] * d[j] for j in range(3)) for i in range(3))
+
+
+def outer(a, b):
+    return tuple(tuple(a[i] * b[j] for j in range(3)) for i in range(3))
+
+
+def trace(m):
+    return m[0][0] + m[1][1] + m[2][2]
+
+
+def shift(m, s):
+    """`m + s Id`."""
+    return tuple(tuple(m[i][j] + s if i == j else m[i][j] for j in range(3)) for i in range(3))
+
+
+def mat_hat(m, x):
+    """`m @ hat(x)`: row i is `m_i x x` (6 products instead of 27)."""
+    return tuple(cross(row, x) for row in m)
+
+
+def hat_mat(x, m):
+    """`hat(x) @ m`: column j is `x x m_j`."""
+    cols = [cross(x, (m[0][j], m[1][j], m[2][j])) for j in range(3)]
+    return tuple(tuple(cols[j][i] for j in range(3)) for i in range(3))
+
+
+def hat(v):
+    z = jnp.zeros_like(v[0])
+    return ((z, -v[2], v[1]), (v[2], z, -v[0]), (-v[1], v[0], z))
+
+
+def vee_skew(m):
+    """`vee(skew(m))`, the axial vector of the skew part."""
+    return (
+        0.5 * (m[2][1] - m[1][2]),
+        0.5 * (m[0][2] - m[2][0]),
+        0.5 * (m[1][0] - m[0][1]),
+    )
+
+
+def solve3(m, b):
+    """Solve `m x = b` by cofactors (Cramer's rule): far cheaper than a batched LU for 3x3."""
+    c00 = m[1][1] * m[2][2] - m[1][2] * m[2][1]
+    c01 = m[1][2] * m[2][0] - m[1][0] * m[2][2]
+    c02 = m[1][0] * m[2][1] - m[1][1] * m[2][0]
+    c10 = m[0][2] * m[2][1] - m[0][1] * m[2][2]
+    c11 = m[0][0] * m[2][2] - m[0][2] * m[2][0]
+    c12 = m[0][1] * m[2][0] - m[0][0] * m[2][1]
+    c20 = m[0][1] * m[1][2] - m[0][2] * m[1][1]
+    c21 = m[0][2] * m[1][0] - m[0][0] * m[1][2]
+    c22 = m[0][0] * m[1][1] - m[0][1] * m[1][0]
+    inv_det = 1.0 / (m[0][0] * c00 + m[0][1] * c01 + m[0][2] * c02)
+    # The inverse is the transposed cofactor matrix over the determinant.
+    return (
+        inv_det * (c00 * b[0] + c10 * b[1] + c20 * b[2]),
+        inv_det * (c01 * b[0] + c11 * b[1] + c21 * b[2]),
+        inv_det * (c02 * b[0] + c12 * b[1] + c22 * b[2]),
+    )
+
+
+def small_angle_threshold(dtype):
+    # Below this theta^2 the two-term Taylor series is exact to round-off: its first
+    # neglected term is O(theta^4) = O(eps).
+    return math.sqrt(float(jnp.finfo(dtype).eps))
+
+
+def exp_coefficients(theta2):
+    """`sin(t)/t`, `(1 - cos t)/t^2` and `(t - sin t)/t^3` at `t^2 = theta2`.
+
+    The "double where" keeps gradients finite at t = 0: the exact branch never sees t = 0,
+    the series branch is used there. `1 - cos t` is computed as `2 sin^2(t/2)`, which does not
+    cancel.
+    """
+    small = theta2 < small_angle_threshold(theta2.dtype)
+    t2 = jnp.where(small, 1.0, theta2)
+    t = jnp.sqrt(t2)
+    s = jnp.sin(t)
+    half = jnp.sin(0.5 * t) / (0.5 * t)
+    a = jnp.where(small, 1.0 - theta2 / 6.0, s / t)
+    b = jnp.where(small, 0.5 - theta2 / 24.0, 0.5 * half * half)
+    c = jnp.where(small, 1.0 / 6.0 - theta2 / 120.0, (t - s) / (t2 * t))
+    return a, b, c
+
+
+def exp(xi):
+    """Rodrigues' formula on components: `exp(hat xi) = Id + a X + b X^2`."""
+    a, b, _ = exp_coefficients(dot(xi, xi))
+    x = hat(xi)
+    return shift(madd(mscale(a, x), mscale(b, mm(x, x))), 1.0)
+
+
+def cayley(xi):
+    """Cayley map on components: `(Id - X/2)^{-1} (Id + X/2) = Id + 4/(4+|xi|^2) (X + X^2/2)`."""
+    x = hat(xi)
+    s = 4.0 / (4.0 + dot(xi, xi))
+    return shift(madd(mscale(s, x), mscale(0.5 * s, mm(x, x))), 1.0)
 
 
 class SO3Algebra(AbstractAlgebra):
     r"""so(3)* identified with $\mathbb R^3$ by `hat`: states are 3-vectors $y$, the matrix
     of a state is $\hat y$, the pairing $x\cdot y$ (that of so(3) as skew matrices,
     $\tfrac12\operatorname{tr}\hat x^T\hat y$), the bracket $[y, x] = y \times x$, the
-    Casimir $C(y) = \tfrac12|y|^2$. Methods with a closed form on components declare
-    `SO3_VECTORS`. One instance, `SO3`, is shared by every so(3) system.
+    Casimir $C(y) = \tfrac12|y|^2$. Its `local` form is the components, and a system's step
+    on them is written from the system's closed forms (`quadratic_drift`, a noise family's
+    `gradient` and `gradient_jacobian`). One instance, `SO3`, is shared by every so(3)
+    system.
     """
 
     name = "so(3)"
@@ -45,16 +245,114 @@ class SO3Algebra(AbstractAlgebra):
         return 0.5 * jnp.sum(jnp.asarray(y) ** 2, axis=-1, keepdims=True)
 
     def structure_matrix(self, y):
-        return so3.hat(y)
+        return self.to_matrix(y)
 
     def to_matrix(self, y):
-        return so3.hat(y)
+        return unmat(hat(vec(jnp.asarray(y))))
 
     def from_matrix(self, m):
-        return so3.vee(m)
+        return unvec(vee_skew(mat(jnp.asarray(m))))
 
     def project(self, m):
-        return so3.vee(m)  # the axial vector of the skew part
+        return self.from_matrix(m)  # the axial vector of the skew part
+
+    # -- a system's step on components
+
+    def local(self, y):
+        return vec(y)
+
+    def from_local(self, v):
+        return unvec(v)
+
+    def field(self, model, y, dt, noise):
+        return unvec(self.local_field(model, vec(y), dt, noise))
+
+    def local_field(self, model, v, dt, noise):
+        return cross(v, self.step_gradient_local(model, v, dt, noise))
+
+    def local_field_jacobian(self, model, v, dt, noise):
+        g, hess = self.step_gradient_hessian_local(model, v, dt, noise)
+        # d(v x g(v))/dv = hat(v) grad^2 K - hat(g)
+        return cross(v, g), madd(mm(hat(v), hess), mscale(-1.0, hat(g)))
+
+    def _drift(self, model, v, hessian):
+        r"""$\nabla H_0(v)$, with `hessian` also $\nabla^2 H_0(v)$: written out for a
+        diagonal quadratic $H_0$ (`model.quadratic_drift`), else by JAX (one forward-mode
+        pass for both)."""
+        d = model.quadratic_drift
+        if d is not None:
+            d = vec(d)
+            if not hessian:
+                return mul(d, v)
+            z = jnp.zeros_like(d[0])
+            return mul(d, v), ((d[0], z, z), (z, d[1], z), (z, z, d[2]))
+        grad = jax.grad(model.hamiltonian)
+        if not hessian:
+            return vec(grad(unvec(v)))
+        hess, g = jax.jacfwd(lambda u: (grad(u), grad(u)), has_aux=True)(unvec(v))
+        return vec(g), mat(hess)
+
+    def _noise(self, model, v, w, jacobian):
+        r"""$u(v) = \sum_r w_r \nabla H_r(v)$, and with `jacobian` $(u, \partial u/\partial v)$:
+        the noise family's arrays (`AbstractNoise.gradient`, `gradient_jacobian`) taken
+        apart."""
+        y = unvec(v)
+        if not jacobian:
+            return vec(model.noise.gradient(y, w, model.params, self))
+        u, ju = model.noise.gradient_jacobian(y, w, model.params, self)
+        return vec(u), mat(ju)
+
+    def _area(self, model, v, area, hessian):
+        r"""$\nabla G_A(v)$, and with `hessian` its Jacobian (zero for linear noise: the
+        gradient is constant)."""
+        grad = lambda u: model.area_gradient(u, area)
+        if not hessian:
+            return vec(grad(unvec(v)))
+        if model.noise.linear:
+            zero = jnp.zeros_like(v[0])
+            return vec(grad(unvec(v))), ((zero,) * 3,) * 3
+        jac, g = jax.jacfwd(lambda u: (grad(u), grad(u)), has_aux=True)(unvec(v))
+        return vec(g), mat(jac)
+
+    def step_gradient_local(self, model, v, dt, noise):
+        r"""$\nabla K(v)$ of a step's Hamiltonian $K = h H_0 + \sum_r \Delta W_r H_r$ (plus
+        $G_A$ with areas), on components. With `c=`, $K = \tau H_0$, $\tau = h + c\Delta W$.
+        `noise` is the step's `BrownianStep`."""
+        noise = as_step(noise)
+        if model.noise is None:
+            return scale(dt + model.noise_time(noise.dW), self._drift(model, v, False))
+        g = add(scale(dt, self._drift(model, v, False)), self._noise(model, v, noise.dW, False))
+        return add(g, self._area(model, v, noise.area, False)) if model.has_area(noise) else g
+
+    def step_gradient_hessian_local(self, model, v, dt, noise):
+        r"""$(\nabla K(v), \nabla^2 K(v))$ on components."""
+        noise = as_step(noise)
+        g, hess = self._drift(model, v, True)
+        if model.noise is None:
+            tau = dt + model.noise_time(noise.dW)
+            return scale(tau, g), mscale(tau, hess)
+        u, ju = self._noise(model, v, noise.dW, True)
+        g, hess = add(scale(dt, g), u), madd(mscale(dt, hess), ju)
+        if model.has_area(noise):
+            ga, ha = self._area(model, v, noise.area, True)
+            g, hess = add(g, ga), madd(hess, ha)
+        return g, hess
+
+    def step_fields_local(self, model, v, dt, noise):
+        r"""$(\nabla K(v), u(v), \partial u/\partial v)$ on components, with
+        $u = \sum_r \Delta W_r \nabla H_r$ the increments' part of the noise (the areas'
+        $\nabla G_A$ is in $\nabla K$ only): what scheme (42) with several noises needs
+        (`sine_chart_in_map_noise`)."""
+        noise = as_step(noise)
+        if model.noise is None:
+            cdw = model.noise_time(noise.dW)
+            g, hess = self._drift(model, v, True)
+            return scale(dt + cdw, g), scale(cdw, g), mscale(cdw, hess)
+        u, ju = self._noise(model, v, noise.dW, True)
+        k = add(scale(dt, self._drift(model, v, False)), u)
+        if model.has_area(noise):
+            k = add(k, self._area(model, v, noise.area, False))
+        return k, u, ju
 
     def __repr__(self):
         return "SO3"

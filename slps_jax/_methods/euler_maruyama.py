@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import dataclasses
 
-from .. import _components as comp
-from .._algebra import SO3_VECTORS
 from .base import AbstractMethod, StrongOrders, explicit_info
 
 
@@ -23,10 +21,5 @@ class EulerMaruyama(AbstractMethod):
     strong_orders = StrongOrders(one=None, increments=None)  # converges to the Itô equation
 
     def step(self, model, y, dt, dW):
-        if SO3_VECTORS not in model.structure:
-            y_next = y + model.algebra.bracket(y, model.step_gradient(y, dt, dW))
-            return y_next.astype(y.dtype), explicit_info(y_next)
-        yc = comp.vec(y)  # so(3)'s fast path, on components
-        f = comp.cross(yc, model.step_gradient_components(yc, dt, dW))
-        y_next = comp.unvec(comp.add(yc, f)).astype(y.dtype)
-        return y_next, explicit_info(y_next)
+        y_next = y + model.algebra.field(model, y, dt, dW)
+        return y_next.astype(y.dtype), explicit_info(y_next)

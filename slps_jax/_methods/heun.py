@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import dataclasses
 
-from .. import _components as comp
-from .._algebra import SO3_VECTORS
 from .base import AbstractMethod, StrongOrders, explicit_info
 
 
@@ -28,20 +26,9 @@ class Heun(AbstractMethod):
     strong_orders = StrongOrders(one=1.0, increments=0.5)
 
     def step(self, model, y, dt, dW):
-        if SO3_VECTORS not in model.structure:
-
-            def f(u):
-                return model.algebra.bracket(u, model.step_gradient(u, dt, dW))
-
-            k1 = f(y)
-            y_next = y + 0.5 * (k1 + f(y + k1))
-            return y_next.astype(y.dtype), explicit_info(y_next)
-        yc = comp.vec(y)  # so(3)'s fast path, on components
-
         def f(u):
-            return comp.cross(u, model.step_gradient_components(u, dt, dW))
+            return model.algebra.field(model, u, dt, dW)
 
-        k1 = f(yc)
-        k2 = f(comp.add(yc, k1))
-        y_next = comp.unvec(tuple(a + 0.5 * (b + c) for a, b, c in zip(yc, k1, k2)))
+        k1 = f(y)
+        y_next = y + 0.5 * (k1 + f(y + k1))
         return y_next.astype(y.dtype), explicit_info(y_next)

@@ -8,8 +8,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _components as comp
 from .._algebra import SO3_VECTORS, adjoint
+from .._algebra import so3 as comp
 from .._brownian import scale
 from .._checks import check_options, real_dtype
 from .._newton import implicit_root, newton, solve_array
@@ -412,7 +412,7 @@ class LiePoisson(AbstractMethod):
 
             def sine_fn(v, lam, jacobian=True):
                 def fields(v):
-                    k, u, ju = model.step_fields_components(v, dt, dW)
+                    k, u, ju = model.algebra.step_fields_local(model, v, dt, dW)
                     return (comp.scale(lam, k), comp.scale(second * lam, u), comp.mscale(lam, ju))
 
                 return sine_chart_in_map_noise(v, z, fields, jacobian)

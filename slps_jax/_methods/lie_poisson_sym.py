@@ -7,8 +7,8 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from .. import _components as comp
 from .._algebra import SO3_VECTORS
+from .._algebra import so3 as comp
 from .._batching import batched_like
 from .._brownian import scale
 from .._checks import check_options
@@ -78,9 +78,11 @@ def _solve_rotation(model, y, dt, dW, sign, tol, max_iter, active):
         def fields(u, jac):
             x = comp.scale(sign, u)
             if jac:
-                k, hess = model.step_gradient_hessian_components(x, lam * dt, scale(dW, lam))
+                k, hess = model.algebra.step_gradient_hessian_local(
+                    model, x, lam * dt, scale(dW, lam)
+                )
                 return k, comp.mscale(sign, hess)
-            return model.step_gradient_components(x, lam * dt, scale(dW, lam))
+            return model.algebra.step_gradient_local(model, x, lam * dt, scale(dW, lam))
 
         return sine_chart_in_map_general(v, y, fields, jacobian)
 

@@ -4,12 +4,11 @@ from __future__ import annotations
 
 import dataclasses
 
+import jax
 import jax.numpy as jnp
 
-from .. import _components as comp
-from .._algebra import SO3_VECTORS
 from .._checks import check_options, real_dtype
-from .._newton import implicit_root, jacobian_mode, newton, solve_array
+from .._newton import identity_plus, implicit_root, jacobian_mode, newton
 from .._solution import RESULTS
 from .base import AbstractMethod, StepInfo, StrongOrders, default_tol, finite_result
 
@@ -46,60 +45,43 @@ class Midpoint(AbstractMethod):
         check_options(self)
 
     def step(self, model, y, dt, dW):
-        dtype = y.dtype
-        tol = default_tol(dtype) if self.tol is None else self.tol
-        if SO3_VECTORS not in model.structure:
-            return self._step_coordinates(model, y, dt, dW, tol)
-        # so(3)'s fast path: Newton on components with the analytic Jacobian
-        y0 = comp.vec(y)
+        alg = model.algebra
+        tol = default_tol(y.dtype) if self.tol is None else self.tol
+        # Newton with the field's Jacobian (written out on so(3), by autodiff otherwise) up to
+        # so(5); above, the fixed-point iteration
+        newton_mode = jacobian_mode("auto", alg.dim, large="identity") == "newton"
+        max_iter = self.max_iter if self.max_iter is not None else (12 if newton_mode else 48)
+        # The unknown y_{n+1} in the algebra's local form (components on so(3), coordinates
+        # otherwise), and arithmetic that works on either.
+        x0 = alg.local(y)
+        tmap = jax.tree_util.tree_map
 
-        def f(u):  # the step's increment field y x grad K(y), K = h H_0 + sum_r dW_r H_r
-            return comp.cross(u, model.step_gradient_components(u, dt, dW))
+        def mid(x1):
+            return tmap(lambda a, b: 0.5 * (a + b), x0, x1)
 
-        def residual(y1):
-            m = comp.scale(0.5, comp.add(y0, y1))
-            return tuple(a - b - c for a, b, c in zip(y1, y0, f(m)))
+        def minus(x1, f):
+            return tmap(lambda a, b, c: a - b - c, x1, x0, f)
 
-        def system(y1):
-            m = comp.scale(0.5, comp.add(y0, y1))
-            g, hess = model.step_gradient_hessian_components(m, dt, dW)
-            r = tuple(a - b - c for a, b, c in zip(y1, y0, comp.cross(m, g)))
-            fprime = comp.madd(comp.mm(comp.hat(m), hess), comp.mscale(-1.0, comp.hat(g)))
-            return r, comp.shift(comp.mscale(-0.5, fprime), 1.0)
+        def residual(x1):
+            return minus(x1, alg.local_field(model, mid(x1), dt, dW))
+
+        def system(x1):
+            f, jf = alg.local_field_jacobian(model, mid(x1), dt, dW)
+            return minus(x1, f), identity_plus(-0.5, jf)
+
+        def fixed_point(x1):
+            return residual(x1), lambda r: r
 
         def solve():
-            start = comp.add(y0, f(y0))
-            s = newton(
-                system, start, tol=tol, max_iter=12 if self.max_iter is None else self.max_iter
-            )
+            start = tmap(jnp.add, x0, alg.local_field(model, x0, dt, dW))
+            s = newton(system if newton_mode else fixed_point, start, tol=tol, max_iter=max_iter)
             return s.x, s.result == RESULTS.successful, (s.result, s.iterations, s.residual)
 
         # Derivatives by the implicit function theorem at the root, not through Newton.
-        y1, _, (result, it, res) = implicit_root(residual, solve, y0)
-        y_next = comp.unvec(y1).astype(dtype)
+        x1, _, (result, it, res) = implicit_root(residual, solve, x0)
+        y_next = alg.from_local(x1).astype(y.dtype)
         return y_next, StepInfo(
-            finite_result(y_next, result.astype(jnp.int32)), it.astype(jnp.int32), res.astype(dtype)
+            finite_result(y_next, result.astype(jnp.int32)),
+            it.astype(jnp.int32),
+            res.astype(real_dtype(y.dtype)),
         )
-
-    def _step_coordinates(self, model, y, dt, dW, tol):
-        """Any algebra: the solve on the state's real coordinates."""
-        alg = model.algebra
-        x0 = alg.coordinates(y)
-
-        def f(u):
-            return alg.bracket(u, model.step_gradient(u, dt, dW))
-
-        def residual(x, lam):
-            m = 0.5 * (y + alg.from_coordinates(x))
-            return x - x0 - alg.coordinates(f(m))
-
-        x, result, it, res = solve_array(
-            residual,
-            x0 + alg.coordinates(f(y)),
-            x0,
-            tol=tol,
-            max_iter=self.max_iter,
-            jacobian=jacobian_mode("auto", alg.dim, large="identity"),
-        )
-        y_next = alg.from_coordinates(x).astype(y.dtype)
-        return y_next, StepInfo(finite_result(y_next, result), it, res.astype(real_dtype(y.dtype)))

@@ -7,7 +7,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from .. import _components as comp
+from .._algebra import so3 as comp
 from .._brownian import as_step
 from .._system import LINEAR_NOISE, NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
 from .base import AbstractMethod, StrongOrders, explicit_info
