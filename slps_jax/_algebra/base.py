@@ -12,9 +12,10 @@ What a method may use, and nothing else:
 - the Lie–Poisson structure: `gradient` (the gradient for the pairing from JAX's gradient of
   a real function of the state), `bracket(y, x)` (the field $[y, x]$ of a gradient `x`:
   $dy = [y, \\nabla H]$), `bracket_sum` (of stacks, for the Lévy-area term), `casimirs`;
-- a system's step: `field` (the step's field at a state) and, in the `local` form a method's
-  loop carries (`local`, `from_local`: real coordinates, components on so(3)), `local_field`
-  and `local_field_jacobian`, from which the methods are written once;
+- a system's step, from which methods are written once: in the `local` form a method's loop
+  carries (`local`, `from_local`: the state, components on so(3)), `local_field`; on that
+  form's real coordinates (`local_coordinates`, `from_local_coordinates`),
+  `coordinate_field` and `coordinate_field_jacobian`;
 - the group: `to_matrix`, `from_matrix`, `project` (the state nearest to a matrix),
   `adjoint` ($M^H$), `cayley` ($(I - X)^{-1}(I + X)$), `act(a, y)` ($a\\,y\\,a^{-1}$ for a
   unitary `a`), and real coordinates of the group's Lie algebra (`group_dim`,
@@ -132,29 +133,38 @@ class AbstractAlgebra:
         """The Casimir functions (real), shape `(..., k)`."""
         raise NotImplementedError
 
-    # -- a system's step, for the methods: the field of the step's Hamiltonian
-    # K = hH_0 + sum_r dW_r H_r (+ G_A) at a state, and in the `local` form the methods' loops
-    # carry (real coordinates here; so(3) overrides all of it with its components)
-
-    def field(self, model, y, dt, noise):
-        r"""$F(y) = [y, \nabla K(y)]$ of one step (`noise` its `BrownianStep`) at a state."""
-        return self.bracket(y, model.step_gradient(y, dt, noise))
+    # -- a system's step, for the methods: the field F(y) = [y, grad K(y)] of the step's
+    # Hamiltonian K = hH_0 + sum_r dW_r H_r (+ G_A), in the `local` form the methods' loops
+    # carry (here the state itself; so(3) overrides all of it with its components), and on
+    # the real coordinates of that form, for implicit solves
 
     def local(self, y):
-        """A state in the form a method's loop carries it and solves for it."""
-        return self.coordinates(y)
+        """A state in the form a method's loop carries it."""
+        return y
 
     def from_local(self, x):
-        return self.from_coordinates(x)
+        return x
 
     def local_field(self, model, x, dt, noise):
-        """`field` in the local form."""
-        return self.coordinates(self.field(model, self.from_coordinates(x), dt, noise))
+        r"""$F(x) = [x, \nabla K(x)]$ of one step (`noise` its `BrownianStep`), local form."""
+        return self.bracket(x, model.step_gradient(x, dt, noise))
 
-    def local_field_jacobian(self, model, x, dt, noise):
-        """`(local_field(x), its Jacobian)`; here by forward-mode autodiff."""
-        f = lambda x: self.local_field(model, x, dt, noise)
-        return f(x), jax.jacfwd(f)(x)
+    def local_coordinates(self, x):
+        """Real coordinates of a local form: the unknowns of an implicit solve."""
+        return self.coordinates(x)
+
+    def from_local_coordinates(self, u):
+        return self.from_coordinates(u)
+
+    def coordinate_field(self, model, u, dt, noise):
+        """`local_field` on the local form's coordinates."""
+        x = self.from_local_coordinates(u)
+        return self.local_coordinates(self.local_field(model, x, dt, noise))
+
+    def coordinate_field_jacobian(self, model, u, dt, noise):
+        """`(coordinate_field(u), its Jacobian)`; here by forward-mode autodiff."""
+        f = lambda u: self.coordinate_field(model, u, dt, noise)
+        return f(u), jax.jacfwd(f)(u)
 
     # -- the group
 

@@ -264,13 +264,19 @@ class SO3Algebra(AbstractAlgebra):
     def from_local(self, v):
         return unvec(v)
 
-    def field(self, model, y, dt, noise):
-        return unvec(self.local_field(model, vec(y), dt, noise))
-
     def local_field(self, model, v, dt, noise):
         return cross(v, self.step_gradient_local(model, v, dt, noise))
 
-    def local_field_jacobian(self, model, v, dt, noise):
+    def local_coordinates(self, v):
+        return v  # (the components are the coordinates)
+
+    def from_local_coordinates(self, v):
+        return v
+
+    def coordinate_field(self, model, v, dt, noise):
+        return self.local_field(model, v, dt, noise)
+
+    def coordinate_field_jacobian(self, model, v, dt, noise):
         g, hess = self.step_gradient_hessian_local(model, v, dt, noise)
         # d(v x g(v))/dv = hat(v) grad^2 K - hat(g)
         return cross(v, g), madd(mm(hat(v), hess), mscale(-1.0, hat(g)))

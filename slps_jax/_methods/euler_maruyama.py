@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import dataclasses
 
+import jax
+import jax.numpy as jnp
+
 from .base import AbstractMethod, StrongOrders, explicit_info
 
 
@@ -21,5 +24,8 @@ class EulerMaruyama(AbstractMethod):
     strong_orders = StrongOrders(one=None, increments=None)  # converges to the Itô equation
 
     def step(self, model, y, dt, dW):
-        y_next = y + model.algebra.field(model, y, dt, dW)
-        return y_next.astype(y.dtype), explicit_info(y_next)
+        alg = model.algebra
+        x = alg.local(y)  # (components on so(3))
+        x_next = jax.tree_util.tree_map(jnp.add, x, alg.local_field(model, x, dt, dW))
+        y_next = alg.from_local(x_next).astype(y.dtype)
+        return y_next, explicit_info(y_next)

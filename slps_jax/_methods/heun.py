@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import dataclasses
 
+import jax
+import jax.numpy as jnp
+
 from .base import AbstractMethod, StrongOrders, explicit_info
 
 
@@ -26,9 +29,15 @@ class Heun(AbstractMethod):
     strong_orders = StrongOrders(one=1.0, increments=0.5)
 
     def step(self, model, y, dt, dW):
-        def f(u):
-            return model.algebra.field(model, u, dt, dW)
+        alg = model.algebra
+        tmap = jax.tree_util.tree_map
 
-        k1 = f(y)
-        y_next = y + 0.5 * (k1 + f(y + k1))
-        return y_next.astype(y.dtype), explicit_info(y_next)
+        def f(x):
+            return alg.local_field(model, x, dt, dW)
+
+        x = alg.local(y)  # (components on so(3))
+        k1 = f(x)
+        k2 = f(tmap(jnp.add, x, k1))
+        x_next = tmap(lambda a, b, c: a + 0.5 * (b + c), x, k1, k2)
+        y_next = alg.from_local(x_next).astype(y.dtype)
+        return y_next, explicit_info(y_next)

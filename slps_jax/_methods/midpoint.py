@@ -51,35 +51,35 @@ class Midpoint(AbstractMethod):
         # so(5); above, the fixed-point iteration
         newton_mode = jacobian_mode("auto", alg.dim, large="identity") == "newton"
         max_iter = self.max_iter if self.max_iter is not None else (12 if newton_mode else 48)
-        # The unknown y_{n+1} in the algebra's local form (components on so(3), coordinates
-        # otherwise), and arithmetic that works on either.
-        x0 = alg.local(y)
+        # The unknowns: the real coordinates of y_{n+1}'s local form (components on so(3),
+        # the n(n-1)/2 entries on so(n)), and arithmetic that works on either.
+        u0 = alg.local_coordinates(alg.local(y))
         tmap = jax.tree_util.tree_map
 
-        def mid(x1):
-            return tmap(lambda a, b: 0.5 * (a + b), x0, x1)
+        def mid(u1):
+            return tmap(lambda a, b: 0.5 * (a + b), u0, u1)
 
-        def minus(x1, f):
-            return tmap(lambda a, b, c: a - b - c, x1, x0, f)
+        def minus(u1, f):
+            return tmap(lambda a, b, c: a - b - c, u1, u0, f)
 
-        def residual(x1):
-            return minus(x1, alg.local_field(model, mid(x1), dt, dW))
+        def residual(u1):
+            return minus(u1, alg.coordinate_field(model, mid(u1), dt, dW))
 
-        def system(x1):
-            f, jf = alg.local_field_jacobian(model, mid(x1), dt, dW)
-            return minus(x1, f), identity_plus(-0.5, jf)
+        def system(u1):
+            f, jf = alg.coordinate_field_jacobian(model, mid(u1), dt, dW)
+            return minus(u1, f), identity_plus(-0.5, jf)
 
-        def fixed_point(x1):
-            return residual(x1), lambda r: r
+        def fixed_point(u1):
+            return residual(u1), lambda r: r
 
         def solve():
-            start = tmap(jnp.add, x0, alg.local_field(model, x0, dt, dW))
+            start = tmap(jnp.add, u0, alg.coordinate_field(model, u0, dt, dW))
             s = newton(system if newton_mode else fixed_point, start, tol=tol, max_iter=max_iter)
             return s.x, s.result == RESULTS.successful, (s.result, s.iterations, s.residual)
 
         # Derivatives by the implicit function theorem at the root, not through Newton.
-        x1, _, (result, it, res) = implicit_root(residual, solve, x0)
-        y_next = alg.from_local(x1).astype(y.dtype)
+        u1, _, (result, it, res) = implicit_root(residual, solve, u0)
+        y_next = alg.from_local(alg.from_local_coordinates(u1)).astype(y.dtype)
         return y_next, StepInfo(
             finite_result(y_next, result.astype(jnp.int32)),
             it.astype(jnp.int32),
