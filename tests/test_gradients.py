@@ -78,11 +78,11 @@ def test_implicit_gradient_equals_gradient_of_unrolled_newton(paper):
         return sj.LiePoisson().step(model, y, dt, p[4])[0]
 
     def unrolled(p):
-        d, cdw = comp.vec(1.0 / p[:3]), p[3] * p[4]
-        tau, kappa, z = dt + cdw, cdw * cdw, comp.vec(y)
+        model, z = sj.RigidBody(p[:3], p[3]), comp.vec(y)
+        fields = lambda u: model.algebra.step_fields_local(model, u, dt, p[4:5])
         v = z
         for _ in range(12):
-            r, jac = sine_chart_in_map(v, z, d, tau, kappa)
+            r, jac = sine_chart_in_map(v, z, fields)
             v = tuple(vi - di for vi, di in zip(v, comp.solve3(jac, r)))
         return comp.unvec(comp.mv(branch_rotation(v)[0], z))
 

@@ -69,13 +69,18 @@ def test_sine_chart_residual_and_jacobian_match_autodiff_of_generating_function(
     inertia = jnp.asarray(rng.uniform(0.5, 3.0, 3))
     v = random_sine_vector(rng.uniform(0.2, 0.99))
     y = jnp.asarray(rng.normal(size=3) * 0.4)
-    tau, kappa = rng.uniform(-0.3, 0.3), rng.uniform(0, 0.1)
+    dt, dW = rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3)
+    tau, kappa = dt + dW, dW * dW  # (c = 1)
+    model = sj.RigidBody(inertia, 1.0)
 
     def reference(v):
         a = comp.unmat(branch_rotation(comp.vec(v))[0])
         return in_map_by_autodiff(a, y, inertia, tau, kappa)
 
-    r, jac = sine_chart_in_map(comp.vec(v), comp.vec(y), comp.vec(1.0 / inertia), tau, kappa)
+    def fields(u):
+        return model.algebra.step_fields_local(model, u, dt, jnp.asarray([dW]))
+
+    r, jac = sine_chart_in_map(comp.vec(v), comp.vec(y), fields)
     np.testing.assert_allclose(comp.unvec(r), reference(v), atol=1e-15)
     np.testing.assert_allclose(comp.unmat(jac), jax.jacfwd(reference)(v), atol=1e-14)
 

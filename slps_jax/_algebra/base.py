@@ -247,6 +247,11 @@ class AbstractAlgebra:
 
     condition = "a state"  # the algebra's condition on a matrix, in words
 
+    def spectral_norm(self, y):
+        """$\\|Y\\|_2$ of a concrete state `y` (NumPy, before anything compiles; the states
+        here are their matrices)."""
+        return float(np.linalg.norm(np.asarray(y), 2))
+
     def distance(self, y):
         """How far the NumPy array `y` of the state's shape is from the algebra, in the
         max-norm: here its (skew-)Hermitian part. NumPy, not JAX: checks run before anything

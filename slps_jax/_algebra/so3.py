@@ -16,6 +16,7 @@ import math
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from .._brownian import as_step
 from .base import SO3_VECTORS, AbstractAlgebra
@@ -168,6 +169,57 @@ def solve3(m, b):
     )
 
 
+# Matrices that may be diagonal: a tuple of three arrays (the diagonal) or of three rows. A
+# closed form that is diagonal (a diagonal quadratic Hamiltonian's Hessian) stays so through
+# these, at trace time, so that no product with a zero is computed.
+
+
+def is_diagonal(m):
+    return not isinstance(m[0], tuple)
+
+
+def full(m):
+    """The rows of `m`."""
+    if not is_diagonal(m):
+        return m
+    z = jnp.zeros_like(m[0])
+    return ((m[0], z, z), (z, m[1], z), (z, z, m[2]))
+
+
+def scale_any(s, m):
+    return scale(s, m) if is_diagonal(m) else mscale(s, m)
+
+
+def add_any(a, b):
+    """`a + b`, diagonal if both are; `None` is zero."""
+    if a is None or b is None:
+        return b if a is None else a
+    if is_diagonal(a) and is_diagonal(b):
+        return add(a, b)
+    if is_diagonal(a):
+        a, b = b, a
+    if is_diagonal(b):
+        return tuple(
+            tuple(a[i][j] + b[i] if i == j else a[i][j] for j in range(3)) for i in range(3)
+        )
+    return madd(a, b)
+
+
+def mm_any(a, m):
+    """`a @ m` for rows `a`."""
+    return diag_right(a, m) if is_diagonal(m) else mm(a, m)
+
+
+def mtv_any(m, x):
+    """`m^T x`."""
+    return mul(m, x) if is_diagonal(m) else mtv(m, x)
+
+
+def mtm_any(m, b):
+    """`m^T @ b` for rows `b`."""
+    return diag_left(m, b) if is_diagonal(m) else mm(transpose(m), b)
+
+
 def small_angle_threshold(dtype):
     # Below this theta^2 the two-term Taylor series is exact to round-off: its first
     # neglected term is O(theta^4) = O(eps).
@@ -226,6 +278,9 @@ class SO3Algebra(AbstractAlgebra):
     def distance(self, y):
         return 0.0  # (every 3-vector is a state)
 
+    def spectral_norm(self, y):
+        return float(np.sqrt(np.sum(np.asarray(y) ** 2)))  # (the eigenvalues of hat y: 0, ±i|y|)
+
     def pairing(self, x, y):
         return jnp.sum(x * y, axis=-1)
 
@@ -279,7 +334,7 @@ class SO3Algebra(AbstractAlgebra):
     def coordinate_field_jacobian(self, model, v, dt, noise):
         g, hess = self.step_gradient_hessian_local(model, v, dt, noise)
         # d(v x g(v))/dv = hat(v) grad^2 K - hat(g)
-        return cross(v, g), madd(mm(hat(v), hess), mscale(-1.0, hat(g)))
+        return cross(v, g), madd(mm_any(hat(v), hess), mscale(-1.0, hat(g)))
 
     def _drift(self, model, v, hessian):
         r"""$\nabla H_0(v)$, with `hessian` also $\nabla^2 H_0(v)$: written out for a
@@ -290,8 +345,7 @@ class SO3Algebra(AbstractAlgebra):
             d = vec(d)
             if not hessian:
                 return mul(d, v)
-            z = jnp.zeros_like(d[0])
-            return mul(d, v), ((d[0], z, z), (z, d[1], z), (z, z, d[2]))
+            return mul(d, v), d  # (the Hessian diagonal: `is_diagonal`)
         grad = jax.grad(model.hamiltonian)
         if not hessian:
             return vec(grad(unvec(v)))
@@ -305,6 +359,8 @@ class SO3Algebra(AbstractAlgebra):
         y = unvec(v)
         if not jacobian:
             return vec(model.noise.gradient(y, w, model.params, self))
+        if model.noise.linear:  # (a zero Jacobian: `None`, no arithmetic with zeros)
+            return vec(model.noise.gradient(y, w, model.params, self)), None
         u, ju = model.noise.gradient_jacobian(y, w, model.params, self)
         return vec(u), mat(ju)
 
@@ -315,8 +371,7 @@ class SO3Algebra(AbstractAlgebra):
         if not hessian:
             return vec(grad(unvec(v)))
         if model.noise.linear:
-            zero = jnp.zeros_like(v[0])
-            return vec(grad(unvec(v))), ((zero,) * 3,) * 3
+            return vec(grad(unvec(v))), None  # (a zero Jacobian)
         jac, g = jax.jacfwd(lambda u: (grad(u), grad(u)), has_aux=True)(unvec(v))
         return vec(g), mat(jac)
 
@@ -336,29 +391,33 @@ class SO3Algebra(AbstractAlgebra):
         g, hess = self._drift(model, v, True)
         if model.noise is None:
             tau = dt + model.noise_time(noise.dW)
-            return scale(tau, g), mscale(tau, hess)
+            return scale(tau, g), scale_any(tau, hess)
         u, ju = self._noise(model, v, noise.dW, True)
-        g, hess = add(scale(dt, g), u), madd(mscale(dt, hess), ju)
+        g, hess = add(scale(dt, g), u), add_any(scale_any(dt, hess), ju)
         if model.has_area(noise):
             ga, ha = self._area(model, v, noise.area, True)
-            g, hess = add(g, ga), madd(hess, ha)
+            g, hess = add(g, ga), add_any(hess, ha)
         return g, hess
 
-    def step_fields_local(self, model, v, dt, noise):
-        r"""$(\nabla K(v), u(v), \partial u/\partial v)$ on components, with
+    def step_fields_local(self, model, v, dt, noise, second=True):
+        r"""What scheme (42)'s in-map needs of a step (`sine_chart_in_map`), on components:
+        $(\nabla K, \nabla^2 K, u, \partial u/\partial v)$ at `v`, with
         $u = \sum_r \Delta W_r \nabla H_r$ the increments' part of the noise (the areas'
-        $\nabla G_A$ is in $\nabla K$ only): what scheme (42) with several noises needs
-        (`sine_chart_in_map_noise`)."""
+        $\nabla G_A$ is in $K$ only). Without the second-order term (`second=False`) `u`
+        and its Jacobian are `None`; a Jacobian is `None` where it is zero (linear noise), and
+        diagonal (`is_diagonal`) where the closed form is."""
         noise = as_step(noise)
+        g, hess = self._drift(model, v, True)
         if model.noise is None:
             cdw = model.noise_time(noise.dW)
-            g, hess = self._drift(model, v, True)
-            return scale(dt + cdw, g), scale(cdw, g), mscale(cdw, hess)
+            k, hk = scale(dt + cdw, g), scale_any(dt + cdw, hess)
+            return (k, hk, scale(cdw, g), scale_any(cdw, hess)) if second else (k, hk, None, None)
         u, ju = self._noise(model, v, noise.dW, True)
-        k = add(scale(dt, self._drift(model, v, False)), u)
+        k, hk = add(scale(dt, g), u), add_any(scale_any(dt, hess), ju)
         if model.has_area(noise):
-            k = add(k, self._area(model, v, noise.area, False))
-        return k, u, ju
+            ga, ha = self._area(model, v, noise.area, True)
+            k, hk = add(k, ga), add_any(hk, ha)
+        return (k, hk, u, ju) if second else (k, hk, None, None)
 
     def __repr__(self):
         return "SO3"

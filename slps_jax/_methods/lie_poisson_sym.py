@@ -15,57 +15,7 @@ from .._checks import check_options
 from .._solution import RESULTS
 from .base import AbstractMethod, StepInfo, StrongOrders, default_tol, finite_result
 from .composition import TRIPLE_JUMP, combine
-from .lie_poisson import branch_rotation, solve_on_branch
-
-
-def sine_chart_in_map_general(v, y, fields, jacobian=True):
-    r"""The first-order in-map of any step Hamiltonian $K$, $R(A) = v(A) +
-    \mathrm{vee}(\mathrm{skew}(A^T\hat k)) - y$ with $k = \nabla K(v(A))$ (the in-map of the
-    generating function $\tfrac12\operatorname{tr}A - K(v(A))$), in the sine chart
-    $A = A(v)$ of `branch_rotation`, and $dR/dv$.
-
-    $R(v) = v + Q\,k - y$, $Qx = \tfrac12((1+c)x - v\times x - g(v\cdot x)v)$,
-    $c = \sqrt{1-|v|^2}$, $g = 1/(1+c)$ (`docs/scheme.md`), and
-    $dR/dv = \mathrm{Id} + \partial_v(Q)\,k + Q\,\nabla^2 K(v)$, where
-    $\partial_v(Qx) = \tfrac12(x\,\nabla c^T + \hat x - v\,\nabla(g\,v\cdot x)^T
-    - g(v\cdot x)\mathrm{Id})$ at fixed $x$, $\nabla c = -v/c$, $\nabla g = g^2 v/c$.
-    `fields(v, jacobian)` returns $k$, or $(k, \nabla^2 K)$, on components. For the rigid
-    body with $K = \tau H$ this is `sine_chart_in_map` with $\kappa = 0$.
-    """
-    s2 = comp.dot(v, v)
-    c = jnp.sqrt(jnp.maximum(1.0 - s2, 0.0))
-    opc = 1.0 + c
-    g = 1.0 / opc
-    if jacobian:
-        w, hess = fields(v, True)
-    else:
-        w = fields(v, False)
-    s = comp.dot(v, w)
-    vxw = comp.cross(v, w)
-    qw = tuple(0.5 * (opc * wi - ci - g * s * vi) for wi, ci, vi in zip(w, vxw, v))
-    r = tuple(vi + qi - yi for vi, qi, yi in zip(v, qw, y))
-    if not jacobian:
-        return r
-    ic = 1.0 / jnp.maximum(c, jnp.finfo(c.dtype).tiny)
-    grad_c = comp.scale(-ic, v)
-    grad_gs = tuple(s * g * g * ic * vi + g * wi for vi, wi in zip(v, w))
-    dq = comp.mscale(
-        0.5,
-        comp.shift(
-            comp.madd(
-                comp.outer(w, grad_c), comp.hat(w), comp.mscale(-1.0, comp.outer(v, grad_gs))
-            ),
-            -g * s,
-        ),
-    )
-    qm = comp.mscale(
-        0.5,
-        comp.madd(
-            comp.shift(comp.mscale(-1.0, comp.hat(v)), opc), comp.mscale(-g, comp.outer(v, v))
-        ),
-    )
-    jac = comp.shift(comp.madd(dq, comp.mm(qm, hess)), 1.0)
-    return r, jac
+from .lie_poisson import branch_rotation, sine_chart_in_map, solve_on_branch
 
 
 def _solve_rotation(model, y, dt, dW, sign, tol, max_iter, active):
@@ -75,16 +25,12 @@ def _solve_rotation(model, y, dt, dW, sign, tol, max_iter, active):
     continuation, implicit derivatives)."""
 
     def sine_fn(v, lam, jacobian=True):
-        def fields(u, jac):
+        def fields(u):  # the first-order in-map of u -> sign K(sign u)
             x = comp.scale(sign, u)
-            if jac:
-                k, hess = model.algebra.step_gradient_hessian_local(
-                    model, x, lam * dt, scale(dW, lam)
-                )
-                return k, comp.mscale(sign, hess)
-            return model.algebra.step_gradient_local(model, x, lam * dt, scale(dW, lam))
+            step = model.algebra.step_fields_local(model, x, lam * dt, scale(dW, lam), False)
+            return step[0], comp.scale_any(sign, step[1]), None, None
 
-        return sine_chart_in_map_general(v, y, fields, jacobian)
+        return sine_chart_in_map(v, y, fields, jacobian)
 
     v, result, iterations, res = solve_on_branch(
         sine_fn, y, tol=tol, max_iter=max_iter, feasible=active
