@@ -55,23 +55,30 @@ def quartic_noise(y, inertia):  # two nonlinear noise Hamiltonians (derivatives 
     return jnp.stack([0.1 * jnp.sum(y**4), 0.2 * y[0] * y[1] * y[2]])
 
 
-@pytest.mark.parametrize(
-    "model",
-    [
-        sj.RigidBody(INERTIA, 0.3),
-        salt(),
-        sj.RigidBody(INERTIA, noise=sj.random_inertia_noise(CHI)),
-        sj.LiePoissonSystem(rigid_body_h, INERTIA, noise=quartic_noise),
-    ],
-    ids=["c", "salt", "random_inertia", "function"],
-)
-def test_step_jacobians_are_the_derivatives_of_the_step_gradient(model):
-    # Closed forms (the rigid body, SALT, random inertia) and the forward-mode passes
-    # against reverse-over-forward autodiff of the step's gradient and of the family's u.
+# Systems whose step kernels differ: closed forms (the rigid body's c=, SALT, random
+# inertia) and JAX's derivatives (noise and drift Hamiltonians given as functions).
+KERNEL_SYSTEMS = {
+    "c": sj.RigidBody(INERTIA, 0.3),
+    "salt": salt(),
+    "random_inertia": sj.RigidBody(INERTIA, noise=sj.random_inertia_noise(CHI)),
+    "function": sj.LiePoissonSystem(rigid_body_h, INERTIA, noise=quartic_noise),
+    "function_c": sj.LiePoissonSystem(rigid_body_h, INERTIA, c=0.3),
+}
+
+
+def kernel_steps(model):
+    """A step's increments, and its noise without and (for several noises) with areas."""
     s = model.n_noises
     dW = jnp.linspace(-0.3, 0.4, s)
     area = jnp.triu(jnp.full((s, s), 0.05), 1)
-    steps = [sj.BrownianStep(dW)] + ([sj.BrownianStep(dW, area - area.T)] if s > 1 else [])
+    return dW, [sj.BrownianStep(dW)] + ([sj.BrownianStep(dW, area - area.T)] if s > 1 else [])
+
+
+@pytest.mark.parametrize("model", KERNEL_SYSTEMS.values(), ids=KERNEL_SYSTEMS.keys())
+def test_step_jacobians_are_the_derivatives_of_the_step_gradient(model):
+    # Closed forms (the rigid body, SALT, random inertia) and the forward-mode passes
+    # against reverse-over-forward autodiff of the step's gradient and of the family's u.
+    dW, steps = kernel_steps(model)
     v, unvec, unmat = comp.vec(Y0), comp.unvec, comp.unmat
     for step in steps:
         g, jac = model.algebra.step_gradient_hessian_local(model, v, 0.1, step)
@@ -107,24 +114,11 @@ def generating_function_in_map(model, v, y, dt, step, second):
     return so3.vee(-2.0 * so3.skew(a.T @ jax.grad(s_bar)(a))) - y
 
 
-@pytest.mark.parametrize(
-    "model",
-    [
-        sj.RigidBody(INERTIA, 0.3),
-        salt(),
-        sj.RigidBody(INERTIA, noise=sj.random_inertia_noise(CHI)),
-        sj.LiePoissonSystem(rigid_body_h, INERTIA, noise=quartic_noise),
-        sj.LiePoissonSystem(rigid_body_h, INERTIA, c=0.3),
-    ],
-    ids=["c", "salt", "random_inertia", "function", "function_c"],
-)
+@pytest.mark.parametrize("model", KERNEL_SYSTEMS.values(), ids=KERNEL_SYSTEMS.keys())
 def test_the_sine_chart_in_map_is_the_generating_functions(model):
-    # Residual and Jacobian against autodiff
-    # of the generating function, with and without the second-order term and the areas.
-    s = model.n_noises
-    dW = jnp.linspace(-0.3, 0.4, s)
-    area = jnp.triu(jnp.full((s, s), 0.05), 1)
-    steps = [sj.BrownianStep(dW)] + ([sj.BrownianStep(dW, area - area.T)] if s > 1 else [])
+    # Residual and Jacobian against autodiff of the generating function, with and without
+    # the second-order term and the areas.
+    dW, steps = kernel_steps(model)
     v, y = jnp.asarray([0.5, -0.3, 0.6]), jnp.asarray([0.4, 0.2, -0.3])
     for step in steps:
         for second in (True, False):
