@@ -38,7 +38,7 @@ def summary(n_samples=500, fast=False, seed=0):
     )
     say(
         f"Stochastic rigid body: I = {np.round(np.asarray(model.inertia), 6)}, "
-        f"c = {float(model.c)}, y0 = {sj.PAPER_Y0}\n"
+        f"c = {float(np.asarray(model.c))}, y0 = {sj.PAPER_Y0}\n"
     )
 
     say(
@@ -192,6 +192,7 @@ def main(argv=None):
             help="compile everything anew: no persistent compilation cache",
         )
     args = parser.parse_args(argv)
+    out = None
     if args.command == "paper":
         out = (
             args.out
@@ -211,6 +212,7 @@ def main(argv=None):
     if args.command == "paper":
         from ._paper import run
 
+        assert out is not None
         run(out_dir=out, fast=args.fast, seed=args.seed)
         return 0
     n = args.samples if args.samples is not None else (100 if args.fast else 500)

@@ -107,7 +107,7 @@ def check_key(key, name="key"):
         )
     if not hasattr(key, "dtype") or not hasattr(key, "shape"):
         raise TypeError(f"{name} must be a JAX PRNG key (jax.random.key(seed)), got {type(key)}.")
-    if jax.dtypes.issubdtype(key.dtype, jax.dtypes.prng_key):
+    if jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
         if key.shape != ():
             raise ValueError(
                 f"{name} must be a single key, got a key array of shape {key.shape}: "
@@ -405,7 +405,7 @@ def brownian_increments(
             ok = False
         if not ok:
             raise TypeError(f"dtype must be a floating dtype such as jnp.float64, got {dtype!r}.")
-        if jnp.dtype(dtype).itemsize == 8 and not jax.config.jax_enable_x64:
+        if jnp.dtype(dtype).itemsize == 8 and not jax.config.read("jax_enable_x64"):
             raise ValueError("dtype=float64 needs jax.config.update('jax_enable_x64', True).")
     s = 1 if n_noises is None else int(n_noises)
     return _brownian_paths(

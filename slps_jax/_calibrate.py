@@ -7,6 +7,8 @@ import dataclasses
 import functools
 import math
 import sys
+from collections.abc import Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -16,6 +18,7 @@ import optax
 from . import _brownian
 from ._failures import message
 from ._integrate import run_ensemble
+from ._methods.base import AbstractMethod
 from ._model import RigidBody
 from ._noise_hamiltonians import _ParameterNoise
 from ._plan import check_levy_option, check_method, plan_ensemble
@@ -115,7 +118,7 @@ class _Fit:
     family: type | None
     shape: tuple
     free: tuple  # the indices of the fitted entries of theta
-    y0: tuple
+    y0: Any  # (nested tuples of floats)
     t1: float
     dt: float
     n_samples: int
@@ -125,7 +128,7 @@ class _Fit:
     truncate_k: int
     retry_substeps: int | None
     levy_area: object
-    statistic: object
+    statistic: Callable[..., Any]
 
     def full(self, theta, theta_all):
         """All the parameters: `theta_all` with the free ones set to `theta`."""
@@ -177,11 +180,11 @@ def calibrate(
     n_samples,
     key,
     init,
-    statistic=moments,
+    statistic: Callable[..., Any] = moments,
     observed_stderr=None,
     observed_n_samples=None,
     fixed=(),
-    method="auto",
+    method: AbstractMethod | str = "auto",
     optimizer=None,
     steps=50,
     truncate_k=4,
@@ -255,7 +258,7 @@ def calibrate(
     """
     if not isinstance(init, RigidBody):
         raise TypeError(f"init must be a RigidBody, got {type(init).__name__}.")
-    if init.noise is None and not float(init.c) > 0:
+    if init.noise is None and not float(np.asarray(init.c)) > 0:
         raise ValueError(f"init.c must be positive (c is fitted on a log scale), got {init.c}.")
     if init.noise is not None and not isinstance(init.noise, _ParameterNoise):
         raise TypeError(

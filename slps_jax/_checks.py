@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 
 import jax
+import jax.core
 import jax.numpy as jnp
 import numpy as np
 
@@ -49,10 +50,7 @@ def numeric_array(name, x, allow_complex=False):
     except (TypeError, ValueError) as err:
         raise TypeError(f"{name} must be {what}, got {x!r} ({err}).") from None
     # (a key array has an extended dtype, which NumPy cannot describe)
-    if (
-        jax.dtypes.issubdtype(arr.dtype, jax.dtypes.extended)
-        or np.dtype(arr.dtype).kind not in kinds
-    ):
+    if jnp.issubdtype(arr.dtype, jax.dtypes.extended) or np.dtype(arr.dtype).kind not in kinds:
         raise TypeError(f"{name} must be {what}, got dtype {arr.dtype}.")
     return arr
 

@@ -8,6 +8,8 @@ import math
 import statistics
 import time
 import warnings
+from collections.abc import Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -270,7 +272,7 @@ def _study(
             if n_fine % 2 == 0
             else (None, None, None)
         )
-        if half is not None:
+        if half is not None and half_failed is not None:
             ref_failed = ref_failed | half_failed
         reference_error = (
             math.nan
@@ -525,7 +527,7 @@ def weak_convergence(
     n_samples,
     key,
     methods,
-    observable,
+    observable: Callable[..., Any],
     reference="exact",
     reference_dt=None,
     reference_factor=None,

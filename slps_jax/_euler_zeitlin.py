@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -80,7 +82,7 @@ class EulerZeitlin(LiePoissonSystem):
             complex_ = jnp.result_type(1j if dtype is None else dtype)
             self.tables = Tables(zeitlin.poisson_eigenbasis(int(N), jnp.finfo(complex_).dtype))
 
-    def tree_flatten(self):
+    def tree_flatten(self) -> tuple[tuple, Any]:
         children, aux = super().tree_flatten()
         return (*children, self.tables), (*aux, self.poisson)
 
@@ -96,7 +98,7 @@ class EulerZeitlin(LiePoissonSystem):
 
     @property
     def N(self):
-        return self.algebra.n
+        return self.algebra.matrix_size
 
     @property
     def hbar(self):

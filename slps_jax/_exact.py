@@ -16,6 +16,7 @@ not taken ("double where"), so no branch produces NaN values or gradients.
 from __future__ import annotations
 
 import jax
+import jax.core
 import jax.numpy as jnp
 import numpy as np
 from jax import lax

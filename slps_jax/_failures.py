@@ -12,6 +12,7 @@ import functools
 import warnings
 
 import jax
+import jax.core
 import numpy as np
 
 from ._sharding import gather

@@ -21,7 +21,7 @@ from ._checks import (
     real_dtype,
 )
 from ._failures import report
-from ._methods.base import finite_result
+from ._methods.base import AbstractMethod, finite_result
 from ._plan import check_levy_area, check_method, check_model, check_y0, plan_ensemble
 from ._retry import robust_step
 from ._sharding import as_given, automatic, sharded_keys
@@ -199,6 +199,7 @@ def _layout(n):
             key = (n_chunks * m * b - n, -b, abs(math.log(m * b / root)))
             if best is None or key < best[0]:
                 best = key, (n_chunks, m, b)
+    assert best is not None
     return best[1]
 
 
@@ -290,7 +291,7 @@ def integrate(
     dt,
     *,
     levy_area=None,
-    method="auto",
+    method: AbstractMethod | str = "auto",
     save_every=None,
     throw=True,
     retry_substeps=4,
@@ -371,7 +372,7 @@ def simulate(
     dt,
     n_samples,
     key,
-    method="auto",
+    method: AbstractMethod | str = "auto",
     save_every=None,
     truncate_k=4,
     newton_stats=False,

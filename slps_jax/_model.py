@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -68,7 +69,7 @@ class RigidBody(LiePoissonSystem):
         r2 = math.sqrt(2.0)
         return cls([r2 + r2 / 1.51, r2 - 0.51 * r2 / 1.51, 1.0], 0.2)
 
-    def tree_flatten(self):
+    def tree_flatten(self) -> tuple[tuple, Any]:
         return (self.inertia, self.c, self.noise), None
 
     @classmethod
@@ -150,7 +151,7 @@ class GeneralisedRigidBody(LiePoissonSystem):
         self.c, self.noise = _noise_or_c(c, noise, j, [j], self.algebra)
         self.j = j.astype(float_dtype(j, *jax.tree_util.tree_leaves((self.c, self.noise))))
 
-    def tree_flatten(self):
+    def tree_flatten(self) -> tuple[tuple, Any]:
         return (self.j, self.c, self.noise), self.algebra
 
     @classmethod

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import jax
 import jax.numpy as jnp
@@ -105,8 +105,8 @@ def newton(fn, x0, *, tol, max_iter, active=True, admissible=None, continuation=
     if not isinstance(x0, tuple):  # one array of unknowns: a tuple of one component
         inner = fn
         fn = lambda x, *lam: _as_component(*inner(x[0], *lam))
-        admissible_array = admissible
-        admissible = None if admissible is None else (lambda x: admissible_array(x[0]))
+        check = admissible
+        admissible = None if check is None else (lambda x: check(x[0]))
         s = newton(
             fn,
             (x0,),
@@ -167,7 +167,7 @@ def newton(fn, x0, *, tol, max_iter, active=True, admissible=None, continuation=
         )
 
     def update(s, r, jac, go):
-        delta = jac(r) if callable(jac) else solve_linear(jac, r)
+        delta = cast(tuple, jac(r)) if callable(jac) else solve_linear(jac, r)
         x = tuple(jnp.where(go, xi - di, xi) for xi, di in zip(s.x, delta))
         return s._replace(x=x, iterations=s.iterations + go, updates=s.updates + go)
 

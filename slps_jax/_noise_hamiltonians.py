@@ -35,8 +35,12 @@ class AbstractNoise:
     `params` are the system's parameters (families with their own leaves ignore them).
     """
 
-    n_noises: int
     linear = False  # all H_r linear: u does not depend on y (SALT; enables closed forms)
+
+    @property
+    def n_noises(self) -> int:
+        """The number $s$ of noises."""
+        raise NotImplementedError
 
     def values(self, y, params):
         raise NotImplementedError
@@ -143,6 +147,7 @@ class SaltNoise(_ParameterNoise):
 
     linear = True
     parameter_name, builder = "chi", "salt_noise"
+    chi: jax.Array
 
     def values(self, y, params):
         if self.chi.ndim == 2:
@@ -186,6 +191,7 @@ class RandomInertiaNoise(_ParameterNoise):
     `random_inertia_noise`."""
 
     parameter_name, builder = "sigma", "random_inertia_noise"
+    sigma: jax.Array
 
     def values(self, y, params):
         return 0.5 * self.sigma @ (y * y)

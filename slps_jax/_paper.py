@@ -13,11 +13,12 @@ import math
 import os
 import sys
 import time
+from typing import Any
 
 from ._convergence import order_text
 
 
-def _settings(fast):
+def _settings(fast) -> dict[str, Any]:
     if fast:
         return dict(
             n_samples=100,
@@ -105,7 +106,7 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
             **cfg,
             "seed": seed,
             "inertia": np.asarray(model.inertia).tolist(),
-            "c": float(model.c),
+            "c": float(np.asarray(model.c)),
             "y0": list(sj.PAPER_Y0),
             "truncate_k": 4,
             "dtype": str(y0.dtype),
@@ -281,12 +282,15 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
                 + f"\nfinal $|y|$ = {r_end:.6f}, $|y|/|y_0| - 1$ = {r_end / r0 - 1:.1e}",
                 fontsize=10,
             )
-            ax.set_xlabel("$y_1$", labelpad=-4), ax.set_ylabel("$y_2$", labelpad=-4)
+            ax.set_xlabel("$y_1$", labelpad=-4)
+            ax.set_ylabel("$y_2$", labelpad=-4)
             ax.set_zlabel("$y_3$", labelpad=-4)
             for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
                 axis.set_ticks([-tick, 0, tick])
                 axis.set_tick_params(labelsize=8, pad=-2)
-            ax.set_xlim(-lim, lim), ax.set_ylim(-lim, lim), ax.set_zlim(-lim, lim)
+            ax.set_xlim(-lim, lim)
+            ax.set_ylim(-lim, lim)
+            ax.set_zlim(-lim, lim)
             ax.set_box_aspect((1, 1, 1))  # a sphere looks like one
         fig.suptitle(
             f"Fig. 4.3: phase trajectories, $t \\in [0, {cfg['sphere_t1']:g}]$, on the "
@@ -335,7 +339,8 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
                 lw=1,
                 label=f"reference slope {slope:g}",
             )
-        ax.set_xscale("log", base=2), ax.set_yscale("log")
+        ax.set_xscale("log", base=2)
+        ax.set_yscale("log")
         ax.set_xlabel("step size h")
         ax.set_ylabel("RMS error $(E|y_N - y(1)|^2)^{1/2}$ at T = 1")
         ax.set_title(

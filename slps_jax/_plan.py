@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import jax
 import numpy as np
 
 from . import _brownian
@@ -152,7 +153,7 @@ class EnsemblePlan:
 
     model: LiePoissonSystem
     method: AbstractMethod
-    y0: object
+    y0: jax.Array
     dt: float
     n_steps: int
     n_samples: int

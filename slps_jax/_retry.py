@@ -27,6 +27,7 @@ The tangent is then a matrix product outside any loop: linear, hence transposabl
 from __future__ import annotations
 
 import functools
+from typing import cast
 
 import jax
 import jax.numpy as jnp
@@ -81,6 +82,7 @@ def _attempts(method, model, y, dt, dW, act, k, m0, jacobians=False):
         i = jnp.where(ok, i + 1, jnp.where(refine, 0, i))
         yc = jnp.where(ok, y2, jnp.where(refine, y, yc))
         if jacobians:  # chained where a substep succeeded, restarted where it is refined
+            assert chain is not None
             jac = jax.tree_util.tree_map(
                 lambda new, start, old: jnp.where(ok, new, jnp.where(refine, start, old)),
                 chain(jac, d, mf),
@@ -194,9 +196,10 @@ def _robust_step_jvp(method, k, primals, tangents):
     need = act & (code1 != RESULTS.successful)
     # Retried samples: the attempts again (a loop that runs only while some sample of the
     # batch needs it), now with the Jacobians of the substeps that succeed.
-    y2, code2, its2, res2, _, (jy, jdt, jdw, jp) = _attempts(
+    y2, code2, its2, res2, _, jacobians = _attempts(
         method, model, y, dt, dW, need, k, k, jacobians=True
     )
+    jy, jdt, jdw, jp = cast(tuple, jacobians)
     leaves, idx = differentiable_leaves(t_model)[0], differentiable_leaves(model)[2]
     t_re = jy @ _real(t_y) + jdt * t_dt + jdw @ ravel_pytree(t_dW)[0]
     for i, j in zip(idx, jp):

@@ -23,6 +23,7 @@ import contextlib
 import functools
 
 import jax
+import jax.core
 import numpy as np
 from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
@@ -82,7 +83,7 @@ def check_sharding(sharding, n_samples, name="n_samples"):
     if len(shard) != 1:
         raise ValueError(
             f"sharding must describe a 1-D sample axis, got one for "
-            f"{sharding.ndim if hasattr(sharding, 'ndim') else '?'} dimensions."
+            f"{getattr(sharding, 'ndim', '?')} dimensions."
         )
     return sharding
 
@@ -95,11 +96,12 @@ def automatic(sharding, inputs):
     context mesh (`jax.set_mesh` of a mesh with explicit axes) would otherwise clash with
     the samples' sharding. `None` stays `None` and changes nothing."""
     auto = auto_axes(sharding)
-    if not isinstance(getattr(auto, "mesh", None), Mesh) or not hasattr(jax, "set_mesh"):
+    mesh = getattr(auto, "mesh", None)
+    if not isinstance(mesh, Mesh) or not hasattr(jax, "set_mesh"):
         yield auto, inputs
         return
-    with jax.set_mesh(auto.mesh):
-        yield auto, _relabel(inputs, auto.mesh)
+    with jax.set_mesh(mesh):
+        yield auto, _relabel(inputs, mesh)
 
 
 def as_given(tree, sharding):
@@ -123,7 +125,7 @@ def _relabel(tree, mesh):
             not isinstance(s, NamedSharding)
             or s.mesh == mesh
             or s.mesh.axis_names != mesh.axis_names
-            or not np.array_equal(s.mesh.device_ids, mesh.device_ids)
+            or not np.array_equal(np.asarray(s.mesh.device_ids), np.asarray(mesh.device_ids))
         ):
             return x
         return jax.make_array_from_single_device_arrays(
@@ -141,7 +143,8 @@ def auto_axes(sharding):
     mesh = getattr(sharding, "mesh", None)
     axis_types = getattr(mesh, "axis_types", None)
     if (
-        not isinstance(sharding, NamedSharding)
+        AxisType is None
+        or not isinstance(sharding, NamedSharding)
         or not isinstance(mesh, Mesh)
         or axis_types is None
         or all(t == AxisType.Auto for t in axis_types)

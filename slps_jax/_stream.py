@@ -12,6 +12,8 @@ from __future__ import annotations
 import dataclasses
 import functools
 import warnings
+from collections.abc import Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -20,6 +22,7 @@ import numpy as np
 from . import _brownian
 from ._failures import message
 from ._integrate import ensemble
+from ._methods.base import AbstractMethod
 from ._plan import plan_ensemble
 from ._progress import advance, progress_bar
 from ._sharding import automatic
@@ -156,10 +159,10 @@ def ensemble_statistics(
     n_samples,
     key,
     chunk_size,
-    method="auto",
+    method: AbstractMethod | str = "auto",
     save_every=None,
     statistics=("mean", "var"),
-    observable=None,
+    observable: Callable[..., Any] | None = None,
     truncate_k=4,
     retry_substeps=4,
     sharding=None,

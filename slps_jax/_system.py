@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -9,7 +11,7 @@ import numpy as np
 from ._algebra import SO3, AbstractAlgebra
 from ._brownian import as_step
 from ._checks import concrete, float_dtype, real_array, real_dtype
-from ._noise_hamiltonians import as_noise
+from ._noise_hamiltonians import AbstractNoise, as_noise
 
 # What a system offers, which methods may declare they need (`AbstractMethod.requires`).
 NOISE_PROPORTIONAL_TO_DRIFT = "noise proportional to the drift"  # one noise, H_1 = c H_0
@@ -89,9 +91,14 @@ class LiePoissonSystem:
     Lie–Poisson systems*, system (1) with $B(y) = \hat y$.
     """
 
-    algebra = SO3
+    algebra: AbstractAlgebra = SO3
+    params: Any
+    c: jax.Array | None  # one noise proportional to the drift, or
+    noise: AbstractNoise | None  # a noise family
 
-    def __init__(self, hamiltonian, params=None, c=None, noise=None, algebra=SO3):
+    def __init__(
+        self, hamiltonian, params=None, c=None, noise=None, algebra: AbstractAlgebra = SO3
+    ):
         if not callable(hamiltonian):
             raise TypeError(
                 f"hamiltonian must be callable as hamiltonian(y, params), got "
@@ -110,7 +117,7 @@ class LiePoissonSystem:
         self.algebra = algebra
         self.c, self.noise = _noise_or_c(c, noise, params, leaves, algebra)
 
-    def tree_flatten(self):
+    def tree_flatten(self) -> tuple[tuple, Any]:
         return (self.params, self.c, self.noise), (self.hamiltonian_fn, self.algebra)
 
     @classmethod
@@ -175,7 +182,7 @@ class LiePoissonSystem:
         if self.noise is None:
             return (self.c * self.hamiltonian(y))[..., None]
         return jnp.vectorize(
-            lambda u: self.noise.values(u, self.params), signature=self._signature("(s)")
+            lambda u: self._family().values(u, self.params), signature=self._signature("(s)")
         )(jnp.asarray(y))
 
     def casimir(self, y):
@@ -216,11 +223,16 @@ class LiePoissonSystem:
         for one state `y` and a step's areas `area` (`(s, s)`): the Hamiltonian whose field is
         $\sum_{q<r} A_{qr}[f_q, f_r]$, the Lévy-area term of the step. On so(3)
         $[a, b] = a \times b$; for SALT noise $G_A$ is linear (closed form)."""
-        return self.noise.area_hamiltonian(y, area, self.params, self.algebra)
+        return self._family().area_hamiltonian(y, area, self.params, self.algebra)
 
     def area_gradient(self, y, area):
         r"""$\nabla G_A(y)$ (`area_hamiltonian`) for one state `y`."""
-        return self.noise.area_gradient(y, area, self.params, self.algebra)
+        return self._family().area_gradient(y, area, self.params, self.algebra)
+
+    def _family(self) -> AbstractNoise:
+        if self.noise is None:
+            raise ValueError("this system has one noise proportional to the drift (c=), no family.")
+        return self.noise
 
     def has_area(self, noise):
         """Whether the step `noise` brings Lévy areas that enter the step (noises of the
@@ -249,10 +261,12 @@ class LiePoissonSystem:
         $\tau = h + c\,\Delta W$ of a system whose one noise is proportional to the drift.
         `dW` is the step's increments, shape `(n_noises,) = (1,)` (a scalar, or the step's
         `BrownianStep`, is accepted)."""
+        if self.c is None:
+            raise ValueError("noise_time: this system has noises of its own (noise=), not c.")
         return self.c * jnp.reshape(as_step(dW).dW, ())
 
 
-def _noise_or_c(c, noise, params, leaves, algebra=SO3):
+def _noise_or_c(c, noise, params, leaves, algebra: AbstractAlgebra = SO3):
     """`(c, noise)` of a system: `c` a scalar of the system's dtype and `noise` `None`, or
     `c` `None` and `noise` a noise family. Refuses both together and bad values by name."""
     if noise is not None:

@@ -15,6 +15,7 @@ from . import zeitlin
 from ._checks import check_count, check_positive
 from ._euler_zeitlin import EulerZeitlin
 from ._integrate import integrate
+from ._methods.base import AbstractMethod
 from ._methods.isospectral import IsospectralMidpoint
 from ._noise_hamiltonians import salt_noise
 
@@ -53,7 +54,15 @@ class TransportNoiseFit:
 
 
 def fit_transport_noise(
-    states, *, dt, N, window=1, streams=None, variance=0.9, n_modes=None, method=None
+    states,
+    *,
+    dt,
+    N,
+    window=1,
+    streams=None,
+    variance=0.9,
+    n_modes=None,
+    method: AbstractMethod | None = None,
 ):
     r"""Transport noise for the coarse model su(N) from snapshots of a finer run.
 
@@ -106,7 +115,7 @@ def fit_transport_noise(
             f"K >= 2 windows of window = {window}."
         )
     K = intervals // window
-    dt = float(check_positive("dt", dt))
+    dt = float(np.asarray(check_positive("dt", dt)))
     if n_modes is not None:
         n_modes = check_count("n_modes", n_modes)
         if n_modes > min(K, N * N - 1):

@@ -316,62 +316,67 @@ class SO3Algebra(AbstractAlgebra):
     def local(self, y):
         return vec(y)
 
-    def from_local(self, v):
-        return unvec(v)
+    def from_local(self, x):
+        return unvec(x)
 
-    def local_field(self, model, v, dt, noise):
-        return cross(v, self.step_gradient_local(model, v, dt, noise))
+    def local_field(self, model, x, dt, noise):
+        return cross(x, self.step_gradient_local(model, x, dt, noise))
 
-    def local_coordinates(self, v):
-        return v  # (the components are the coordinates)
+    def local_coordinates(self, x):
+        return x  # (the components are the coordinates)
 
-    def from_local_coordinates(self, v):
-        return v
+    def from_local_coordinates(self, u):
+        return u
 
-    def coordinate_field(self, model, v, dt, noise):
-        return self.local_field(model, v, dt, noise)
+    def coordinate_field(self, model, u, dt, noise):
+        return self.local_field(model, u, dt, noise)
 
-    def coordinate_field_jacobian(self, model, v, dt, noise):
-        g, hess = self.step_gradient_hessian_local(model, v, dt, noise)
-        # d(v x g(v))/dv = hat(v) grad^2 K - hat(g)
-        return cross(v, g), madd(mm_any(hat(v), hess), mscale(-1.0, hat(g)))
+    def coordinate_field_jacobian(self, model, u, dt, noise):
+        g, hess = self.step_gradient_hessian_local(model, u, dt, noise)
+        # d(u x g(u))/du = hat(u) grad^2 K - hat(g)
+        return cross(u, g), madd(mm_any(hat(u), hess), mscale(-1.0, hat(g)))
 
-    def _drift(self, model, v, hessian):
-        r"""$\nabla H_0(v)$, with `hessian` also $\nabla^2 H_0(v)$: written out for a
-        diagonal quadratic $H_0$ (`model.quadratic_drift`), else by JAX (one forward-mode
-        pass for both)."""
+    def _drift(self, model, v):
+        r"""$\nabla H_0(v)$: written out for a diagonal quadratic $H_0$
+        (`model.quadratic_drift`), else by JAX."""
+        d = model.quadratic_drift
+        if d is not None:
+            return mul(vec(d), v)
+        return vec(jax.grad(model.hamiltonian)(unvec(v)))
+
+    def _drift_hessian(self, model, v):
+        r"""$(\nabla H_0(v), \nabla^2 H_0(v))$, the Hessian diagonal (`is_diagonal`) for a
+        diagonal quadratic $H_0$, else by JAX in one forward-mode pass."""
         d = model.quadratic_drift
         if d is not None:
             d = vec(d)
-            if not hessian:
-                return mul(d, v)
-            return mul(d, v), d  # (the Hessian diagonal: `is_diagonal`)
+            return mul(d, v), d
         grad = jax.grad(model.hamiltonian)
-        if not hessian:
-            return vec(grad(unvec(v)))
         hess, g = jax.jacfwd(lambda u: (grad(u), grad(u)), has_aux=True)(unvec(v))
         return vec(g), mat(hess)
 
-    def _noise(self, model, v, w, jacobian):
-        r"""$u(v) = \sum_r w_r \nabla H_r(v)$, and with `jacobian` $(u, \partial u/\partial v)$:
-        the noise family's arrays (`AbstractNoise.gradient`, `gradient_jacobian`) taken
-        apart."""
-        y = unvec(v)
-        if not jacobian:
-            return vec(model.noise.gradient(y, w, model.params, self))
-        if model.noise.linear:  # (a zero Jacobian: `None`, no arithmetic with zeros)
-            return vec(model.noise.gradient(y, w, model.params, self)), None
-        u, ju = model.noise.gradient_jacobian(y, w, model.params, self)
+    def _noise(self, model, v, w):
+        r"""$u(v) = \sum_r w_r \nabla H_r(v)$ of the noise family (`AbstractNoise.gradient`)."""
+        return vec(model.noise.gradient(unvec(v), w, model.params, self))
+
+    def _noise_jacobian(self, model, v, w):
+        r"""$(u, \partial u/\partial v)$ (`AbstractNoise.gradient_jacobian`); the Jacobian is
+        `None` for linear noise (zero: no arithmetic with zeros)."""
+        if model.noise.linear:
+            return self._noise(model, v, w), None
+        u, ju = model.noise.gradient_jacobian(unvec(v), w, model.params, self)
         return vec(u), mat(ju)
 
-    def _area(self, model, v, area, hessian):
-        r"""$\nabla G_A(v)$, and with `hessian` its Jacobian (zero for linear noise: the
-        gradient is constant)."""
-        grad = lambda u: model.area_gradient(u, area)
-        if not hessian:
-            return vec(grad(unvec(v)))
+    def _area(self, model, v, area):
+        r"""$\nabla G_A(v)$."""
+        return vec(model.area_gradient(unvec(v), area))
+
+    def _area_jacobian(self, model, v, area):
+        r"""$(\nabla G_A(v), \nabla^2 G_A(v))$; `None` (zero) for linear noise, whose
+        $G_A$ is linear."""
         if model.noise.linear:
-            return vec(grad(unvec(v))), None  # (a zero Jacobian)
+            return self._area(model, v, area), None
+        grad = lambda u: model.area_gradient(u, area)
         jac, g = jax.jacfwd(lambda u: (grad(u), grad(u)), has_aux=True)(unvec(v))
         return vec(g), mat(jac)
 
@@ -381,21 +386,21 @@ class SO3Algebra(AbstractAlgebra):
         `noise` is the step's `BrownianStep`."""
         noise = as_step(noise)
         if model.noise is None:
-            return scale(dt + model.noise_time(noise.dW), self._drift(model, v, False))
-        g = add(scale(dt, self._drift(model, v, False)), self._noise(model, v, noise.dW, False))
-        return add(g, self._area(model, v, noise.area, False)) if model.has_area(noise) else g
+            return scale(dt + model.noise_time(noise.dW), self._drift(model, v))
+        g = add(scale(dt, self._drift(model, v)), self._noise(model, v, noise.dW))
+        return add(g, self._area(model, v, noise.area)) if model.has_area(noise) else g
 
     def step_gradient_hessian_local(self, model, v, dt, noise):
         r"""$(\nabla K(v), \nabla^2 K(v))$ on components."""
         noise = as_step(noise)
-        g, hess = self._drift(model, v, True)
+        g, hess = self._drift_hessian(model, v)
         if model.noise is None:
             tau = dt + model.noise_time(noise.dW)
             return scale(tau, g), scale_any(tau, hess)
-        u, ju = self._noise(model, v, noise.dW, True)
+        u, ju = self._noise_jacobian(model, v, noise.dW)
         g, hess = add(scale(dt, g), u), add_any(scale_any(dt, hess), ju)
         if model.has_area(noise):
-            ga, ha = self._area(model, v, noise.area, True)
+            ga, ha = self._area_jacobian(model, v, noise.area)
             g, hess = add(g, ga), add_any(hess, ha)
         return g, hess
 
@@ -407,15 +412,15 @@ class SO3Algebra(AbstractAlgebra):
         and its Jacobian are `None`; a Jacobian is `None` where it is zero (linear noise), and
         diagonal (`is_diagonal`) where the closed form is."""
         noise = as_step(noise)
-        g, hess = self._drift(model, v, True)
+        g, hess = self._drift_hessian(model, v)
         if model.noise is None:
             cdw = model.noise_time(noise.dW)
             k, hk = scale(dt + cdw, g), scale_any(dt + cdw, hess)
             return (k, hk, scale(cdw, g), scale_any(cdw, hess)) if second else (k, hk, None, None)
-        u, ju = self._noise(model, v, noise.dW, True)
+        u, ju = self._noise_jacobian(model, v, noise.dW)
         k, hk = add(scale(dt, g), u), add_any(scale_any(dt, hess), ju)
         if model.has_area(noise):
-            ga, ha = self._area(model, v, noise.area, True)
+            ga, ha = self._area_jacobian(model, v, noise.area)
             k, hk = add(k, ga), add_any(hk, ha)
         return (k, hk, u, ju) if second else (k, hk, None, None)
 

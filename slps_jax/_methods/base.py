@@ -114,7 +114,7 @@ def explicit_info(y):
     return StepInfo(finite_result(y), jnp.zeros((), jnp.int32), jnp.zeros((), real_dtype(y.dtype)))
 
 
-def finite_result(y, result=RESULTS.successful):
+def finite_result(y, result: jax.Array | int = RESULTS.successful):
     """`result`, or `RESULTS.nonfinite` where `y` has a non-finite entry."""
     return jnp.where(jnp.all(jnp.isfinite(y)), result, RESULTS.nonfinite).astype(jnp.int32)
 

@@ -82,6 +82,8 @@ class _SymmetricLiePoisson(AbstractMethod):
     # (each substep with weight w gets the increments and areas times w: `_brownian.scale`)
     strong_orders = StrongOrders(one=1.0, increments=0.5, areas=1.0)
     poisson = True
+    tol: float | None  # (the subclasses' fields)
+    max_iter: int
 
     def __post_init__(self):
         check_options(self)
