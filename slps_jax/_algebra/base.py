@@ -126,8 +126,9 @@ class AbstractAlgebra:
         return self.from_matrix(_commutator(self.to_matrix(y), self.to_matrix(x)))
 
     def bracket_sum(self, x, y):
-        r"""$\sum_q [x_q, y_q]$ over the leading axis of two stacks of elements."""
-        return jnp.sum(self.bracket(x, y), axis=0)
+        r"""$\sum_q [x_q, y_q]$ over the leading axis of two stacks of elements: one product
+        of the stacked matrices (`skew_bracket_sum`)."""
+        return self.from_matrix(skew_bracket_sum(self.to_matrix(x), self.to_matrix(y)))
 
     def casimirs(self, y):
         """The Casimir functions (real), shape `(..., k)`."""

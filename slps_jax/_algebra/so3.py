@@ -296,6 +296,9 @@ class SO3Algebra(AbstractAlgebra):
     def bracket(self, y, x):
         return jnp.cross(y, x)
 
+    def bracket_sum(self, x, y):
+        return jnp.sum(self.bracket(x, y), axis=0)
+
     def casimirs(self, y):
         return 0.5 * jnp.sum(jnp.asarray(y) ** 2, axis=-1, keepdims=True)
 

@@ -7,7 +7,7 @@ import functools
 import jax.numpy as jnp
 import numpy as np
 
-from .base import AbstractAlgebra, adjoint, skew_bracket_sum, skew_from_upper
+from .base import AbstractAlgebra, adjoint, skew_from_upper
 
 
 class SUnAlgebra(AbstractAlgebra):
@@ -50,12 +50,6 @@ class SUnAlgebra(AbstractAlgebra):
 
     def gradient(self, g):
         return self.project(2.0 * jnp.conj(g))
-
-    def bracket(self, y, x):
-        return y @ x - x @ y
-
-    def bracket_sum(self, x, y):
-        return skew_bracket_sum(x, y)
 
     def casimirs(self, y):
         y = jnp.asarray(y)
