@@ -101,11 +101,6 @@ def mscale(s, m):
     return tuple(tuple(s * m[i][j] for j in range(3)) for i in range(3))
 
 
-def diag_left(d, m):
-    """`diag(d) @ m`."""
-    return tuple(tuple(d[i] * m[i][j] for j in range(3)) for i in range(3))
-
-
 def diag_right(m, d):
     """`m @ diag(d)`."""
     return tuple(tuple(m[i][j] * d[j] for j in range(3)) for i in range(3))
@@ -122,17 +117,6 @@ def trace(m):
 def shift(m, s):
     """`m + s Id`."""
     return tuple(tuple(m[i][j] + s if i == j else m[i][j] for j in range(3)) for i in range(3))
-
-
-def mat_hat(m, x):
-    """`m @ hat(x)`: row i is `m_i x x` (6 products instead of 27)."""
-    return tuple(cross(row, x) for row in m)
-
-
-def hat_mat(x, m):
-    """`hat(x) @ m`: column j is `x x m_j`."""
-    cols = [cross(x, (m[0][j], m[1][j], m[2][j])) for j in range(3)]
-    return tuple(tuple(cols[j][i] for j in range(3)) for i in range(3))
 
 
 def hat(v):
@@ -213,11 +197,6 @@ def mm_any(a, m):
 def mtv_any(m, x):
     """`m^T x`."""
     return mul(m, x) if is_diagonal(m) else mtv(m, x)
-
-
-def mtm_any(m, b):
-    """`m^T @ b` for rows `b`."""
-    return diag_left(m, b) if is_diagonal(m) else mm(transpose(m), b)
 
 
 def small_angle_threshold(dtype):
@@ -394,18 +373,9 @@ class SO3Algebra(AbstractAlgebra):
         return add(g, self._area(model, v, noise.area)) if model.has_area(noise) else g
 
     def step_gradient_hessian_local(self, model, v, dt, noise):
-        r"""$(\nabla K(v), \nabla^2 K(v))$ on components."""
-        noise = as_step(noise)
-        g, hess = self._drift_hessian(model, v)
-        if model.noise is None:
-            tau = dt + model.noise_time(noise.dW)
-            return scale(tau, g), scale_any(tau, hess)
-        u, ju = self._noise_jacobian(model, v, noise.dW)
-        g, hess = add(scale(dt, g), u), add_any(scale_any(dt, hess), ju)
-        if model.has_area(noise):
-            ga, ha = self._area_jacobian(model, v, noise.area)
-            g, hess = add(g, ga), add_any(hess, ha)
-        return g, hess
+        r"""$(\nabla K(v), \nabla^2 K(v))$ on components (`step_fields_local`'s first two)."""
+        k, hk, _, _ = self.step_fields_local(model, v, dt, noise, second=False)
+        return k, hk
 
     def step_fields_local(self, model, v, dt, noise, second=True):
         r"""What scheme (42)'s in-map needs of a step (`sine_chart_in_map`), on components:

@@ -68,39 +68,54 @@ def sine_chart_in_map(v, y, fields, jacobian=True):
 
     def residual(v):
         k, _, u, ju = fields(v)
-        # (tiny, not 0: off the ball the derivative stays finite and the iterate is flagged)
-        c = jnp.sqrt(jnp.maximum(1.0 - comp.dot(v, v), jnp.finfo(v[0].dtype).tiny))
-        opc = 1.0 + c
-        g = 1.0 / opc
-
-        def q(x):
-            vx = comp.dot(v, x)
-            return tuple(
-                0.5 * (opc * xi - ci - g * vx * vi) for xi, ci, vi in zip(x, comp.cross(v, x), v)
-            )
-
-        if u is None:
-            return tuple(vi + qi - yi for vi, qi, yi in zip(v, q(k), y))
-        vu = comp.dot(v, u)
-        p = tuple(c * ui - ci + g * vu * vi for ui, ci, vi in zip(u, comp.cross(v, u), v))
-        n2 = comp.dot(u, u)
-        if ju is not None:  # Q k - Q J_u^T m / 2 = Q (k - J_u^T m / 2)
-            m = tuple(g * vu * vi - opc * ui for ui, vi in zip(u, v))
-            k = tuple(ki - 0.5 * xi for ki, xi in zip(k, comp.mtv_any(ju, m)))
-        return tuple(
-            vi + qi - 0.25 * a - 0.5 * n2 * vi - yi
-            for vi, qi, a, yi in zip(v, q(k), comp.cross(u, p), y)
-        )
+        return _in_map(v, y, k, u, ju)
 
     if not jacobian:
         return residual(v)
     k, hk, u, ju = fields(v)
     if ju is not None and comp.is_diagonal(ju) and comp.is_diagonal(hk):
-        return residual(v), _written_out_jacobian(v, k, hk, u, ju)
+        return _in_map(v, y, k, u, ju), _written_out_jacobian(v, k, hk, u, ju)
     r, lin = jax.linearize(residual, v)
     zero, one = jnp.zeros_like(r[0]), jnp.ones_like(r[0])
     cols = [lin(tuple(one if i == j else zero for i in range(3))) for j in range(3)]
     return r, tuple(tuple(cols[j][i] for j in range(3)) for i in range(3))
+
+
+def _chart(v):
+    """`c = sqrt(1 - |v|^2)`, `1 + c` and `g = 1/(1 + c)` of the sine chart at `v`."""
+    # (tiny, not 0: off the ball the derivative stays finite and the iterate is flagged)
+    c = jnp.sqrt(jnp.maximum(1.0 - comp.dot(v, v), jnp.finfo(v[0].dtype).tiny))
+    return c, 1.0 + c, 1.0 / (1.0 + c)
+
+
+def _noise_terms(v, u, c, opc, g):
+    """`v.u`, `p = A^T u` and `m = (sym A - tr A) u` at `A = A(v)`."""
+    vu = comp.dot(v, u)
+    p = tuple(c * ui - ci + g * vu * vi for ui, ci, vi in zip(u, comp.cross(v, u), v))
+    m = tuple(g * vu * vi - opc * ui for ui, vi in zip(u, v))
+    return vu, p, m
+
+
+def _in_map(v, y, k, u, ju):
+    """The residual of `sine_chart_in_map` for the step's fields at `v`."""
+    c, opc, g = _chart(v)
+
+    def q(x):
+        vx = comp.dot(v, x)
+        return tuple(
+            0.5 * (opc * xi - ci - g * vx * vi) for xi, ci, vi in zip(x, comp.cross(v, x), v)
+        )
+
+    if u is None:
+        return tuple(vi + qi - yi for vi, qi, yi in zip(v, q(k), y))
+    vu, p, m = _noise_terms(v, u, c, opc, g)
+    n2 = comp.dot(u, u)
+    if ju is not None:  # Q k - Q J_u^T m / 2 = Q (k - J_u^T m / 2)
+        k = tuple(ki - 0.5 * xi for ki, xi in zip(k, comp.mtv_any(ju, m)))
+    return tuple(
+        vi + qi - 0.25 * a - 0.5 * n2 * vi - yi
+        for vi, qi, a, yi in zip(v, q(k), comp.cross(u, p), y)
+    )
 
 
 def _written_out_jacobian(v, k, h, u, d):
@@ -116,14 +131,10 @@ def _written_out_jacobian(v, k, h, u, d):
     at fixed $w$, $p' = u\nabla c^T + \hat u + vG^T + g(v\cdot u)\mathrm{Id} + (c\,\mathrm{Id} - \hat v)J_u$,
     $m' = vG^T - u\nabla c^T + g(v\cdot u)\mathrm{Id} - (1+c)J_u$, $G = \nabla(g\,v\cdot u)
     = (v\cdot u)\nabla g + g(u + J_u^Tv)$."""
-    c = jnp.sqrt(jnp.maximum(1.0 - comp.dot(v, v), jnp.finfo(v[0].dtype).tiny))
-    opc = 1.0 + c
-    g = 1.0 / opc
-    ic = 1.0 / jnp.maximum(c, jnp.finfo(c.dtype).tiny)
+    c, opc, g = _chart(v)
+    vu, p, m = _noise_terms(v, u, c, opc, g)
+    ic = 1.0 / c
     dg = g * g * ic  # grad g = dg v, grad c = -ic v
-    vu = comp.dot(v, u)
-    p = tuple(c * ui - ci + g * vu * vi for ui, ci, vi in zip(u, comp.cross(v, u), v))
-    m = tuple(g * vu * vi - opc * ui for ui, vi in zip(u, v))
     w = tuple(ki - 0.5 * di * mi for ki, di, mi in zip(k, d, m))
     vw = comp.dot(v, w)
     gvu = g * vu
