@@ -133,7 +133,11 @@ def _written_out_jacobian(v, k, h, u, d):
     = (v\cdot u)\nabla g + g(u + J_u^Tv)$."""
     c, opc, g = _chart(v)
     vu, p, m = _noise_terms(v, u, c, opc, g)
-    ic = 1.0 / c
+    # Off the ball (|v| >= 1) 1/c is 1/tiny, as with the unclamped c: the update overflows,
+    # and the attempt stops at once (`nonfinite`, then the continuation) instead of
+    # wandering for `max_iter` updates, which a whole batch would wait for
+    tiny = jnp.finfo(c.dtype).tiny
+    ic = jnp.where(1.0 - comp.dot(v, v) >= tiny, 1.0 / c, 1.0 / tiny)
     dg = g * g * ic  # grad g = dg v, grad c = -ic v
     w = tuple(ki - 0.5 * di * mi for ki, di, mi in zip(k, d, m))
     vw = comp.dot(v, w)
@@ -219,6 +223,14 @@ def _sum(*terms):
     """The sum of the terms that are not the Python zero (traced at no cost)."""
     terms = [t for t in terms if not _is_zero(t)]
     return functools.reduce(operator.add, terms) if terms else 0.0
+
+
+def scaled(lam, fields):
+    """The fields of the step scaled by `lam` (the continuation's member `lam`): every one
+    is linear in the step `(h, dW, A)`. Scaling them, not the step, keeps what depends on
+    the step alone (a linear noise's area term) out of the Newton loop: with the step
+    scaled inside it, SALT's `LiePoisson` ran 18 % slower."""
+    return tuple(None if f is None else comp.scale_any(lam, f) for f in fields)
 
 
 # Continuation levels of the sine-chart Newton: a failed solve restarts along
@@ -418,9 +430,8 @@ class LiePoisson(AbstractMethod):
 
         def sine_fn(v, lam, jacobian=True):
             def fields(v):
-                return alg.step_fields_local(
-                    model, v, lam * dt_s, scale(dW_s, lam), second=self.second_order
-                )
+                step = alg.step_fields_local(model, v, dt_s, dW_s, second=self.second_order)
+                return scaled(lam, step)
 
             return sine_chart_in_map(v, z, fields, jacobian)
 

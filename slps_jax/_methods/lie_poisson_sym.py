@@ -15,7 +15,7 @@ from .._checks import check_options
 from .._solution import RESULTS
 from .base import AbstractMethod, StepInfo, StrongOrders, default_tol, finite_result
 from .composition import TRIPLE_JUMP, combine
-from .lie_poisson import branch_rotation, sine_chart_in_map, solve_on_branch
+from .lie_poisson import branch_rotation, scaled, sine_chart_in_map, solve_on_branch
 
 
 def _solve_rotation(model, y, dt, dW, sign, tol, max_iter, active):
@@ -27,8 +27,8 @@ def _solve_rotation(model, y, dt, dW, sign, tol, max_iter, active):
     def sine_fn(v, lam, jacobian=True):
         def fields(u):  # the first-order in-map of u -> sign K(sign u)
             x = comp.scale(sign, u)
-            step = model.algebra.step_fields_local(model, x, lam * dt, scale(dW, lam), False)
-            return step[0], comp.scale_any(sign, step[1]), None, None
+            k, hk, _, _ = model.algebra.step_fields_local(model, x, dt, dW, False)
+            return scaled(lam, (k, comp.scale_any(sign, hk), None, None))
 
         return sine_chart_in_map(v, y, fields, jacobian)
 
