@@ -37,7 +37,7 @@ def main(argv=None):
 
     import slps_jax as sj
 
-    model, y0 = sj.RigidBody.paper(), jax.numpy.asarray(sj.PAPER_Y0)
+    system, y0 = sj.RigidBody.paper(), jax.numpy.asarray(sj.PAPER_Y0)
     dt, rows = 2.0**-5, []
     print(
         f"{args.samples} samples x 32 steps\n\n| chunk_size | s (second run) | "
@@ -49,7 +49,7 @@ def main(argv=None):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)
                 sj.ensemble_statistics(
-                    model,
+                    system,
                     y0,
                     t1=1.0,
                     dt=dt,

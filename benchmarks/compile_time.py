@@ -49,7 +49,7 @@ def measure(name, how, n_samples, n_steps, retry=None):
     jax.config.update("jax_enable_x64", True)
     import slps_jax as sj
 
-    model = sj.RigidBody.paper()
+    system = sj.RigidBody.paper()
     y0 = jnp.asarray(sj.PAPER_Y0)
     dt = 2.0**-9
     dW = jax.random.normal(jax.random.key(0), (n_samples, n_steps)) * dt**0.5
@@ -59,13 +59,13 @@ def measure(name, how, n_samples, n_steps, retry=None):
         import work_precision as wp
 
         if name == SCAN_HEUN:
-            fn = jax.vmap(lambda dw: wp.scan_heun(model, y0, dw, dt))
+            fn = jax.vmap(lambda dw: wp.scan_heun(system, y0, dw, dt))
             args = (dW,)
         else:
             w = jnp.concatenate([jnp.zeros((n_samples, 1)), jnp.cumsum(dW, axis=1)], axis=1)
             fn = jax.vmap(
                 lambda wi: wp.diffrax_final(
-                    model, y0, wp.IncrementPath(wi, dt), wp.dfx.Heun(), dt, n_steps
+                    system, y0, wp.IncrementPath(wi, dt), wp.dfx.Heun(), dt, n_steps
                 )
             )
             args = (w,)
@@ -75,14 +75,14 @@ def measure(name, how, n_samples, n_steps, retry=None):
         opts = {} if retry is None else {"retry_substeps": None if retry == "none" else int(retry)}
         if how == "integrate":
             fn = jax.vmap(
-                lambda dw: sj.integrate(model, y0, dw, dt, method=method, throw=False, **opts)
+                lambda dw: sj.integrate(system, y0, dw, dt, method=method, throw=False, **opts)
             )
             args = (dW,)
         else:
 
             def fn(key):
                 return sj.simulate(
-                    model,
+                    system,
                     y0,
                     t1=n_steps * dt,
                     dt=dt,

@@ -38,9 +38,9 @@ METHODS = {"LiePoisson": sj.LiePoisson(), "Midpoint": sj.Midpoint(), "Strang": s
 
 
 def statistic(params, method, n_samples, n_steps, dt, retry_kw=None):
-    model = sj.RigidBody(params[:3], params[3])
+    system = sj.RigidBody(params[:3], params[3])
     sol = sj.simulate(
-        model,
+        system,
         Y0,
         t1=n_steps * dt,
         dt=dt,
@@ -49,7 +49,7 @@ def statistic(params, method, n_samples, n_steps, dt, retry_kw=None):
         method=method,
         **(retry_kw or {}),
     )
-    return jnp.mean(model.hamiltonian(sol.ys[:, -1]))
+    return jnp.mean(system.hamiltonian(sol.ys[:, -1]))
 
 
 def main(argv=None):

@@ -69,11 +69,11 @@ DIFFRAX_HEUN = "diffrax Heun"
 FLOOR = 1e-17  # errors of exactly 0 are drawn here on the log axes
 
 
-def run_ours(method, model, y0, t1, h, n_samples, key, save_every):
+def run_ours(method, system, y0, t1, h, n_samples, key, save_every):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # failures are reported below
         sol = sj.simulate(
-            model,
+            system,
             y0,
             t1=t1,
             dt=h,
@@ -88,12 +88,12 @@ def run_ours(method, model, y0, t1, h, n_samples, key, save_every):
     return ys, fail
 
 
-def run_diffrax_heun(model, y0, dW, h, save_every):
+def run_diffrax_heun(system, y0, dW, h, save_every):
     n_steps = dW.shape[1]
     ts = jnp.arange(0, n_steps + 1, save_every) * h
     terms_of = lambda path: dfx.MultiTerm(
-        dfx.ODETerm(drift(model)),
-        dfx.ControlTerm(diffusion(model), path),
+        dfx.ODETerm(drift(system)),
+        dfx.ControlTerm(diffusion(system), path),
     )
 
     @jax.jit
@@ -125,12 +125,12 @@ def run_diffrax_heun(model, y0, dW, h, save_every):
     return ys, fail
 
 
-def relative_errors(model, y0, ys, fail, save_every):
+def relative_errors(system, y0, ys, fail, save_every):
     """(casimir, energy) relative errors, shape (n_samples, n_saved); NaN after a failure."""
-    c0, h0 = float(model.casimir(y0)), float(model.hamiltonian(y0))
+    c0, h0 = float(system.casimir(y0)), float(system.hamiltonian(y0))
     with np.errstate(all="ignore"):
-        cas = np.abs(np.asarray(model.casimir(ys)) / c0 - 1.0)
-        ene = np.abs(np.asarray(model.hamiltonian(ys)) / h0 - 1.0)
+        cas = np.abs(np.asarray(system.casimir(ys)) / c0 - 1.0)
+        ene = np.abs(np.asarray(system.hamiltonian(ys)) / h0 - 1.0)
     idx = np.arange(ys.shape[1]) * save_every  # saved state k is after step idx[k]
     lost = (fail[:, None] >= 0) & (idx[None, :] > fail[:, None])
     cas[lost | ~np.isfinite(cas)] = np.nan
@@ -224,7 +224,7 @@ def main(argv=None):
         saves -= 1
     save_every = n_steps // saves
     os.makedirs(args.out, exist_ok=True)
-    model, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
+    system, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
     key = jax.random.key(args.seed)
     setting = (
         f"paper's rigid body, y0 = {sj.PAPER_Y0}, c = 0.2, h = {h:g}, T = {t1:g}, "
@@ -239,17 +239,17 @@ def main(argv=None):
     runs = {}
     for name, method in OURS.items():
         start = time.perf_counter()
-        ys, fail = run_ours(method, model, y0, t1, h, n_samples, key, save_every)
+        ys, fail = run_ours(method, system, y0, t1, h, n_samples, key, save_every)
         runs[name] = (ys, fail, time.perf_counter() - start)
     if use_diffrax:
         dW = sj.brownian_increments(key, n_steps, h, n_samples=n_samples)  # simulate's paths
         start = time.perf_counter()
-        ys, fail = run_diffrax_heun(model, y0, dW, h, save_every)
+        ys, fail = run_diffrax_heun(system, y0, dW, h, save_every)
         runs[DIFFRAX_HEUN] = (ys, fail, time.perf_counter() - start)
 
     rows, summary = [], {}
     for name, (ys, fail, seconds) in runs.items():
-        cas, ene = relative_errors(model, y0, ys, fail, save_every)
+        cas, ene = relative_errors(system, y0, ys, fail, save_every)
         alive = np.sum(np.isfinite(cas), axis=0)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns after blow-up

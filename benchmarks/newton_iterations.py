@@ -36,10 +36,10 @@ import slps_jax as sj  # noqa: E402
 USUAL = 3  # Newton updates that solve almost every step of the paper's setup
 
 
-def step_infos(model, method, ys, dW, dt):
+def step_infos(system, method, ys, dW, dt):
     """`StepInfo` of every step `ys[:, n] -> ys[:, n + 1]` with increment `dW[:, n]`."""
     y_n = ys[:, :-1].reshape(-1, 3)
-    step = jax.jit(jax.vmap(lambda y, w: method.step(model, y, jnp.asarray(dt, y.dtype), w)))
+    step = jax.jit(jax.vmap(lambda y, w: method.step(system, y, jnp.asarray(dt, y.dtype), w)))
     y_next, info = step(y_n, dW.reshape(-1))
     return np.asarray(y_next).reshape(ys[:, 1:].shape), info
 
@@ -51,7 +51,7 @@ def main(argv=None):
     args = parser.parse_args(argv)
     os.makedirs(args.out, exist_ok=True)
 
-    model, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
+    system, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
     method = sj.LiePoisson()
     n_samples = 100 if args.fast else 500
     levels = [5, 6, 7] if args.fast else [5, 6, 7, 8, 9]
@@ -79,10 +79,10 @@ def main(argv=None):
         dt = 2.0**-k
         n_steps = 2**k
         sol = sj.simulate(
-            model, y0, t1=1.0, dt=dt, n_samples=n_samples, key=key, method=method, save_every=1
+            system, y0, t1=1.0, dt=dt, n_samples=n_samples, key=key, method=method, save_every=1
         )
         dW = sj.brownian_increments(key, n_steps, dt, n_samples=n_samples)
-        y_next, info = step_infos(model, method, sol.ys, dW, dt)
+        y_next, info = step_infos(system, method, sol.ys, dW, dt)
         # the re-solved steps reproduce the trajectory: the statistics are of the same steps
         assert np.max(np.abs(y_next - np.asarray(sol.ys[:, 1:]))) < 1e-13
         it = np.asarray(info.iterations).reshape(n_samples, n_steps)

@@ -28,12 +28,12 @@ def run(n_samples, chunk_size, dt, retry):
 
     import slps_jax as sj
 
-    model, y0 = sj.RigidBody.paper(), jax.numpy.asarray(sj.PAPER_Y0)
+    system, y0 = sj.RigidBody.paper(), jax.numpy.asarray(sj.PAPER_Y0)
     start = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # the failures are the measurement
         st = sj.ensemble_statistics(
-            model,
+            system,
             y0,
             t1=1.0,
             dt=dt,

@@ -55,9 +55,9 @@ RSS_NOISE_MB = 8.0
 
 
 def run_simulate(method, n_steps, n_samples, seed=0):
-    model, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
+    system, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
     sol = sj.simulate(
-        model,
+        system,
         y0,
         t1=n_steps * DT,
         dt=DT,
@@ -98,19 +98,19 @@ def time_point(method, n_steps, n_samples, repeats):
 
 def compiled_memory(method, n_steps, n_samples):
     """XLA's memory analysis of one compiled final-state-only ensemble run (bytes)."""
-    model, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
+    system, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
     if method == CONTROL:
 
         def fn(key):
             dW = sj.brownian_increments(key, n_steps, DT, n_samples=n_samples)
             return jax.vmap(
-                lambda d: sj.integrate(model, y0, d, DT, method=sj.Strang(), throw=False)
+                lambda d: sj.integrate(system, y0, d, DT, method=sj.Strang(), throw=False)
             )(dW)
     else:
 
         def fn(key):
             return sj.simulate(
-                model,
+                system,
                 y0,
                 t1=n_steps * DT,
                 dt=DT,
@@ -155,7 +155,7 @@ def _reset_peak():
 def child_rss(method, n_steps, n_samples):
     """In a fresh process: peak RSS of compile + one run, and of the whole process (kB)."""
     inherited = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    model, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
+    system, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
     key = jax.random.key(0)
     jax.block_until_ready(jnp.zeros(3) + 1.0)  # backend up before the baseline
     baseline = _status_kb("VmRSS")
@@ -164,7 +164,7 @@ def child_rss(method, n_steps, n_samples):
     if method == CONTROL:
         dW = sj.brownian_increments(key, n_steps, DT, n_samples=n_samples)
         ys = jax.jit(
-            jax.vmap(lambda d: sj.integrate(model, y0, d, DT, method=sj.Strang(), throw=False))
+            jax.vmap(lambda d: sj.integrate(system, y0, d, DT, method=sj.Strang(), throw=False))
         )(dW)
         ys = jax.block_until_ready(ys)
     else:

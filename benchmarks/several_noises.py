@@ -168,22 +168,22 @@ def draw_paths(key, n_samples, n_steps, h, n_noises=3, batch=20):
     )
 
 
-def solver(model, y0, method, h, areas):
+def solver(system, y0, method, h, areas):
     """All samples' final states of `method` on given increments (and areas): one jit."""
     if areas:
         return lambda d, a: jax.vmap(
-            lambda di, ai: sj.integrate(model, y0, di, h, levy_area=ai, method=method, throw=False)
+            lambda di, ai: sj.integrate(system, y0, di, h, levy_area=ai, method=method, throw=False)
         )(d, a)
     return lambda d, a: jax.vmap(
-        lambda di: sj.integrate(model, y0, di, h, method=method, throw=False)
+        lambda di: sj.integrate(system, y0, di, h, method=method, throw=False)
     )(d)
 
 
-def count_failed(model, y0, method, h, areas, d, a):
+def count_failed(system, y0, method, h, areas, d, a):
     """Samples whose step failed: `integrate(throw=False)` freezes such a sample, so its last
     two saved states are identical (an untimed extra run)."""
     run = lambda di, ai: sj.integrate(
-        model, y0, di, h, method=method, save_every=1, throw=False, levy_area=ai if areas else None
+        system, y0, di, h, method=method, save_every=1, throw=False, levy_area=ai if areas else None
     )
     traj = jax.jit(jax.vmap(run))(d, a)
     return int(jnp.sum(jnp.all(traj[:, -1] == traj[:, -2], axis=tuple(range(1, traj.ndim - 1)))))
@@ -277,12 +277,12 @@ def so4_study(fast):
     """so(4), the generalised rigid body with three SALT noises: IsospectralMidpoint and
     LiePoisson with and without areas, and the Milstein baseline, against
     IsospectralMidpoint with areas at a 64x finer step on the same paths."""
-    model = sj.GeneralisedRigidBody(J4, noise=sj.salt_noise(X4))
+    system = sj.GeneralisedRigidBody(J4, noise=sj.salt_noise(X4))
     n_samples = 16 if fast else 200
     ks = range(3, 5) if fast else range(3, 7)
     n_fine = 2 ** max(ks) * (8 if fast else 64)
     dW, A = draw_paths(jax.random.key(4), n_samples, n_fine, 1.0 / n_fine)
-    reference = jax.jit(solver(model, Y4, sj.IsospectralMidpoint(), 1.0 / n_fine, True))(dW, A)
+    reference = jax.jit(solver(system, Y4, sj.IsospectralMidpoint(), 1.0 / n_fine, True))(dW, A)
     methods = {
         "IsospectralMidpoint + areas": (sj.IsospectralMidpoint(), True),
         "LiePoisson + areas": (sj.LiePoisson(), True),
@@ -292,16 +292,16 @@ def so4_study(fast):
     }
     if fast:  # a smoke run: the two Poisson methods with areas
         methods = {n: methods[n] for n in ("IsospectralMidpoint + areas", "LiePoisson + areas")}
-    c0 = np.asarray(model.algebra.casimirs(Y4))
+    c0 = np.asarray(system.algebra.casimirs(Y4))
     rows = []
     for name, (method, areas) in methods.items():
         for k in ks:
             n, h = 2**k, 2.0**-k
             d, a = _brownian.coarsen(dW, A, n_fine // n)
-            compiled, compile_s = _common.compile_timed(solver(model, Y4, method, h, areas), d, a)
+            compiled, compile_s = _common.compile_timed(solver(system, Y4, method, h, areas), d, a)
             med, _, _, y = _common.time_call(compiled, d, a)
-            err = float(jnp.sqrt(jnp.mean(model.algebra.norm_sq(y - reference))))
-            drift = float(np.max(np.abs(np.asarray(model.algebra.casimirs(y)) - c0) / np.abs(c0)))
+            err = float(jnp.sqrt(jnp.mean(system.algebra.norm_sq(y - reference))))
+            drift = float(np.max(np.abs(np.asarray(system.algebra.casimirs(y)) - c0) / np.abs(c0)))
             rows.append(
                 dict(
                     method=name,

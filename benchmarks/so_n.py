@@ -11,7 +11,7 @@ matrix of spectral norm 0.8 (seed 1), T = 1.
   `IsospectralMidpoint` (`"newton"` and `"identity"`), `Midpoint`, `Heun` and diffrax
   `Heun` (on the same increments; only with the `bench` extra). Also Newton updates per step.
 - Work-precision at n = 4: RMS error at T (the norm of the pairing, |Y|^2 = sum_{i<j} Y_ij^2)
-  against the time change Y(T) = phi_{T + c W(T)}(Y0) of `deterministic_flow`, 200 samples,
+  against the time change Y(T) = phi_{T + c W(T)}(Y0) of `drift_flow`, 200 samples,
   h = 2^-3 ... 2^-7, against run time; fitted strong orders.
 - Casimirs over 10^4 steps: so(6) with two linear (SALT) noises, h = 0.01, 8 paths: the
   largest relative drift of tr(Y^2), tr(Y^4), tr(Y^6) along the paths.
@@ -70,15 +70,15 @@ def methods(n):
     return out
 
 
-def ours(model, y0, method, h):
+def ours(system, y0, method, h):
     return lambda d: jax.vmap(
-        lambda di: sj.integrate(model, y0, di, h, method=method, throw=False)
+        lambda di: sj.integrate(system, y0, di, h, method=method, throw=False)
     )(d)
 
 
-def diffrax_heun(model, y0, h, n_steps, h_fine):
+def diffrax_heun(system, y0, h, n_steps, h_fine):
     dfx = wp.dfx
-    f = model.vector_field
+    f = system.vector_field
 
     def fn(w):
         terms = dfx.MultiTerm(
@@ -93,11 +93,11 @@ def diffrax_heun(model, y0, h, n_steps, h_fine):
     return lambda ws: jax.vmap(fn)(ws)
 
 
-def newton_stats(model, y0, method, h, n_steps, n_samples):
+def newton_stats(system, y0, method, h, n_steps, n_samples):
     if method.__class__ in (sj.Heun,):
         return 0.0
     sol = sj.simulate(
-        model,
+        system,
         y0,
         t1=n_steps * h,
         dt=h,
@@ -115,21 +115,21 @@ def cost(ns, n_samples, n_steps, skipped=()):
     h = 1.0 / n_steps
     rows = []
     for n in ns:
-        model, y0 = setup(n)
+        system, y0 = setup(n)
         dW = sj.brownian_increments(jax.random.key(n), n_steps, h, n_samples=n_samples)
         cumulative = jnp.concatenate([jnp.zeros((n_samples, 1)), jnp.cumsum(dW, axis=1)], 1)
         runs = {
-            name: (ours(model, y0, m, h), dW[..., None])
+            name: (ours(system, y0, m, h), dW[..., None])
             for name, m in methods(n).items()
             if name not in skipped
         }
         if wp.dfx is not None:
-            runs[DIFFRAX_HEUN] = diffrax_heun(model, y0, h, n_steps, h), cumulative
+            runs[DIFFRAX_HEUN] = diffrax_heun(system, y0, h, n_steps, h), cumulative
         for name, (fn, arg) in runs.items():
             compiled, compile_s = _common.compile_timed(fn, arg)
             med, best, reps, y = _common.time_call(compiled, arg, repeats=3, min_total=0.3)
             its = (
-                newton_stats(model, y0, methods(n)[name], h, n_steps, n_samples)
+                newton_stats(system, y0, methods(n)[name], h, n_steps, n_samples)
                 if name in methods(n)
                 else 0.0
             )
@@ -163,11 +163,11 @@ def cost(ns, n_samples, n_steps, skipped=()):
 
 
 def work_precision(ks, n_samples):
-    model, y0 = setup(4)
+    system, y0 = setup(4)
     n_fine = 2 ** max(ks)
     dW = sj.brownian_increments(jax.random.key(4), n_fine, 1.0 / n_fine, n_samples=n_samples)
     w_t = np.asarray(jnp.sum(dW, axis=1))
-    reference = sj.deterministic_flow(model, y0, 1.0 + C * w_t)
+    reference = sj.drift_flow(system, y0, 1.0 + C * w_t)
     cumulative = jnp.concatenate([jnp.zeros((n_samples, 1)), jnp.cumsum(dW, axis=1)], 1)
     named = {
         "LiePoisson": sj.LiePoisson(),
@@ -181,11 +181,11 @@ def work_precision(ks, n_samples):
             n, h = 2**k, 2.0**-k
             if name in named:
                 fn, arg = (
-                    ours(model, y0, named[name], h),
+                    ours(system, y0, named[name], h),
                     dW.reshape(n_samples, n, -1).sum(2)[..., None],
                 )
             else:
-                fn, arg = diffrax_heun(model, y0, h, n, 1.0 / n_fine), cumulative
+                fn, arg = diffrax_heun(system, y0, h, n, 1.0 / n_fine), cumulative
             compiled, compile_s = _common.compile_timed(fn, arg)
             med, _, _, y = _common.time_call(compiled, arg, repeats=3, min_total=0.3)
             err = float(jnp.sqrt(jnp.mean(sj.so(4).norm_sq(y - reference))))
@@ -207,7 +207,7 @@ def casimirs(n_steps, n_paths):
     j = jnp.linspace(0.6, 2.3, n)
     chi = np.random.default_rng(2).normal(size=(2, n, n))
     chi = 0.3 * (chi - np.swapaxes(chi, 1, 2)) / np.sqrt(2 * n)
-    model = sj.GeneralisedRigidBody(j, noise=sj.salt_noise(chi))
+    system = sj.GeneralisedRigidBody(j, noise=sj.salt_noise(chi))
     a = np.random.default_rng(1).normal(size=(n, n))
     y0 = jnp.asarray(0.7 * (a - a.T) / np.linalg.norm(a - a.T, 2))
     h = 0.01
@@ -223,7 +223,7 @@ def casimirs(n_steps, n_paths):
         ys = jax.jit(
             jax.vmap(
                 lambda d: sj.integrate(
-                    model, y0, d, h, method=m, throw=False, save_every=n_steps // 10
+                    system, y0, d, h, method=m, throw=False, save_every=n_steps // 10
                 )
             )
         )(dW)
@@ -251,7 +251,7 @@ def stress(fast):
             "3 SALT": sj.GeneralisedRigidBody(j, noise=sj.salt_noise(chi)),
         }
         a = np.random.default_rng(1).normal(size=(n, n))
-        for label, model in models.items():
+        for label, system in models.items():
             if fast and label != "c=0.4":
                 continue
             for norm in norms:
@@ -267,7 +267,7 @@ def stress(fast):
                             with warnings.catch_warnings():
                                 warnings.simplefilter("ignore", RuntimeWarning)
                                 sol = sj.simulate(
-                                    model,
+                                    system,
                                     y0,
                                     t1=1.0,
                                     dt=dt,

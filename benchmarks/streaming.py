@@ -41,13 +41,13 @@ RSS_FLAT_MB = 20.0
 
 
 def child(n_samples, chunk_size):
-    model, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
+    system, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
     jax.block_until_ready(jnp.zeros(3) + 1.0)
     baseline = scaling._status_kb("VmRSS")
     reset = scaling._reset_peak()
     start = time.perf_counter()
     st = sj.ensemble_statistics(
-        model,
+        system,
         y0,
         t1=T1,
         dt=DT,

@@ -13,7 +13,7 @@ One factor at a time around a base case, plus a few hard corners (not the full p
   with y0 along a generic direction (0.6, 0.5, 0.62)/|.| (the paper's is a fixed point of
   the axisymmetric ones);
 - horizon T in {10, 100, 1e4} (few samples);
-- float32 (the model's dtype decides; increments are drawn in float32) at the base case,
+- float32 (the system's dtype decides; increments are drawn in float32) at the base case,
   at h = 0.25 and at |y0| = 0.999;
 - hard corners combining the above.
 
@@ -187,10 +187,10 @@ def exact_reference(settings, y0, key, n_steps):
         key, n_steps, settings["h"], n_samples=settings["n_samples"], dtype=dtype
     )
     w_t = jnp.sum(dW.astype(jnp.float64), axis=1)
-    model = sj.RigidBody(jnp.asarray(settings["inertia"], jnp.float64), settings["c"])
+    system = sj.RigidBody(jnp.asarray(settings["inertia"], jnp.float64), settings["c"])
     y0 = jnp.asarray(y0, jnp.float64)
     return np.asarray(
-        jax.jit(jax.vmap(lambda w: sj.exact_solution(model, y0, settings["T"], w)))(w_t)
+        jax.jit(jax.vmap(lambda w: sj.exact_solution(system, y0, settings["T"], w)))(w_t)
     )
 
 
@@ -198,7 +198,7 @@ def run_cell(settings, method_name, seed=0):
     s = settings
     dtype = np.float32 if s["dtype"] == "float32" else np.float64
     y0 = (s["r"] * direction(s["direction"], s["inertia"])).astype(dtype)
-    model = sj.RigidBody(np.asarray(s["inertia"], dtype), dtype(s["c"]))
+    system = sj.RigidBody(np.asarray(s["inertia"], dtype), dtype(s["c"]))
     method, retry = make_method(method_name, s["r"])
     n_steps = int(round(s["T"] / s["h"]))
     key = jax.random.key(seed)
@@ -206,7 +206,7 @@ def run_cell(settings, method_name, seed=0):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # failures are counted below
         sol = sj.simulate(
-            model,
+            system,
             y0,
             t1=s["T"],
             dt=s["h"],
@@ -290,7 +290,7 @@ def run_noise_cell(settings, method_name, seed=0):
     s = settings
     dtype = np.float32 if s["dtype"] == "float32" else np.float64
     y0 = (s["r"] * np.array([0.6, 0.5, 0.3]) / np.linalg.norm([0.6, 0.5, 0.3])).astype(dtype)
-    model = sj.RigidBody(
+    system = sj.RigidBody(
         np.array([1.0, 2.0, 3.0], dtype), noise=sj.salt_noise((s["a"] * SALT_AXES).astype(dtype))
     )
     method, retry = {
@@ -305,7 +305,7 @@ def run_noise_cell(settings, method_name, seed=0):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # failures are counted below
         sol = sj.simulate(
-            model,
+            system,
             y0,
             t1=s["T"],
             dt=s["h"],

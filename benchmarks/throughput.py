@@ -72,14 +72,14 @@ SIMULATED = (
 )
 
 
-def runner(name, model, y0):
+def runner(name, system, y0):
     """`run(key, n_samples)`: the final states `(n_samples, 3)`, blocked."""
     if name in SIMULATED:
         method = getattr(sj, name)()
 
         def run(key, n_samples):
             sol = sj.simulate(
-                model,
+                system,
                 y0,
                 t1=N_STEPS * H,
                 dt=H,
@@ -94,14 +94,14 @@ def runner(name, model, y0):
     if name == SCAN_HEUN:
 
         def one(k):
-            return wp.scan_heun(model, y0, _increments(k, H), H)
+            return wp.scan_heun(system, y0, _increments(k, H), H)
     else:
         solver = wp.dfx.Heun()
 
         def one(k):
             dW = _increments(k, H)
             w = jnp.concatenate([jnp.zeros(1, dW.dtype), jnp.cumsum(dW)])
-            return wp.diffrax_final(model, y0, wp.IncrementPath(w, H), solver, H, N_STEPS)
+            return wp.diffrax_final(system, y0, wp.IncrementPath(w, H), solver, H, N_STEPS)
 
     fn = jax.jit(lambda key, idx: jax.vmap(lambda i: one(jax.random.fold_in(key, i)))(idx))
 
@@ -157,11 +157,11 @@ def main(argv=None):
         f"throughput, {N_STEPS} steps of h = 2^-6, float64, on {info['device']} "
         f"(jax {info['jax']}, diffrax {info['diffrax']})"
     )
-    model, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
+    system, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
     key = jax.random.key(0)
     rows = []
     for name in methods:
-        run, cost = runner(name, model, y0), None
+        run, cost = runner(name, system, y0), None
         for n in sizes:
             row = {
                 "method": name,

@@ -52,10 +52,10 @@ def case(M, N, windows=WINDOWS, window=WINDOW, members=MEMBERS):
     start = time.perf_counter()
     fit = sj.fit_transport_noise(fine, dt=h, N=N, window=window, n_modes=min(4, windows))
     fit_s = time.perf_counter() - start
-    model = sj.EulerZeitlin(N, noise=fit.noise)
+    system = sj.EulerZeitlin(N, noise=fit.noise)
     x0 = zeitlin.truncate(fine[-1], N)
     ensemble = lambda key: (
-        sj.simulate(model, x0, t1=window * h, dt=h, n_samples=members, key=key, throw=False).ys
+        sj.simulate(system, x0, t1=window * h, dt=h, n_samples=members, key=key, throw=False).ys
     )
     start = time.perf_counter()
     jax.block_until_ready(ensemble(jax.random.key(0)))

@@ -5,7 +5,7 @@ The paper's setup (`RigidBody.paper()`, `PAPER_Y0`, c = 0.2), 500 samples, h = 2
 
 - slps_jax methods (LiePoisson, LiePoissonSym2/4, Midpoint, Strang, Strang4, EulerMaruyama,
   Exact):
-  `jax.jit(jax.vmap(lambda dW: integrate(model, y0, dW, h, method=m, throw=False)))`.
+  `jax.jit(jax.vmap(lambda dW: integrate(system, y0, dW, h, method=m, throw=False)))`.
 - diffrax `Heun`, `Midpoint`, `ReversibleHeun` on the Stratonovich SDE
   `MultiTerm(ODETerm(f), ControlTerm(g, path))`, f(t, y) = y x (y / I), g = c f, scalar
   Brownian motion (control shape `()`, so `g` returns shape (3,)), constant step h:
@@ -20,7 +20,7 @@ The paper's setup (`RigidBody.paper()`, `PAPER_Y0`, c = 0.2), 500 samples, h = 2
 
 Same increments for everyone but the VBT runs: the fine increments are drawn once with
 `slps_jax.brownian_increments(key, n_fine, h_fine, n_samples)`, a coarse increment is the sum
-of the fine ones it spans, and the reference is `exact_solution(model, y0, 1, sum(dW))`.
+of the fine ones it spans, and the reference is `exact_solution(system, y0, 1, sum(dW))`.
 
 Timing: every (method, h) is compiled ahead of time (compile time reported on its own), run
 once to warm up, then timed (median and min of >= 3 blocking calls). For the implicit
@@ -103,8 +103,8 @@ def all_method_names(with_diffrax):
 # The vector fields and the integrators.
 
 
-def drift(model):
-    inertia = model.inertia
+def drift(system):
+    inertia = system.inertia
 
     def f(t, y, args):
         return jnp.cross(y, y / inertia)
@@ -112,8 +112,8 @@ def drift(model):
     return f
 
 
-def diffusion(model):
-    f, c = drift(model), model.c
+def diffusion(system):
+    f, c = drift(system), system.c
 
     def g(t, y, args):  # scalar Brownian motion: control shape (), g(t, y) shape (3,)
         return c * f(t, y, args)
@@ -121,12 +121,12 @@ def diffusion(model):
     return g
 
 
-def scan_heun(model, y0, dW, h):
+def scan_heun(system, y0, dW, h):
     """Stratonovich Heun for dy = f(y)(dt + c o dW), one path, as a plain lax.scan."""
-    f = drift(model)
+    f = drift(system)
 
     def step(y, dw):
-        tau = h + model.c * dw
+        tau = h + system.c * dw
         fy = f(None, y, None)
         y_pred = y + fy * tau
         return y + 0.5 * (fy + f(None, y_pred, None)) * tau, None
@@ -170,25 +170,27 @@ def vbt(key, tol, levy):
     return dfx.VirtualBrownianTree(0.0, 1.0, tol=tol, shape=(), key=key, levy_area=levy_area)
 
 
-def diffrax_final(model, y0, path, solver, h, n_steps):
-    terms = dfx.MultiTerm(dfx.ODETerm(drift(model)), dfx.ControlTerm(diffusion(model), path))
+def diffrax_final(system, y0, path, solver, h, n_steps):
+    terms = dfx.MultiTerm(dfx.ODETerm(drift(system)), dfx.ControlTerm(diffusion(system), path))
     sol = dfx.diffeqsolve(terms, solver, 0.0, n_steps * h, h, y0, max_steps=n_steps, throw=False)
     return sol.ys[-1]
 
 
-def build(name, model, y0, h, n_steps, h_fine, data):
+def build(name, system, y0, h, n_steps, h_fine, data):
     """`(fn, args, reference_key)`: `fn(*args)` gives the final states `(n_samples, 3)`;
     `reference_key` names which reference solution they are compared with."""
     if name in OURS:
         method = OURS[name]
 
         def fn(dW):
-            return jax.vmap(lambda d: sj.integrate(model, y0, d, h, method=method, throw=False))(dW)
+            return jax.vmap(lambda d: sj.integrate(system, y0, d, h, method=method, throw=False))(
+                dW
+            )
 
         return fn, (data["coarse"](n_steps),), "shared"
     if name == SCAN_HEUN:
         return (
-            lambda dW: jax.vmap(lambda d: scan_heun(model, y0, d, h))(dW),
+            lambda dW: jax.vmap(lambda d: scan_heun(system, y0, d, h))(dW),
             (data["coarse"](n_steps),),
             "shared",
         )
@@ -198,7 +200,7 @@ def build(name, model, y0, h, n_steps, h_fine, data):
 
         def fn(w):
             return jax.vmap(
-                lambda wi: diffrax_final(model, y0, IncrementPath(wi, h_fine), solver, h, n_steps)
+                lambda wi: diffrax_final(system, y0, IncrementPath(wi, h_fine), solver, h, n_steps)
             )(w)
 
         return fn, (data["cumulative"],), "shared"
@@ -206,7 +208,7 @@ def build(name, model, y0, h, n_steps, h_fine, data):
 
     def fn(keys):
         return jax.vmap(
-            lambda k: diffrax_final(model, y0, vbt(k, h_fine, levy), solver, h, n_steps)
+            lambda k: diffrax_final(system, y0, vbt(k, h_fine, levy), solver, h, n_steps)
         )(keys)
 
     return fn, (data["vbt_keys"],), kind
@@ -215,18 +217,18 @@ def build(name, model, y0, h, n_steps, h_fine, data):
 IMPLICIT = ("LiePoisson", "Midpoint")  # Newton solves that can fail at large steps
 
 
-def count_failed(model, y0, dW, h, method):
+def count_failed(system, y0, dW, h, method):
     """Samples whose Newton solve failed: `integrate(throw=False)` freezes such a sample at
     its last good state, so its last two saved states are identical (an untimed extra run)."""
     traj = jax.jit(
-        jax.vmap(lambda d: sj.integrate(model, y0, d, h, method=method, save_every=1, throw=False))
+        jax.vmap(lambda d: sj.integrate(system, y0, d, h, method=method, save_every=1, throw=False))
     )(dW)
     return int(jnp.sum(jnp.all(traj[:, -1] == traj[:, -2], axis=-1)))
 
 
-def references(model, y0, data, h_fine, with_diffrax):
+def references(system, y0, data, h_fine, with_diffrax):
     """Exact final states per sample for each family of Brownian paths."""
-    exact = jax.jit(jax.vmap(lambda w: sj.exact_solution(model, y0, 1.0, w)))
+    exact = jax.jit(jax.vmap(lambda w: sj.exact_solution(system, y0, 1.0, w)))
     refs = {"shared": exact(data["fine"].sum(axis=1))}
     if with_diffrax:
         for kind, levy in (("vbt", False), ("vbt-levy", True)):
@@ -460,7 +462,7 @@ def main(argv=None):
         names = [n for n in names if n not in DIFFRAX]
     os.makedirs(args.out, exist_ok=True)
 
-    model, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
+    system, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
     ks = list(range(kmin, kmax + 1))
     h_fine, n_fine = 2.0**-kmax, 2**kmax
     fine = sj.brownian_increments(jax.random.key(args.seed), n_fine, h_fine, n_samples=n_samples)
@@ -472,7 +474,7 @@ def main(argv=None):
         ),
         "vbt_keys": jax.random.split(jax.random.key(args.seed + 1), n_samples),
     }
-    refs = references(model, y0, data, h_fine, with_diffrax)
+    refs = references(system, y0, data, h_fine, with_diffrax)
     info = _common.machine_info()
     print(
         f"work-precision: {n_samples} samples, h = 2^-{kmin} ... 2^-{kmax}, "
@@ -484,14 +486,14 @@ def main(argv=None):
     for name in names:
         for k in ks:
             h, n_steps = 2.0**-k, 2**k
-            fn, fn_args, ref_key = build(name, model, y0, h, n_steps, h_fine, data)
+            fn, fn_args, ref_key = build(name, system, y0, h, n_steps, h_fine, data)
             exe, t_compile = _common.compile_timed(fn, *fn_args)
             t_med, t_min, n_rep, ys = _common.time_call(exe, *fn_args, repeats=args.repeats)
             compiled[(name, k)] = (exe, fn_args)
             finals[(name, k)] = ys
             n_failed = None
             if name in IMPLICIT and not fast:
-                n_failed = count_failed(model, y0, fn_args[0], h, OURS[name])
+                n_failed = count_failed(system, y0, fn_args[0], h, OURS[name])
             e2 = np.asarray(jnp.sum((ys - refs[ref_key]) ** 2, axis=-1))
             rms = float(np.sqrt(e2.mean()))
             se = float(e2.std(ddof=1) / math.sqrt(n_samples) / (2 * rms)) if rms > 0 else 0.0
@@ -537,7 +539,7 @@ def main(argv=None):
         if (name, k_cost) in compiled:
             cost_exes[name] = compiled[(name, k_cost)]
         else:
-            fn, fn_args, _ = build(name, model, y0, h_cost, n_cost, h_fine, data)
+            fn, fn_args, _ = build(name, system, y0, h_cost, n_cost, h_fine, data)
             exe, _ = _common.compile_timed(fn, *fn_args)
             jax.block_until_ready(exe(*fn_args))
             cost_exes[name] = (exe, fn_args)

@@ -19,7 +19,7 @@ initial vorticity of degrees l = 1..4 (coefficients N(0, 1), seed 0), step h = 0
   tr W^4 and of the energy along one path, for each method.
 - `--check-quflow`: quflow's `shr2mat`, `mat2shr`, `solve_poisson`, `energy_euler`,
   `enstrophy` against ours (N = 5, 8, 16), and the order of its `isomp` against our exact
-  flow `deterministic_flow` (the same time units).
+  flow `drift_flow` (the same time units).
 
 Writes `zeitlin.csv`, `zeitlin.json`, `zeitlin.md` into --out (default benchmarks/results)
 and the figure `zeitlin.png` there.
@@ -77,16 +77,16 @@ METHODS = {
 }
 
 
-def _integrate(model, y0, method):
-    return lambda d: sj.integrate(model, y0, d, H, method=method, throw=False)
+def _integrate(system, y0, method):
+    return lambda d: sj.integrate(system, y0, d, H, method=method, throw=False)
 
 
-def iterations(model, w0, method, n_steps):
+def iterations(system, w0, method, n_steps):
     """Solver updates per step (all attempts) and the steps redone as substeps, one path."""
     if isinstance(method, sj.Heun):
         return 0.0, 0
     sol = sj.simulate(
-        model,
+        system,
         w0,
         t1=n_steps * H,
         dt=H,
@@ -101,18 +101,18 @@ def iterations(model, w0, method, n_steps):
 def cost(ns):
     rows = []
     for N in ns:
-        model, w0 = sj.EulerZeitlin(N), initial(N)
+        system, w0 = sj.EulerZeitlin(N), initial(N)
         n_steps = STEPS[N]
         for name, method in METHODS.items():
             for size in (ENSEMBLE, 1):
-                one = _integrate(model, w0, method)
+                one = _integrate(system, w0, method)
                 fn = jax.vmap(one) if size > 1 else one
                 dW = jnp.zeros((size, n_steps, 1) if size > 1 else (n_steps, 1))
                 compiled, compile_s = _common.compile_timed(fn, dW)
                 med, best, reps, y = _common.time_call(compiled, dW, repeats=3, min_total=0.5)
                 y = y[0] if size > 1 else y
                 if size == ENSEMBLE:  # (the same path for both sizes)
-                    its, retried = iterations(model, w0, method, n_steps)
+                    its, retried = iterations(system, w0, method, n_steps)
                 rows.append(
                     dict(
                         N=N,
@@ -244,9 +244,9 @@ def scale(ns, dtypes, budget_s, members, member_ns, write):
             )
             parts["two_products_ms"] = (_products, (a, b))
             parts["two_complex_products_ms"] = (_complex_products, (a, b))
-            model = sj.EulerZeitlin(N, dtype=dtype)
+            system = sj.EulerZeitlin(N, dtype=dtype)
             step = lambda w, d: sj.integrate(
-                model,
+                system,
                 w,
                 d,
                 0.64 / N,
@@ -274,7 +274,7 @@ def scale(ns, dtypes, budget_s, members, member_ns, write):
             parts["step_8_areas_ms"] = (areas, (noisy, w0, dW8.astype(real), A8.astype(real)))
             if N in member_ns:
                 dW0 = jnp.zeros((members, 4, 1), real)
-                parts["ensemble_ms"] = (ensemble, (model, scales * w0, dW0))
+                parts["ensemble_ms"] = (ensemble, (system, scales * w0, dW0))
                 if N <= EIGENBASIS_MAX_N:
                     eig = sj.EulerZeitlin(N, dtype=dtype, poisson="eigenbasis")
                     parts["ensemble_eigenbasis_ms"] = (ensemble, (eig, scales * w0, dW0))
@@ -294,7 +294,7 @@ def scale(ns, dtypes, budget_s, members, member_ns, write):
                 )
             if row["step_ms"] is not None:
                 sol = sj.simulate(
-                    model,
+                    system,
                     w0,
                     t1=0.64 / N,
                     dt=0.64 / N,
@@ -368,12 +368,12 @@ def breakdown(N, members, big_N, write):
                 in_axes=(None, 0, 0),
             )
             for route in ("scan", "eigenbasis"):
-                model = sj.EulerZeitlin(N, dtype=dtype, poisson=route)
+                system = sj.EulerZeitlin(N, dtype=dtype, poisson=route)
                 timed(
                     f"{label} step, {final}, {route}",
                     dtype,
                     ensemble,
-                    model,
+                    system,
                     w,
                     dW,
                     per=2 * members,
@@ -383,13 +383,13 @@ def breakdown(N, members, big_N, write):
     label = f"N = {big_N}, one state:"
     timed(f"{label} LU solve", jnp.complex64, lambda a: jnp.linalg.solve(eye - a, eye + a), w)
     timed(f"{label} two products", jnp.complex64, lambda a, b: matmul(matmul(a, b), b), w, w)
-    model = sj.EulerZeitlin(big_N, dtype=jnp.complex64)
+    system = sj.EulerZeitlin(big_N, dtype=jnp.complex64)
     for final in ("explicit", "cayley"):
         step = lambda m, x, d, f=final: sj.integrate(
             m, x, d, 0.64 / big_N, throw=False, method=sj.IsospectralMidpoint(final_update=f)
         )
         dW = jnp.zeros((2, 1), jnp.float32)
-        timed(f"{label} step, {final}", jnp.complex64, step, model, w, dW, per=2)
+        timed(f"{label} step, {final}", jnp.complex64, step, system, w, dW, per=2)
     return rows
 
 
@@ -404,9 +404,9 @@ def conservation(N, n_steps):
     c0 = np.asarray(sj.su(N).casimirs(w0))
     e0 = float(z.energy(w0))
     for name, method, dtype in runs:
-        model = sj.EulerZeitlin(N, dtype=dtype)
+        system = sj.EulerZeitlin(N, dtype=dtype)
         sol = sj.simulate(
-            model,
+            system,
             w0,
             t1=n_steps * H,
             dt=H,
@@ -418,7 +418,7 @@ def conservation(N, n_steps):
         if int(sol.stats["n_failed"]):
             raise RuntimeError(f"{name}: the path failed; its frozen state is not data.")
         ws = sol.ys[0].astype(jnp.complex128)
-        c = np.asarray(model.algebra.casimirs(ws))
+        c = np.asarray(system.algebra.casimirs(ws))
         rel = np.max(np.abs(c - c0), axis=0) / np.abs(c0)
         rows.append(
             dict(
@@ -458,9 +458,7 @@ def check_quflow():
         )
     N, t = 16, 2.0
     w0 = np.asarray(initial(N))
-    ref = np.asarray(
-        sj.deterministic_flow(sj.EulerZeitlin(N), w0, np.array([t]), max_step=2.0**-10)[0]
-    )
+    ref = np.asarray(sj.drift_flow(sj.EulerZeitlin(N), w0, np.array([t]), max_step=2.0**-10)[0])
     errs = []
     for h in (0.01, 0.005, 0.0025):
         w = w0.copy()

@@ -111,11 +111,11 @@ def experiment(
     ensembles, drift = {}, {}
     for name, noise in (("calibrated", fit.noise), ("isotropic", isotropic_noise(fit, N))):
         start = time.perf_counter()
-        model = sj.EulerZeitlin(N, noise=noise)
+        system = sj.EulerZeitlin(N, noise=noise)
         runs = []
         for s in range(starts):
             sol = sj.simulate(
-                model,
+                system,
                 x0[s],
                 t1=lead * h,
                 dt=h,
@@ -128,7 +128,7 @@ def experiment(
                 raise RuntimeError(f"{name}: {int(sol.stats['n_failed'])} members failed.")
             runs.append(np.asarray(sol.ys))
         ensembles[name] = np.stack(runs)
-        c = np.asarray(model.algebra.casimirs(ensembles[name]))
+        c = np.asarray(system.algebra.casimirs(ensembles[name]))
         drift[name] = float(np.max(np.abs(c / c[..., :1, :] - 1)))
         seconds[name] = time.perf_counter() - start
     # the lead times after the start, the starts pooled as observables:

@@ -40,9 +40,9 @@ def run(sharding=None):
 
     import slps_jax as sj
 
-    model, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
+    system, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
     sol = sj.simulate(
-        model,
+        system,
         y0,
         t1=0.5,
         dt=2.0**-6,
@@ -52,7 +52,7 @@ def run(sharding=None):
         sharding=sharding,
     )
     stats = sj.ensemble_statistics(
-        model,
+        system,
         y0,
         t1=0.5,
         dt=2.0**-6,

@@ -8,15 +8,15 @@ The library in four layers:
   `salt_noise`, `random_inertia_noise`, a function), parameters as pytree leaves:
   `LiePoissonSystem` (derivatives by JAX) and its analytic special cases `RigidBody` and
   `GeneralisedRigidBody` (so(n)). A system declares its `structure`.
-- **Method**: a small immutable object with `step(model, y, dt, dW)` (`dW` the step's noise,
+- **Method**: a small immutable object with `step(system, y, dt, dW)` (`dW` the step's noise,
   a `BrownianStep`: increments and, when drawn, Lévy areas), the structures it `requires`,
   its `strong_orders` by kind of noise and whether it is `poisson`; implicit methods share
   one Newton solver whose `RESULTS` code says why a step failed.
 - **Driver**: `integrate` (given increments), `simulate` (an ensemble, increments drawn inside),
   `ensemble_statistics` (streamed moments); it owns the time loop, saving, statistics and
   failures, and refuses a method that the system cannot serve.
-- **Studies**: `strong_convergence`, `weak_convergence`, `calibrate`, exact solutions of the
-  rigid body.
+- **Studies**: `strong_convergence`, `weak_convergence`, `calibrate`; the drift's flow
+  `drift_flow` and, with one noise proportional to the drift, the `exact_solution`.
 """
 
 # System
@@ -40,9 +40,10 @@ from ._convergence import WeakConvergenceResult as WeakConvergenceResult
 from ._convergence import strong_convergence as strong_convergence
 from ._convergence import weak_convergence as weak_convergence
 from ._euler_zeitlin import EulerZeitlin as EulerZeitlin
-from ._exact import exact_flow as exact_flow
-from ._exact import exact_solution as exact_solution
-from ._flow import deterministic_flow as deterministic_flow
+from ._flow import deterministic_flow as deterministic_flow  # deprecated: drift_flow
+from ._flow import drift_flow as drift_flow
+from ._flow import exact_flow as exact_flow  # deprecated: drift_flow
+from ._flow import exact_solution as exact_solution
 
 # Driver
 from ._integrate import integrate as integrate

@@ -25,7 +25,7 @@ def summary(n_samples=500, fast=False, seed=0):
     import slps_jax as sj
 
     say = functools.partial(print, flush=True)  # each line as it is produced (logs, pipes)
-    model, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
+    system, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
     key = jax.random.key(seed)
     levels = range(5, 8) if fast else range(5, 10)
     dts = [2.0**-k for k in levels]
@@ -37,8 +37,8 @@ def summary(n_samples=500, fast=False, seed=0):
         f"dtype {y0.dtype}"
     )
     say(
-        f"Stochastic rigid body: I = {np.round(np.asarray(model.inertia), 6)}, "
-        f"c = {float(np.asarray(model.c))}, y0 = {sj.PAPER_Y0}\n"
+        f"Stochastic rigid body: I = {np.round(np.asarray(system.inertia), 6)}, "
+        f"c = {float(np.asarray(system.c))}, y0 = {sj.PAPER_Y0}\n"
     )
 
     say(
@@ -47,7 +47,7 @@ def summary(n_samples=500, fast=False, seed=0):
     )
     start = time.perf_counter()
     conv = sj.strong_convergence(
-        model, y0, t1=1.0, dts=dts, n_samples=n_samples, key=key, methods=methods
+        system, y0, t1=1.0, dts=dts, n_samples=n_samples, key=key, methods=methods
     )
     say(
         f"Strong error at T = 1 against the exact solution phi_(T + cW(T))(y0), "
@@ -62,15 +62,15 @@ def summary(n_samples=500, fast=False, seed=0):
         f"{n_inv} samples, max over samples:\n"
     )
     say("| method | rel. Casimir drift | rel. energy drift | seconds |\n|---|---|---|---|")
-    c0, h0 = float(model.casimir(y0)), float(model.hamiltonian(y0))
+    c0, h0 = float(system.casimir(y0)), float(system.hamiltonian(y0))
     for name, method in methods.items():
         start = time.perf_counter()
         sol = sj.simulate(
-            model, y0, t1=n_steps * dt, dt=dt, n_samples=n_inv, key=key, method=method, throw=False
+            system, y0, t1=n_steps * dt, dt=dt, n_samples=n_inv, key=key, method=method, throw=False
         )
         y_end = sol.ys[:, -1]
-        dc = float(jnp.max(jnp.abs(model.casimir(y_end) / c0 - 1)))
-        dh = float(jnp.max(jnp.abs(model.hamiltonian(y_end) / h0 - 1)))
+        dc = float(jnp.max(jnp.abs(system.casimir(y_end) / c0 - 1)))
+        dh = float(jnp.max(jnp.abs(system.hamiltonian(y_end) / h0 - 1)))
         say(f"| {name} | {dc:.2e} | {dh:.2e} | {time.perf_counter() - start:.1f} |")
 
     say(f"\nNewton solves of scheme (42), T = 1, {n_samples} samples:\n")
@@ -80,7 +80,7 @@ def summary(n_samples=500, fast=False, seed=0):
     )
     for dt in dts:
         sol = sj.simulate(
-            model,
+            system,
             y0,
             t1=1.0,
             dt=dt,

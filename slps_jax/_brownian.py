@@ -355,7 +355,7 @@ def brownian_increments(
     - `n_samples`: `None` for one path (the path of sample 0), else that many paths.
     - `truncate_k`: the truncation parameter $k$ of $A_h = \\sqrt{2k|\\ln h|}$, `None` for none.
     - `dtype`: a floating dtype, by default the default float (float64 with
-      `jax_enable_x64`); use the model's dtype (`model.dtype`).
+      `jax_enable_x64`); use the system's dtype (`system.dtype`).
     - `n_noises`: `None` for one noise, or the number `s` of independent noises (the
       system's `n_noises`): then each step has `s` increments, a last axis of length `s`.
 

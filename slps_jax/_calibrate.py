@@ -16,6 +16,7 @@ import numpy as np
 import optax
 
 from . import _brownian
+from ._deprecated import renamed_attribute
 from ._failures import message
 from ._integrate import run_ensemble
 from ._methods.base import AbstractMethod
@@ -33,7 +34,7 @@ def moments(ys):
 class CalibrationResult:
     """What `calibrate` returns.
 
-    - `model`: the fitted `RigidBody`.
+    - `system`: the fitted `RigidBody`.
     - `loss`: the loss at `init` (`loss[0]`) and at each accepted iterate (`loss[-1]` at the
       fitted parameters).
     - `names`: the parameters, in order: `I_1, I_2, I_3`, then `c`, or the entries of the
@@ -50,11 +51,13 @@ class CalibrationResult:
       their spread says how well the data determine the parameters.
     """
 
-    model: RigidBody
+    system: RigidBody
     loss: np.ndarray
     stderr: np.ndarray | None
     singular_values: np.ndarray
     names: tuple = ("I_1", "I_2", "I_3", "c")
+
+    model = renamed_attribute("model", "system")  # (the old name, one release)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -90,8 +93,8 @@ class _Parameters:
             tuple(param.shape),
         )
 
-    def model(self, theta):
-        return _model(theta, self.family, self.shape)
+    def system(self, theta):
+        return _system_at(theta, self.family, self.shape)
 
     def values(self, theta):
         """The parameters themselves (not their logarithms), as a NumPy array."""
@@ -102,7 +105,7 @@ class _Parameters:
         return ", ".join(f"{n} {v:.6g}" for n, v in zip(self.names, self.values(theta)))
 
 
-def _model(theta, family, shape):
+def _system_at(theta, family, shape):
     """The `RigidBody` at `theta` (`log I`, then `log c` or the family's parameter)."""
     inertia = jnp.exp(theta[:3])
     if family is None:
@@ -137,10 +140,10 @@ class _Fit:
     def residuals(self, theta, theta_all, observed, weight, key):
         """The weighted residuals of the statistics at the free parameters `theta`, and (aux)
         the number of failed samples (raised by `calibrate`, with its own advice)."""
-        model = _model(self.full(theta, theta_all), self.family, self.shape)
+        system = _system_at(self.full(theta, theta_all), self.family, self.shape)
         p = plan_ensemble(
             "simulate",
-            model,
+            system,
             self.y0,
             t1=self.t1,
             dt=self.dt,
@@ -229,7 +232,7 @@ def calibrate(
       the standard errors of the fit.
     - `observed_n_samples`: the size of the observed ensemble, if known: the standard errors
       then include the sampling error of the simulated statistics too (a factor
-      $\sqrt{1 + n_{obs}/n_{samples}}$, the model's statistics having the observed ones'
+      $\sqrt{1 + n_{obs}/n_{samples}}$, the system's statistics having the observed ones'
       variance).
     - `fixed`: names among `"I_1", "I_2", "I_3", "c"` (or the noise family's entries, such
       as `"chi[0, 1]"`; `CalibrationResult.names` lists them) held at their values in `init`.
@@ -376,7 +379,7 @@ def calibrate(
             report=report,
         )
 
-    model = params.model(full(theta))
+    system = params.system(full(theta))
     stderr = None
     if observed_stderr is not None:
         # Delta method: Cov(theta) = (J^T J)^{-1} with the weighted Jacobian; then the chain
@@ -388,7 +391,7 @@ def calibrate(
         stderr[free] = np.sqrt(np.diag(cov)) * scale
         if observed_n_samples is not None:
             stderr *= math.sqrt(1.0 + observed_n_samples / n_samples)
-    return CalibrationResult(model, np.asarray(history), stderr, sv, tuple(all_names))
+    return CalibrationResult(system, np.asarray(history), stderr, sv, tuple(all_names))
 
 
 def _as_tuple(y0):
@@ -502,7 +505,7 @@ def _check_identifiable(jac, names, inertia):
     if not np.all(np.isfinite(jac)):
         raise ValueError(
             "calibrate: the statistics' Jacobian at init is not finite; "
-            "the initial model fails to simulate (try a smaller dt)."
+            "the initial system fails to simulate (try a smaller dt)."
         )
     n = jac.shape[1]
     _, sv, vt = np.linalg.svd(jac, full_matrices=True)

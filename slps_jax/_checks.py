@@ -2,17 +2,19 @@
 wherever it is made. Every check runs in Python on concrete values, before anything
 compiles; traced values (inside `jit`, `vmap`, `grad`) pass unchecked. A leaf module: the
 checks that need systems or methods (their pairing, `y0` against the algebra) are in
-`_plan.py`, `check_model` in `_system.py`.
+`_plan.py`, `check_system` in `_system.py`.
 
-Dtype policy: the model's dtype (that of its parameters and `c`) is the dtype of the
-computation. `y0` and `dW` are cast to it: a float32 `y0` with a float64 model is promoted
-(exactly); a float64 `y0` with a float32 model is rounded to float32, which is what a
-float32 model asks for. Non-real inputs (complex, bool, strings) are rejected.
+Dtype policy: the system's dtype (that of its parameters and `c`) is the dtype of the
+computation. `y0` and `dW` are cast to it: a float32 `y0` with a float64 system is promoted
+(exactly); a float64 `y0` with a float32 system is rounded to float32, which is what a
+float32 system asks for. Non-real inputs (complex, bool, strings) are rejected.
 """
 
 from __future__ import annotations
 
 import math
+import os
+import sys
 
 import jax
 import jax.core
@@ -173,3 +175,16 @@ def check_options(method):
         n = method.unroll
         if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 0:
             raise ValueError(f"{name}: unroll must be an integer >= 0, got {n!r}.")
+
+
+_PACKAGE = os.path.dirname(os.path.abspath(__file__))
+
+
+def user_stacklevel():
+    """The `stacklevel` for a `warnings.warn` in the function that calls this one that points
+    at the first line outside this package: the user's call, however deep the library's
+    own calls (and decorators) are."""
+    level, frame = 1, sys._getframe(1)
+    while frame is not None and frame.f_code.co_filename.startswith(_PACKAGE):
+        frame, level = frame.f_back, level + 1
+    return level

@@ -16,14 +16,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _brownian
-from ._checks import check_count, check_positive, check_retry, real_dtype
-from ._exact import exact_flow, exact_solution
+from ._checks import check_count, check_positive, check_retry, real_dtype, user_stacklevel
+from ._deprecated import renamed_arguments, warn
 from ._failures import message, summary
-from ._flow import deterministic_flow
+from ._flow import drift_flow
 from ._integrate import ensemble_dynamic_jit
 from ._methods.base import AbstractMethod
 from ._methods.midpoint import Midpoint
-from ._plan import check_levy_option, check_method, check_model, check_y0
+from ._plan import check_levy_option, check_method, check_system, check_y0
 from ._system import NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
 
 
@@ -82,9 +82,19 @@ def _brownian_endpoints(keys, path, n_fine):
     return jax.vmap(lambda key: path.joined(key, n_fine).dW[0])(keys)
 
 
+def _exact_endpoints(system, y0, t1, w_t):
+    """The exact solutions at `t1` on paths ending at `w_t`: the drift's flow at the times
+    `t1 + c w_t` (closed form for the rigid body, compiled once; Runge–Kutta on the NumPy
+    times otherwise)."""
+    if RIGID_BODY in system.structure:
+        return _time_changed_flow(system, y0, t1, w_t)
+    times = float(t1) + np.asarray(system.c) * np.asarray(w_t)
+    return drift_flow(system, y0, times).astype(y0.dtype)
+
+
 @jax.jit
-def _exact_endpoints(model, y0, t1, w_t):
-    return jax.vmap(lambda w: exact_solution(model, y0, t1, w))(w_t)
+def _time_changed_flow(system, y0, t1, w_t):
+    return drift_flow(system, y0, t1 + system.c * w_t)
 
 
 def _substeps(dt, fine_dt, name):
@@ -134,13 +144,13 @@ def _warn_single_precision(caller, dtype):
             f"near it are wrong). For accuracy work enable float64 before creating any array: "
             f'jax.config.update("jax_enable_x64", True).',
             UserWarning,
-            stacklevel=4,
+            stacklevel=user_stacklevel(),
         )
 
 
 def _study(
     caller,
-    model,
+    system,
     y0,
     t1,
     dts,
@@ -156,7 +166,7 @@ def _study(
 ):
     """Validate a study's arguments (before anything compiles) and set up its shared paths
     and reference (see `strong_convergence`)."""
-    check_model(model)
+    check_system(system)
     if isinstance(methods, dict):
         if not methods:
             raise ValueError("methods must name at least one method, got an empty dict.")
@@ -164,8 +174,8 @@ def _study(
         methods = {type(methods).__name__: methods}
     for m in methods.values():
         check_method(m)
-        y0 = check_y0(y0, m, model)
-    _warn_single_precision(caller, model.dtype)
+        y0 = check_y0(y0, m, system)
+    _warn_single_precision(caller, system.dtype)
     t1_np = check_positive("t1", t1)
     if t1_np is None:
         raise TypeError(f"{caller} needs a concrete t1: call it outside jax.jit.")
@@ -180,34 +190,28 @@ def _study(
         raise ValueError(f"dts must be distinct, got {dts}.")
     dts = np.sort(dts)[::-1]
     named = reference if isinstance(reference, str) else None
+    if named == "flow":
+        warn("reference='flow'", "reference='exact' (the drift's flow for any system)")
+        named = reference = "exact"
     if named == "midpoint":
         reference = Midpoint()
         if reference_dt is None and reference_factor is None:
             reference_factor = 16
     is_method = isinstance(reference, AbstractMethod)
-    if not (is_method or callable(reference) or named in ("exact", "flow")):
+    if not (is_method or callable(reference) or named == "exact"):
         raise ValueError(
-            f"reference must be 'exact', 'flow', 'midpoint', a method instance "
-            f"or a callable flow, got {reference!r}."
+            f"reference must be 'exact', 'midpoint', a method instance or a callable flow, "
+            f"got {reference!r}."
         )
-    if not is_method and NOISE_PROPORTIONAL_TO_DRIFT not in model.structure:
+    if not is_method and NOISE_PROPORTIONAL_TO_DRIFT not in system.structure:
         raise ValueError(
             "This system's noise is not proportional to its drift: it has no "
             "time-change solution. Pass a method as the reference, for example "
             "reference=Midpoint(), computed on the same paths at a fine step."
         )
-    if named == "exact" and RIGID_BODY not in model.structure:
-        raise ValueError(
-            "reference='exact' needs a RigidBody (the closed-form flow); for a "
-            "LiePoissonSystem pass a deterministic flow as reference (a callable) "
-            "or a method, for example reference=Midpoint()."
-        )
     if is_method:
         check_method(reference)
-        y0 = check_y0(y0, reference, model)
-    if named == "flow":
-        y0_flow = y0
-        reference = lambda times: deterministic_flow(model, y0_flow, times)
+        y0 = check_y0(y0, reference, system)
     if reference_dt is not None and reference_factor is not None:
         raise ValueError("Pass reference_dt or reference_factor, not both.")
     if reference_dt is not None:
@@ -240,12 +244,12 @@ def _study(
         raise ValueError(
             f"levy_area names methods {unknown} that are not in methods ({sorted(methods)})."
         )
-    areas = {n: check_levy_option(chosen.get(n, default), m, model) for n, m in methods.items()}
-    ref_areas = is_method and check_levy_option(default, reference, model)
+    areas = {n: check_levy_option(chosen.get(n, default), m, system) for n, m in methods.items()}
+    ref_areas = is_method and check_levy_option(default, reference, system)
     # (the paths at the finest step, with their areas for the runs that take them: the
     # increments do not depend on whether the areas are drawn)
     fine = _brownian.BrownianPath.of(
-        fine_dt, model.n_noises, dtype, truncate_k=truncate_k, levy_area=True
+        fine_dt, system.n_noises, dtype, truncate_k=truncate_k, levy_area=True
     )
 
     def final_states(method, dt, name="dt", areas=False):
@@ -256,7 +260,7 @@ def _study(
             jnp.asarray(s), jnp.asarray(dt, dtype)
         )
         ys, fail_step, result, _, _ = ensemble_dynamic_jit(
-            method, model, y0, keys, path, 1, jnp.asarray(n_fine // s), False, retry=retry
+            method, system, y0, keys, path, 1, jnp.asarray(n_fine // s), False, retry=retry
         )
         found = summary(fail_step, result)
         why = None if found is None else f"{found[0]} at dt={dt:g} ({found[3]})"
@@ -277,24 +281,25 @@ def _study(
         reference_error = (
             math.nan
             if half is None or ref_failed.all()
-            else float(jnp.sqrt(jnp.mean(model.algebra.norm_sq(half - y_ref)[~ref_failed])))
+            else float(jnp.sqrt(jnp.mean(system.algebra.norm_sq(half - y_ref)[~ref_failed])))
         )
     elif callable(reference):
         # The time change: y(t1) = phi_{t1 + c W(t1)}(y0) for the deterministic flow phi.
         w_t = _brownian_endpoints(keys, fine.without_areas(), n_fine)
-        times = float(t1) + np.asarray(model.c) * np.asarray(w_t)
+        times = float(t1) + np.asarray(system.c) * np.asarray(w_t)
         y_ref = np.asarray(reference(times), dtype=np.float64)
-        if y_ref.shape != (n_samples, *model.algebra.shape):
+        if y_ref.shape != (n_samples, *system.algebra.shape):
             raise ValueError(
                 f"reference(times) must return shape "
-                f"{(n_samples, *model.algebra.shape)}, got {y_ref.shape}."
+                f"{(n_samples, *system.algebra.shape)}, got {y_ref.shape}."
             )
         y_ref = jnp.asarray(y_ref, dtype)
         reference_error = math.nan
     else:
         w_t = _brownian_endpoints(keys, fine.without_areas(), n_fine)
-        y_ref = _exact_endpoints(model, y0, jnp.asarray(t1, dtype), w_t)
-        reference_error = 0.0
+        y_ref = _exact_endpoints(system, y0, jnp.asarray(t1, dtype), w_t)
+        # (the closed form: round-off; Runge–Kutta: about 1e-13, not estimated)
+        reference_error = 0.0 if RIGID_BODY in system.structure else math.nan
 
     kind = "method" if is_method else "flow" if callable(reference) else "exact"
     return _Study(
@@ -346,13 +351,14 @@ def _runs(st, name, method):
                 retried=st.retried,
             ),
             RuntimeWarning,
-            stacklevel=3,
+            stacklevel=user_stacklevel(),
         )
     return np.stack([np.asarray(y) for y, _, _ in runs]), ~failed
 
 
+@renamed_arguments(model="system")
 def strong_convergence(
-    model,
+    system,
     y0,
     *,
     t1,
@@ -376,26 +382,24 @@ def strong_convergence(
 
     **Arguments:**
 
-    - `model`, `y0`: the model and initial value.
+    - `system`, `y0`: the system and initial value.
     - `t1`: the final time, a multiple of every step size.
     - `dts`: step sizes, each an integer multiple of the finest.
     - `n_samples`, `key`: number of Brownian samples and a `jax.random.key`.
     - `methods`: a method instance or a dict `{name: method}`, e.g. `LiePoisson()`,
       `LiePoissonSym2()`, `LiePoissonSym4()`, `Strang()`, `Strang4()`, `Midpoint()`.
     - `reference`: what the errors are measured against, on the same paths:
-        - `"exact"` (default): $y(t_1) = \varphi_{t_1 + cW(t_1)}(y_0)$, the exact solution of
-          a `RigidBody` with one noise proportional to the drift (`c=`), with no
-          discretisation error;
+        - `"exact"` (default): $y(t_1) = \varphi_{t_1 + cW(t_1)}(y_0)$, the exact solution
+          of a system with one noise proportional to the drift (`c=`), through `drift_flow`:
+          in closed form for a `RigidBody` (no discretisation error), by Runge–Kutta at
+          steps of at most 2^-10 otherwise (so(n) and su(N) included; about 1e-13);
         - a method instance, for any system (several noises included): that method at the
           step `min(dts) / reference_factor` (default factor 64, or `reference_dt`);
         - `"midpoint"`: `Midpoint()` at `reference_dt` (default `min(dts)/16`, the paper's
           choice);
-        - a callable `flow(times) -> states`, the deterministic flow $\varphi_t(y_0)$ at the
+        - a callable `flow(times) -> states`, a flow $\varphi_t(y_0)$ of the user's at the
           NumPy array of times $t_1 + cW(t_1)$, shape `(n_samples,)` to
-          `(n_samples, *state_shape)` (a system with one noise proportional to the drift:
-          the same time change holds for every Hamiltonian and algebra);
-        - `"flow"`: that time change through `deterministic_flow` (Runge–Kutta at steps of
-          at most 2^-10), for any system with `c=` (so(n) included).
+          `(n_samples, *state_shape)` (a system with one noise proportional to the drift).
     - `reference_dt`, `reference_factor`: the reference method's step, or the factor by
       which it is finer than `min(dts)` (not both).
     - `truncate_k`: the truncation parameter of the fine increments (`None` for none).
@@ -417,13 +421,14 @@ def strong_convergence(
 
     **Returns:** a `ConvergenceResult`. For a method reference its `reference_error` is the
     RMS difference between the reference and the same method at twice its step, on the same
-    paths: the size of the reference's own error (0 for `"exact"`, `nan` for a flow). Keep it
+    paths: the size of the reference's own error (0 for `"exact"` on a `RigidBody`; `nan` where it is
+    not estimated: Runge–Kutta's, about 1e-13, or a callable flow's). Keep it
     well below the errors you fit.
     """
     n_bootstrap = check_count("n_bootstrap", n_bootstrap, minimum=2)
     st = _study(
         "strong_convergence",
-        model,
+        system,
         y0,
         t1,
         dts,
@@ -444,7 +449,7 @@ def strong_convergence(
         start = time.perf_counter()
         ys, ok = _runs(st, name, method)
         seconds[name] = time.perf_counter() - start
-        e2 = np.asarray(model.algebra.norm_sq(ys[:, ok] - np.asarray(y_ref)[ok])).T
+        e2 = np.asarray(system.algebra.norm_sq(ys[:, ok] - np.asarray(y_ref)[ok])).T
         n_samples, n_failed[name] = e2.shape[0], st.n_samples - e2.shape[0]  # (n, n_dts)
         ms = e2.mean(0)
         errors[name] = np.sqrt(ms)
@@ -473,7 +478,8 @@ class WeakConvergenceResult:
     - `reference_mean`: $E[g(y(t_1))]$: by Gauss–Hermite quadrature of the exact flow for
       `reference="exact"` (exact to quadrature accuracy), else the mean over the reference
       paths.
-    - `reference_error`: the reference's own weak error: 0 for `"exact"`; for a method, the
+    - `reference_error`: the reference's own weak error: 0 for `"exact"` on a `RigidBody` (`nan`, not
+      estimated, for Runge–Kutta's about 1e-13); for a method, the
       coupled mean difference between it and the same method at twice its step.
     - `seconds`: wall time of each method's runs.
     - `n_failed`: samples left out of each method's estimates (see `ConvergenceResult`).
@@ -518,8 +524,9 @@ class WeakConvergenceResult:
         return np.all(np.abs(self.bias[name]) > self.ci[name], axis=0)
 
 
+@renamed_arguments(model="system")
 def weak_convergence(
-    model,
+    system,
     y0,
     *,
     t1,
@@ -543,7 +550,7 @@ def weak_convergence(
     The paths, step sizes and references are those of `strong_convergence` (same arguments).
     The weak error is estimated from the *coupled* differences $g(y_N) - g(y_\text{ref})$ on
     the same Brownian path, whose variance is far smaller than that of $g(y_N)$, so the
-    confidence intervals are narrow for few samples. With `reference="exact"` (a `RigidBody`
+    confidence intervals are narrow for few samples. With `reference="exact"` (a system
     with one noise proportional to the drift) the pathwise reference is the exact solution,
     so $E[g(y_\text{ref})]$ is exactly $E[g(y(t_1))] = \int g(\varphi_{t_1 + c\sqrt{t_1}z}(y_0))
     \,N(dz)$, which is also computed, by Gauss–Hermite quadrature with `n_nodes` nodes, as
@@ -553,7 +560,7 @@ def weak_convergence(
     **Arguments:** as `strong_convergence`, and
 
     - `observable`: `g(y) -> scalar or shape (m,)`, for one state `y`, traceable by JAX
-      (for example `lambda y: y` for the mean, or `model.hamiltonian`).
+      (for example `lambda y: y` for the mean, or `system.hamiltonian`).
     - `confidence`: the level of the intervals (default 0.95).
     - `n_nodes`: Gauss–Hermite nodes for the exact expectation (default 64).
 
@@ -567,16 +574,16 @@ def weak_convergence(
     if not (isinstance(confidence, (float, int)) and 0 < confidence < 1):
         raise ValueError(f"confidence must lie strictly between 0 and 1, got {confidence!r}.")
     n_nodes = check_count("n_nodes", n_nodes, minimum=2)
-    check_model(model)
+    check_system(system)
     g = jax.jit(jax.vmap(lambda y: jnp.atleast_1d(observable(y))))
-    shape = jax.eval_shape(g, jax.ShapeDtypeStruct((2, *model.algebra.shape), model.dtype)).shape
+    shape = jax.eval_shape(g, jax.ShapeDtypeStruct((2, *system.algebra.shape), system.dtype)).shape
     if len(shape) != 2:
         raise ValueError(
             f"observable(y) must return a scalar or shape (m,), got shape {shape[1:]}."
         )
     st = _study(
         "weak_convergence",
-        model,
+        system,
         y0,
         t1,
         dts,
@@ -594,10 +601,11 @@ def weak_convergence(
     g_ref = np.asarray(g(st.y_ref))
     if st.kind == "exact":
         x, w = np.polynomial.hermite_e.hermegauss(n_nodes)
-        times = st.t1 + float(model.c) * math.sqrt(st.t1) * x
-        states = _exact_flows(model, st.y0, jnp.asarray(times, st.y0.dtype))
+        times = st.t1 + float(system.c) * math.sqrt(st.t1) * x
+        states = drift_flow(system, st.y0, np.asarray(times, real_dtype(st.y0.dtype)))
         reference_mean = np.asarray(w @ np.asarray(g(states))) / math.sqrt(2 * math.pi)
-        reference_error = np.zeros(shape[1])
+        exact = RIGID_BODY in system.structure  # (Runge–Kutta: about 1e-13, not estimated)
+        reference_error = np.zeros(shape[1]) if exact else np.full(shape[1], np.nan)
     else:
         good = ~st.ref_failed
         reference_mean = g_ref[good].mean(0)
@@ -624,8 +632,3 @@ def weak_convergence(
     return WeakConvergenceResult(
         st.dts, bias, ci, order, reference_mean, reference_error, seconds, n_failed
     )
-
-
-@jax.jit
-def _exact_flows(model, y0, times):
-    return jax.vmap(lambda t: exact_flow(model, y0, t))(times)

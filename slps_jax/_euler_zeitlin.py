@@ -40,17 +40,17 @@ class EulerZeitlin(LiePoissonSystem):
     - `N`: the matrix size, an integer $\ge 2$ (the field is resolved up to degree $N - 1$).
     - `c`, `noise`: as for `LiePoissonSystem` (default: deterministic).
     - `dtype`: the states' dtype, `complex128` or `complex64` (default: that of `c` or of the
-      noise's matrices, complex128 with float64 enabled). `complex64` runs the model in
+      noise's matrices, complex128 with float64 enabled). `complex64` runs the system in
       single precision while float64 stays enabled for everything else: `c` and the noise
       are cast to it, and so are the states and increments given to it.
     - `poisson`: the route of the Poisson solve in every step (`zeitlin.solve_poisson`):
       `"auto"` (default), `"sweep"`, `"scan"` or `"eigenbasis"`. With `"eigenbasis"` the
-      model carries its table of $N^3$ numbers (1.1 GB at N = 512 in complex128), built
-      here; jitted functions must take the model as an argument, not close over it, and
-      derivatives with respect to the model's parameters do not see the table.
+      system carries its table of $N^3$ numbers (1.1 GB at N = 512 in complex128), built
+      here; jitted functions must take the system as an argument, not close over it, and
+      derivatives with respect to the system's parameters do not see the table.
 
-    `model.stream(W)` ($P = \Delta_N^{-1}W$), `model.energy(W)`, `model.enstrophy(W)`
-    (quflow's normalisation), `model.algebra.casimirs(W)` ($\operatorname{tr}W^k$). All
+    `system.stream(W)` ($P = \Delta_N^{-1}W$), `system.energy(W)`, `system.enstrophy(W)`
+    (quflow's normalisation), `system.algebra.casimirs(W)` ($\operatorname{tr}W^k$). All
     computations are $O(N^2)$ except the methods' matrix products.
     """
 

@@ -1,5 +1,6 @@
-r"""The exact flow of the free rigid body, and through it the exact solution of the
-stochastic rigid body $dy = y \times I^{-1} y\,(dt + c \circ dW)$.
+r"""The exact flow of the free rigid body in closed form: the rigid body's `drift_flow`, and
+through it the exact solution of the stochastic rigid body $dy = y \times I^{-1} y\,(dt + c
+\circ dW)$ and the `Exact` method.
 
 The flow is the Jacobi-elliptic closed form of Celledoni, Fassò, Säfström & Zanna (2008),
 written with the addition theorem of the elliptic functions: the initial phase $u_0$ enters
@@ -169,21 +170,21 @@ def _check_real(name, x, shape, hint=""):
     return x
 
 
-def _check_flow_args(model, y0, t, need_c=False):
-    if not hasattr(model, "inertia") or (need_c and not hasattr(model, "c")):
+def _check_flow_args(system, y0, t, need_c=False):
+    if not hasattr(system, "inertia") or (need_c and not hasattr(system, "c")):
         raise TypeError(
-            f"model must have `inertia`{' and `c`' if need_c else ''} (for example "
-            f"a RigidBody), got {type(model).__name__}."
+            f"system must have `inertia`{' and `c`' if need_c else ''} (for example "
+            f"a RigidBody), got {type(system).__name__}."
         )
-    inertia = _check_real("model.inertia", model.inertia, (3,))
+    inertia = _check_real("system.inertia", system.inertia, (3,))
     if not isinstance(inertia, jax.core.Tracer) and not np.all(np.asarray(inertia) > 0):
-        raise ValueError(f"model.inertia must be positive, got {np.asarray(inertia)}.")
+        raise ValueError(f"system.inertia must be positive, got {np.asarray(inertia)}.")
     y0 = _check_real("y0", y0, (3,), "; use jax.vmap for a batch of initial values")
     t = _check_real("t", t, (), "; use jax.vmap for several times")
     return inertia, y0, t
 
 
-def exact_flow(model, y0, t):
+def rigid_body_flow(system, y0, t):
     r"""The exact flow $\varphi_t(y_0)$ of the free rigid body
 
     $$\frac{dy}{dt} = y \times I^{-1} y, \qquad I = \operatorname{diag}(I_1, I_2, I_3),$$
@@ -192,7 +193,7 @@ def exact_flow(model, y0, t):
     $2H = \sum_i y_i^2 / I_i$ fix the orbit; the sign of $|y|^2 - 2H I_\text{mid}$ picks
     which pair of components oscillates. The separatrix, axisymmetric bodies, the
     principal axes (fixed points), `y0 = 0`, negative `t` and moments in any order are all
-    handled, and the result is differentiable in `y0`, `t` and `model.inertia`: gradients
+    handled, and the result is differentiable in `y0`, `t` and `system.inertia`: gradients
     are finite everywhere, and exact except in the inertia where two moments are equal
     *and* `y0` lies in the plane they span (the symmetry breaking is missed there).
 
@@ -202,7 +203,7 @@ def exact_flow(model, y0, t):
 
     **Arguments:**
 
-    - `model`: anything with `inertia`, the principal moments, shape `(3,)`, positive,
+    - `system`: anything with `inertia`, the principal moments, shape `(3,)`, positive,
         in any order (e.g. a `RigidBody`).
     - `y0`: the initial angular momentum, shape `(3,)`.
     - `t`: the time, a scalar, may be negative.
@@ -219,14 +220,14 @@ def exact_flow(model, y0, t):
     2084–2112. Jacobi functions by the descending Landen transformation / AGM (Abramowitz
     & Stegun 16.4, and 16.15 at the separatrix); Fukushima (2012) gives faster schemes.
     """
-    inertia, y0, t = _check_flow_args(model, y0, t)
+    inertia, y0, t = _check_flow_args(system, y0, t)
     dtype = jnp.result_type(float, inertia, y0, t)
     return _flow(inertia.astype(dtype), y0.astype(dtype), t.astype(dtype))
 
 
 @jax.jit
 def _flow(inertia, y0, t):
-    """`exact_flow` after its argument checks. Compiled as one program: run op by op (for
+    """`rigid_body_flow` after its argument checks. Compiled as one program: run op by op (for
     example under an eager `vmap`) its hundreds of small operations took seconds."""
     dtype = y0.dtype
     # Scale y0 and a = 1/I to order one by powers of two (exact, and constants for autodiff):
@@ -253,33 +254,3 @@ def _flow(inertia, y0, t):
     b = jnp.where(near_side, 1.0, -1.0).astype(dtype) * a[perm]
     z = _reduced_flow(b, y0[perm], parity * t)
     return jnp.zeros_like(y0).at[perm].set(z) * s
-
-
-def exact_solution(model, y0, t, W_t):
-    r"""The exact solution of the stochastic rigid body
-
-    $$dy = y \times I^{-1} y \,(dt + c \circ dW_t),$$
-
-    which, the noise multiplying the same vector field, is the free rigid body flow run to
-    the random time $t + c W_t$: $y(t) = \varphi_{t + c W_t}(y_0)$.
-
-    **Arguments:**
-
-    - `model`: anything with `inertia` (shape `(3,)`) and `c` (a scalar), e.g. a
-        `RigidBody`.
-    - `y0`: the initial value, shape `(3,)`.
-    - `t`: the time, a scalar.
-    - `W_t`: the Brownian motion at time `t` (started at 0), a scalar.
-
-    **Returns:**
-
-    $y(t)$, shape `(3,)`.
-
-    **Reference:**
-
-    Celledoni, Fassò, Säfström & Zanna (2008) for the flow, see `exact_flow`.
-    """
-    _check_flow_args(model, y0, t, need_c=True)
-    W_t = _check_real("W_t", W_t, (), "; use jax.vmap for several paths")
-    _check_real("model.c", model.c, ())
-    return exact_flow(model, y0, t + model.c * W_t)

@@ -15,6 +15,7 @@ import jax
 import jax.core
 import numpy as np
 
+from ._checks import user_stacklevel
 from ._sharding import gather
 from ._solution import RESULTS
 
@@ -91,7 +92,7 @@ def _report_now(caller, throw, retried, fail_step, result):
         raise RuntimeError(
             msg + (" Pass throw=False to get the other samples." if caller != "integrate" else "")
         )
-    warnings.warn(msg, RuntimeWarning, stacklevel=4)
+    warnings.warn(msg, RuntimeWarning, stacklevel=user_stacklevel())
 
 
 @functools.cache

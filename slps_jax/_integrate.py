@@ -20,9 +20,10 @@ from ._checks import (
     real_array,
     real_dtype,
 )
+from ._deprecated import renamed_arguments
 from ._failures import report
 from ._methods.base import AbstractMethod, finite_result
-from ._plan import check_levy_area, check_method, check_model, check_y0, plan_ensemble
+from ._plan import check_levy_area, check_method, check_system, check_y0, plan_ensemble
 from ._retry import robust_step
 from ._sharding import as_given, automatic, sharded_keys
 from ._solution import RESULTS, Solution
@@ -44,7 +45,7 @@ def _highest_precision(fn):
 
 @functools.partial(jax.jit, static_argnames=("method", "want_stats", "retry"))
 @_highest_precision
-def _step(method, model, dt, carry, dW, live, *, want_stats, retry):
+def _step(method, system, dt, carry, dW, live, *, want_stats, retry):
     """One step of one sample, with the failure bookkeeping of `_path`.
 
     `live = False` marks a padding slot of the loop layout (`_layout`): the sample idles
@@ -63,13 +64,13 @@ def _step(method, model, dt, carry, dW, live, *, want_stats, retry):
         # A failed sample idles at its last good state: with dt = dW = 0 every method's
         # step is trivial, so it costs no Newton iterations.
         y_new, info = method.step(
-            model, y, jnp.where(act, dt, 0.0).astype(dtype), _brownian.where(act, dW)
+            system, y, jnp.where(act, dt, 0.0).astype(dtype), _brownian.where(act, dW)
         )
         code = finite_result(y_new, info.result)
         it = jnp.where(act, info.iterations, 0)
         res = jnp.where(act & (code == RESULTS.successful), info.residual, 0.0)
     else:
-        y_new, code, it, res, retried = robust_step(method, model, y, dt, dW, act, retry)
+        y_new, code, it, res, retried = robust_step(method, system, y, dt, dW, act, retry)
         n_retried = n_retried + retried.astype(jnp.int32)
     ok = code == RESULTS.successful
     fail_step = jnp.where(act & ~ok, n, fail_step)
@@ -80,7 +81,7 @@ def _step(method, model, dt, carry, dW, live, *, want_stats, retry):
     return y, result, fail_step, n + live.astype(n.dtype), n_retried, acc
 
 
-def _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats, retry=None, like=()):
+def _path(method, system, y0, dt, draw, n_blocks, block_len, want_stats, retry=None, like=()):
     """Integrate one sample: `n_blocks` blocks of `block_len` steps, saving after each block.
 
     `draw(n)` gives step n's increment (`n` traced). With a Python-int `block_len` the time loop is a
@@ -100,7 +101,7 @@ def _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats, retry=No
     zero = jnp.zeros((), real_dtype(y0.dtype))
     acc0 = (zero, jnp.zeros((), jnp.int32), zero) if want_stats else ()
     if method.flow_in_time is not None:
-        return _time_change_path(method, model, y0, dt, draw, n_blocks, block_len, acc0, like)
+        return _time_change_path(method, system, y0, dt, draw, n_blocks, block_len, acc0, like)
     # (the step counter stays unbatched: every sample is at the same step)
     y0, result0, fail0, n_retried0, acc0 = batched_like(
         (
@@ -126,7 +127,14 @@ def _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats, retry=No
             0,
             length,
             lambda i, c: _step(
-                method, model, dt, c, _index(dWs, i), i < n_live, want_stats=want_stats, retry=retry
+                method,
+                system,
+                dt,
+                c,
+                _index(dWs, i),
+                i < n_live,
+                want_stats=want_stats,
+                retry=retry,
             ),
             carry,
         )
@@ -141,7 +149,7 @@ def _path(method, model, y0, dt, draw, n_blocks, block_len, want_stats, retry=No
     return ys, fail_step, result, n_retried, acc
 
 
-def _time_change_path(method, model, y0, dt, draw, n_blocks, block_len, acc0, like):
+def _time_change_path(method, system, y0, dt, draw, n_blocks, block_len, acc0, like):
     """`_path` for a method whose steps compose in time (`flow_in_time`): the step with
     increments `(h, dW)` is the flow for the random time `h + c dW`, so between two saved
     states only the sum of the step times is needed. The loop draws the same increments
@@ -152,14 +160,14 @@ def _time_change_path(method, model, y0, dt, draw, n_blocks, block_len, acc0, li
     def steps(carry, length, n_live):
         tau, n0 = carry
         dWs = jax.vmap(lambda j: draw(n0 + j))(jnp.arange(length, dtype=n0.dtype))
-        times = jax.vmap(lambda w: dt + model.noise_time(w))(dWs)
+        times = jax.vmap(lambda w: dt + system.noise_time(w))(dWs)
         live = jnp.arange(length) < n_live
         return tau + jnp.sum(jnp.where(live, times, 0.0)), n0 + jnp.minimum(length, n_live)
 
     def block(carry, _):
         y, n = carry
         tau, n = _checkpointed_loop(steps, block_len, (tau0, n))
-        y = method.flow_in_time(model, y, tau).astype(y.dtype)
+        y = method.flow_in_time(system, y, tau).astype(y.dtype)
         return (y, n), y
 
     _, ys = jax.lax.scan(block, (y0, jnp.array(0, jnp.int32)), None, length=n_blocks)
@@ -235,10 +243,10 @@ def _index(noise, i):
 
 
 @functools.partial(jax.jit, static_argnames=("method", "save_every", "want_stats", "retry"))
-def _integrate_jit(method, model, y0, noise, dt, save_every, want_stats, retry=None):
+def _integrate_jit(method, system, y0, noise, dt, save_every, want_stats, retry=None):
     return _path(
         method,
-        model,
+        system,
         y0,
         dt,
         lambda n: _index(noise, n),
@@ -250,14 +258,14 @@ def _integrate_jit(method, model, y0, noise, dt, save_every, want_stats, retry=N
     )
 
 
-def ensemble(method, model, y0, keys, path, n_blocks, block_len, want_stats, retry=None):
+def ensemble(method, system, y0, keys, path, n_blocks, block_len, want_stats, retry=None):
     """Each sample asks the Brownian path (`_brownian.BrownianPath`) for its steps' noise, from
     its key; the driver's step is `path.dt`."""
 
     def one(key):
         return _path(
             method,
-            model,
+            system,
             y0,
             path.dt,
             path.sampler(key),
@@ -284,8 +292,9 @@ ensemble_dynamic_jit = jax.jit(
 # Public API.
 
 
+@renamed_arguments(model="system")
 def integrate(
-    model,
+    system,
     y0,
     dW,
     dt,
@@ -303,7 +312,7 @@ def integrate(
 
     **Arguments:**
 
-    - `model`: a `RigidBody` or a `LiePoissonSystem`; its dtype is the computation's (`y0`,
+    - `system`: a `RigidBody` or a `LiePoissonSystem`; its dtype is the computation's (`y0`,
       `dW` are cast to it).
     - `y0`: initial value, shape `(3,)` (so(3)*), or a skew `(n, n)` matrix (`algebra=so(n)`).
     - `dW`: Brownian increments, shape `(n_steps, n_noises)` (one column per noise;
@@ -329,12 +338,12 @@ def integrate(
 
     **Returns:** the final state (the shape of `y0`), or `(n_steps // save_every + 1, *y0.shape)`.
     """
-    check_model(model)
-    method = check_method(method, model)
+    check_system(system)
+    method = check_method(method, system)
     check_throw(throw)
-    y0 = check_y0(y0, method, model)
+    y0 = check_y0(y0, method, system)
     dW = real_array("dW", dW)
-    s = model.n_noises
+    s = system.n_noises
     if dW.ndim == 1 and s == 1:
         dW = dW[:, None]
     if dW.ndim != 2 or dW.shape[0] < 1 or dW.shape[1] != s:
@@ -356,7 +365,7 @@ def integrate(
     dtype = real_dtype(y0.dtype)
     dt = jnp.asarray(dt if dt_np is None else float(dt_np), dtype)
     noise = _brownian.BrownianStep(dW.astype(dtype), None if area is None else area.astype(dtype))
-    ys, fail_step, result, _, _ = _integrate_jit(method, model, y0, noise, dt, k, False, retry)
+    ys, fail_step, result, _, _ = _integrate_jit(method, system, y0, noise, dt, k, False, retry)
     if throw:
         report("integrate", True, retry is not None, fail_step, result)
     if save_every is None:
@@ -364,8 +373,9 @@ def integrate(
     return jnp.concatenate([y0[None], ys], axis=0)
 
 
+@renamed_arguments(model="system")
 def simulate(
-    model,
+    system,
     y0,
     *,
     t1,
@@ -390,9 +400,9 @@ def simulate(
 
     **Arguments:**
 
-    - `model`: a `RigidBody` or a `LiePoissonSystem`, whose dtype is the computation's;
+    - `system`: a `RigidBody` or a `LiePoissonSystem`, whose dtype is the computation's;
       `y0`: the initial value (`(3,)`, or `(n, n)` skew on so(n)), shared by all samples
-      (cast to the model's dtype).
+      (cast to the system's dtype).
     - `t1`: final time, a multiple of `dt`; `dt`: step size.
     - `n_samples`: number of Brownian samples; `key`: a `jax.random.key` (a legacy
       `jax.random.PRNGKey`, `uint32[2]`, is accepted too; a plain integer is not).
@@ -429,7 +439,7 @@ def simulate(
     check_throw(throw)
     p = plan_ensemble(
         "simulate",
-        model,
+        system,
         y0,
         t1=t1,
         dt=dt,
@@ -451,9 +461,9 @@ def run_ensemble(p, *, newton_stats, saved):
     """The ensemble of a checked plan (`plan_ensemble`) as a `Solution`, without the failure
     report (`simulate`, and `calibrate`, which reports failures its own way); `saved`: the
     states at every `p.save_every` steps, not only the final ones."""
-    model = p.model
+    system = p.system
     method, y0, dt, n_steps, k, dtype = p.method, p.y0, p.dt, p.n_steps, p.save_every, p.dtype
-    with automatic(p.sharding, (model, y0, p.key)) as (sharding, (model, y0, key)):
+    with automatic(p.sharding, (system, y0, p.key)) as (sharding, (system, y0, key)):
         keys = (
             _brownian.sample_keys(key, p.n_samples)
             if sharding is None
@@ -461,7 +471,7 @@ def run_ensemble(p, *, newton_stats, saved):
         )
         ys, fail_step, result, n_retried, acc = ensemble_jit(
             method,
-            model,
+            system,
             y0,
             keys,
             p.path,

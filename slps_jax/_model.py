@@ -39,7 +39,7 @@ class RigidBody(LiePoissonSystem):
     - `noise`: instead of `c`, noise Hamiltonians of their own, as for `LiePoissonSystem`
       (for example `salt_noise(chi)`); their `params` are the inertia.
 
-    The model's floating dtype (`model.dtype`: the promoted dtype of `inertia`, `c` and the
+    The system's floating dtype (`system.dtype`: the promoted dtype of `inertia`, `c` and the
     noise's parameters, at least the default float) is the dtype of every computation with it:
     `simulate` and `integrate` cast `y0` and the increments to it. For float32 work pass float32 `inertia`.
 

@@ -195,7 +195,7 @@ def _as_component(r, jac):
 def implicit_root(residual, solve, safe):
     """A root of `residual` found by `solve`, differentiable by the implicit function theorem.
 
-    `residual(x)` (component vectors) may close over anything: the model's parameters, the
+    `residual(x)` (component vectors) may close over anything: the system's parameters, the
     state, the step. `solve() -> (x, ok, aux)` finds the root by any iteration at all;
     derivatives never go through it. With `R(x*, p) = 0`, `dx* = -J^{-1} (dR/dp) dp` at the
     root (`jax.lax.custom_root`), in forward and reverse mode, so a Newton solve costs one

@@ -40,13 +40,13 @@ def _settings(fast) -> dict[str, Any]:
     )
 
 
-def _path(model, y0, method, dW, dt, every):
+def _path(system, y0, method, dW, dt, every):
     import slps_jax as sj
 
-    return sj.integrate(model, y0, dW, dt, method=method, save_every=every, throw=False)
+    return sj.integrate(system, y0, dW, dt, method=method, save_every=every, throw=False)
 
 
-def _exact_paths(model, y0, *parts):
+def _exact_paths(system, y0, *parts):
     """The exact paths on the increments of each `(dW, dt)` of `parts`, at every step: one
     evaluation of the closed-form flow for all of them (one compilation)."""
     import jax
@@ -57,7 +57,7 @@ def _exact_paths(model, y0, *parts):
 
     ws = [jnp.concatenate([jnp.zeros(1, dW.dtype), jnp.cumsum(dW)]) for dW, _ in parts]
     ts = [jnp.arange(w.shape[0], dtype=w.dtype) * dt for w, (_, dt) in zip(ws, parts)]
-    ys = jax.vmap(lambda ti, wi: sj.exact_solution(model, y0, ti, wi))(
+    ys = jax.vmap(lambda ti, wi: sj.exact_solution(system, y0, ti, wi))(
         jnp.concatenate(ts), jnp.concatenate(ws)
     )
     return jnp.split(ys, np.cumsum([w.shape[0] for w in ws])[:-1])
@@ -90,7 +90,7 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
 
     os.makedirs(out_dir, exist_ok=True)
     cfg = _settings(fast)
-    model, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
+    system, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
     key = jax.random.key(seed)
     methods = paper_methods()
     colors = {
@@ -105,8 +105,8 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
         "settings": {
             **cfg,
             "seed": seed,
-            "inertia": np.asarray(model.inertia).tolist(),
-            "c": float(np.asarray(model.c)),
+            "inertia": np.asarray(system.inertia).tolist(),
+            "c": float(np.asarray(system.c)),
             "y0": list(sj.PAPER_Y0),
             "truncate_k": 4,
             "dtype": str(y0.dtype),
@@ -122,17 +122,17 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
     runs = {}
     dt41, n41 = cfg["path_dt"], int(round(cfg["path_t1"] / cfg["path_dt"]))
     dW41 = sj.brownian_increments(jax.random.fold_in(key, 1), n41, dt41)
-    runs["4.1", "LiePoisson"] = (_path, (model, y0, methods["LiePoisson"], dW41, dt41, 1))
+    runs["4.1", "LiePoisson"] = (_path, (system, y0, methods["LiePoisson"], dW41, dt41, 1))
     dt42, n42 = cfg["drift_dt"], int(round(cfg["drift_t1"] / cfg["drift_dt"]))
     every42 = max(1, n42 // 400)
     dW42 = sj.brownian_increments(jax.random.fold_in(key, 2), n42, dt42)
     for name, method in methods.items():
-        runs["4.2", name] = (_path, (model, y0, method, dW42, dt42, every42))
+        runs["4.2", name] = (_path, (system, y0, method, dW42, dt42, every42))
     dt43, n43 = 1e-2, int(round(cfg["sphere_t1"] / 1e-2))
     dW43 = sj.brownian_increments(jax.random.fold_in(key, 3), n43, dt43)
     for name in ("LiePoisson", "EulerMaruyama"):
-        runs["4.3", name] = (_path, (model, y0, methods[name], dW43, dt43, 1))
-    runs["4.1 and 4.3", "exact"] = (_exact_paths, (model, y0, (dW41, dt41), (dW43, dt43)))
+        runs["4.3", name] = (_path, (system, y0, methods[name], dW43, dt43, 1))
+    runs["4.1 and 4.3", "exact"] = (_exact_paths, (system, y0, (dW41, dt41), (dW43, dt43)))
     # Figure 4.4: RMS error at T = 1 against h, n_samples samples, exact reference.
     dts = [2.0**-k for k in cfg["levels"]]
     studies = {name: {name: method} for name, method in methods.items()}
@@ -143,7 +143,7 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
         study_futures = {
             name: pool.submit(
                 sj.strong_convergence,
-                model,
+                system,
                 y0,
                 t1=1.0,
                 dts=dts,
@@ -222,13 +222,13 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
         t0 = time.perf_counter()
         dt, n, every = dt42, n42, every42
         ts = np.arange(0, n + 1, every) * dt
-        c0, h0 = float(model.casimir(y0)), float(model.hamiltonian(y0))
+        c0, h0 = float(system.casimir(y0)), float(system.hamiltonian(y0))
         fig, (ax_c, ax_h) = plt.subplots(1, 2, figsize=(11, 4.5), layout="constrained")
         drift = {}
         for name in methods:
             ys = paths["4.2", name]
-            dc = np.abs(np.asarray(model.casimir(ys)) / c0 - 1)
-            dh = np.abs(np.asarray(model.hamiltonian(ys)) / h0 - 1)
+            dc = np.abs(np.asarray(system.casimir(ys)) / c0 - 1)
+            dh = np.abs(np.asarray(system.hamiltonian(ys)) / h0 - 1)
             drift[name] = {"casimir_max": float(dc.max()), "energy_max": float(dh.max())}
             floor = 1e-17
             ax_c.semilogy(ts, np.maximum(dc, floor), color=colors[name], label=name)

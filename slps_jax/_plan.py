@@ -27,41 +27,43 @@ from ._checks import (
     real_array,
     real_dtype,
 )
+from ._deprecated import renamed_arguments
 from ._methods import METHODS, IsospectralMidpoint, Midpoint
 from ._methods.base import AbstractMethod
 from ._sharding import check_sharding
-from ._system import RIGID_BODY, LiePoissonSystem, check_model
+from ._system import RIGID_BODY, LiePoissonSystem, check_system
 
 
-def check_pair(method, model):
+def check_pair(method, system):
     """The one check of a method against a system: what the method `requires` (a set of
     structures, such as the rigid body's) the system must offer (`structure`)."""
-    missing = method.requires - model.structure
+    missing = method.requires - system.structure
     if missing:
-        works = [cls.__name__ for cls in METHODS if cls.requires <= model.structure]
+        works = [cls.__name__ for cls in METHODS if cls.requires <= system.structure]
         only = " (it works for a RigidBody only)" if RIGID_BODY in missing else ""
         raise TypeError(
             f"{type(method).__name__} needs a system with the structure "
-            f"{', '.join(sorted(missing))}{only}; this {type(model).__name__} does not have "
+            f"{', '.join(sorted(missing))}{only}; this {type(system).__name__} does not have "
             f"it. Methods for this system: {', '.join(works)}."
         )
 
 
-def default_method(model):
-    """The method `method="auto"` picks for `model`, by the measurements in
+@renamed_arguments(model="system")
+def default_method(system):
+    """The method `method="auto"` picks for `system`, by the measurements in
     `benchmarks/README.md` ("Which method"): `IsospectralMidpoint` on so(n)* and su(N)*
     (every Casimir kept, the cheapest Poisson method there), `Midpoint` on so(3)* (the
     smallest error at a given cost among the methods that keep the Casimir, for one noise
     and with Lévy areas for several; it never failed in the stress matrix)."""
-    return Midpoint() if SO3_VECTORS in model.structure else IsospectralMidpoint()
+    return Midpoint() if SO3_VECTORS in system.structure else IsospectralMidpoint()
 
 
-def check_method(method, model=None):
-    """`method` checked, or for `"auto"` (with the `model` it runs on) `default_method`."""
-    if isinstance(method, str) and method == "auto" and model is not None:
-        return default_method(model)
+def check_method(method, system=None):
+    """`method` checked, or for `"auto"` (with the `system` it runs on) `default_method`."""
+    if isinstance(method, str) and method == "auto" and system is not None:
+        return default_method(system)
     if not isinstance(method, AbstractMethod):
-        accepted = "an instance" if model is None else "'auto' or an instance"
+        accepted = "an instance" if system is None else "'auto' or an instance"
         raise TypeError(
             f"method must be {accepted} such as Midpoint(), got {method!r}"
             + (" (a class: call it)" if isinstance(method, type) else "")
@@ -107,12 +109,12 @@ def check_levy_area(area, n_steps, n_noises, method):
     return None if n_noises == 1 else area
 
 
-def check_levy_option(levy_area, method, model):
+def check_levy_option(levy_area, method, system):
     """Whether an ensemble draws Lévy areas: `"auto"` (for a method that uses them and a
     system with several noises), `True` (refused for a method that cannot use them) or
     `False`. One noise never needs areas (they are zero): `False` then."""
     if isinstance(levy_area, str) and levy_area == "auto":
-        return bool(method.uses_levy_area() and model.n_noises > 1)
+        return bool(method.uses_levy_area() and system.n_noises > 1)
     if not isinstance(levy_area, (bool, np.bool_)):
         raise TypeError(f"levy_area must be 'auto', True or False, got {levy_area!r}.")
     if levy_area and not method.uses_levy_area():
@@ -120,26 +122,26 @@ def check_levy_option(levy_area, method, model):
             f"levy_area=True: {type(method).__name__} does not use Lévy areas; "
             f"methods that do: {_area_methods()}."
         )
-    return bool(levy_area) and model.n_noises > 1
+    return bool(levy_area) and system.n_noises > 1
 
 
-def check_y0(y0, method, model):
-    check_pair(method, model)
-    alg = model.algebra
+def check_y0(y0, method, system):
+    check_pair(method, system)
+    alg = system.algebra
     y0 = numeric_array("y0", y0, alg.is_complex)
     shape = alg.shape
     if y0.shape != shape:
         several = y0.ndim == len(shape) + 1 and y0.shape[1:] == shape
         raise ValueError(
-            f"y0 must have shape {shape} (a state of {model.algebra.name}), got shape "
+            f"y0 must have shape {shape} (a state of {system.algebra.name}), got shape "
             f"{y0.shape}"
             + ("; for several initial values use jax.vmap over integrate." if several else ".")
         )
-    y0 = y0.astype(alg.state_dtype(model.dtype))
+    y0 = y0.astype(alg.state_dtype(system.dtype))
     y_np = concrete(y0)
     if y_np is not None:
         alg.validate("y0", y_np)
-        method.check_initial(model, y_np)
+        method.check_initial(system, y_np)
     return y0
 
 
@@ -151,7 +153,7 @@ class EnsemblePlan:
     sharding, and the Brownian path (`_brownian.BrownianPath`: the step, the truncation, the
     Lévy areas)."""
 
-    model: LiePoissonSystem
+    system: LiePoissonSystem
     method: AbstractMethod
     y0: jax.Array
     dt: float
@@ -171,7 +173,7 @@ class EnsemblePlan:
 
 def plan_ensemble(
     caller,
-    model,
+    system,
     y0,
     *,
     t1,
@@ -188,9 +190,9 @@ def plan_ensemble(
 ):
     """Check an ensemble's arguments (the sharding against `chunk_size` when it is run in
     chunks) and return its `EnsemblePlan`."""
-    check_model(model)
-    method = check_method(method, model)
-    y0 = check_y0(y0, method, model)
+    check_system(system)
+    method = check_method(method, system)
+    y0 = check_y0(y0, method, system)
     dt, n_steps = check_grid(caller, t1, dt)
     n_samples = check_count("n_samples", n_samples)
     if chunk_size is None:
@@ -205,13 +207,13 @@ def plan_ensemble(
         sharding = check_sharding(sharding, chunk_size, name="chunk_size")
     key = _brownian.check_key(key)
     _brownian.check_truncation(dt, truncate_k)
-    levy_area = check_levy_option(levy_area, method, model)
+    levy_area = check_levy_option(levy_area, method, system)
     save_every = check_save_every(save_every, n_steps)
     path = _brownian.BrownianPath.of(
-        dt, model.n_noises, real_dtype(y0.dtype), truncate_k=truncate_k, levy_area=levy_area
+        dt, system.n_noises, real_dtype(y0.dtype), truncate_k=truncate_k, levy_area=levy_area
     )
     return EnsemblePlan(
-        model,
+        system,
         method,
         y0,
         dt,

@@ -44,7 +44,7 @@ from ._system import differentiable_leaves
 RETRY_LEVELS = 3
 
 
-def _attempts(method, model, y, dt, dW, act, k, m0, jacobians=False):
+def _attempts(method, system, y, dt, dW, act, k, m0, jacobians=False):
     """Step `y` by `(dt, dW)` where `act`, as `m0` substeps; on failure as `k` times as many,
     up to `k^RETRY_LEVELS`.
 
@@ -52,16 +52,16 @@ def _attempts(method, model, y, dt, dW, act, k, m0, jacobians=False):
     code of the last failure if every attempt failed; the iterations of every attempt; the
     largest residual of a successful substep; `retried`: the first attempt failed. With
     `jacobians`, `J` is the derivative of the substeps that succeeded with respect to
-    `(y, dt, dW, the model's inexact leaves)`, as matrices with the state flattened (see
+    `(y, dt, dW, the system's inexact leaves)`, as matrices with the state flattened (see
     `_jacobian_tools`); else `()`.
     """
     dtype = real_dtype(y.dtype)
     m_max = k**RETRY_LEVELS
     zero_i = jnp.zeros((), jnp.int32)
     substep, j0, chain = (
-        _jacobian_tools(method, model, y, dW)
+        _jacobian_tools(method, system, y, dW)
         if jacobians
-        else (lambda ys, h, w: (*method.step(model, ys, h, w), ()), (), None)
+        else (lambda ys, h, w: (*method.step(system, ys, h, w), ()), (), None)
     )
 
     def body(s):
@@ -128,12 +128,12 @@ def _unreal(v, like):
     return jnp.reshape(v, jnp.shape(like)).astype(like.dtype)
 
 
-def _jacobian_tools(method, model, y, dW):
+def _jacobian_tools(method, system, y, dW):
     """For `_attempts` with Jacobians: `substep(ys, h, w) -> (y_next, info, derivatives)`
-    (one `jacfwd` of the step with respect to `(ys, h, w, the model's inexact leaves)`), the
+    (one `jacfwd` of the step with respect to `(ys, h, w, the system's inexact leaves)`), the
     Jacobians of no step at all (the identity in `y`), and `chain(J, derivatives, m)`, the
     Jacobians after one more substep of `(dt/m, dW/m)`."""
-    leaves, treedef, idx = differentiable_leaves(model)
+    leaves, treedef, idx = differentiable_leaves(system)
     p0 = [leaves[i] for i in idx]
     # (on real coordinates: a complex state or leaf as its real and imaginary parts)
     dtype, d = real_dtype(y.dtype), _real(y).size
@@ -175,21 +175,21 @@ def _jacobian_tools(method, model, y, dW):
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0, 6))
-def robust_step(method, model, y, dt, dW, act, k):
+def robust_step(method, system, y, dt, dW, act, k):
     """One step of one sample where `act`, redone as `k, k^2, k^3` substeps if it fails.
     **Returns** `(y_next, code, iterations, residual, retried)` (see `_attempts`)."""
-    return _attempts(method, model, y, dt, dW, act, k, 1)[:5]
+    return _attempts(method, system, y, dt, dW, act, k, 1)[:5]
 
 
 @robust_step.defjvp
 def _robust_step_jvp(method, k, primals, tangents):
-    model, y, dt, dW, act = primals
+    system, y, dt, dW, act = primals
     t_model, t_y, t_dt, t_dW, _ = tangents
     dtype = real_dtype(y.dtype)
     h, w = jnp.where(act, dt, 0.0).astype(dtype), _brownian.where(act, dW)
     (y1, info), (t_y1, _) = jax.jvp(
         lambda mdl, ys, h, w: method.step(mdl, ys, h, w),
-        (model, y, h, w),
+        (system, y, h, w),
         (t_model, t_y, jnp.where(act, t_dt, 0.0), _brownian.where(act, t_dW)),
     )
     code1 = finite_result(y1, info.result)
@@ -197,10 +197,10 @@ def _robust_step_jvp(method, k, primals, tangents):
     # Retried samples: the attempts again (a loop that runs only while some sample of the
     # batch needs it), now with the Jacobians of the substeps that succeed.
     y2, code2, its2, res2, _, jacobians = _attempts(
-        method, model, y, dt, dW, need, k, k, jacobians=True
+        method, system, y, dt, dW, need, k, k, jacobians=True
     )
     jy, jdt, jdw, jp = cast(tuple, jacobians)
-    leaves, idx = differentiable_leaves(t_model)[0], differentiable_leaves(model)[2]
+    leaves, idx = differentiable_leaves(t_model)[0], differentiable_leaves(system)[2]
     t_re = jy @ _real(t_y) + jdt * t_dt + jdw @ ravel_pytree(t_dW)[0]
     for i, j in zip(idx, jp):
         t_re = t_re + j @ _real(leaves[i]).astype(dtype)

@@ -20,6 +20,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _brownian
+from ._checks import user_stacklevel
+from ._deprecated import renamed_arguments
 from ._failures import message
 from ._integrate import ensemble
 from ._methods.base import AbstractMethod
@@ -123,7 +125,7 @@ def _chunk(
     offset,
     n_samples,
     method,
-    model,
+    system,
     y0,
     key,
     path,
@@ -140,7 +142,7 @@ def _chunk(
     if sharding is not None:
         keys = jax.lax.with_sharding_constraint(keys, sharding)
     ys, fail_step, _, _, _ = ensemble(
-        method, model, y0, keys, path, n_blocks, block_len, False, retry=retry
+        method, system, y0, keys, path, n_blocks, block_len, False, retry=retry
     )
     ys = jnp.concatenate([jnp.broadcast_to(y0, (chunk_size, 1, *y0.shape)), ys], axis=1)
     obs = _observe(observable, ys)
@@ -150,8 +152,9 @@ def _chunk(
     return n_failed, _merge(state[1], _chunk_moments(obs, ok, want_cov))
 
 
+@renamed_arguments(model="system")
 def ensemble_statistics(
-    model,
+    system,
     y0,
     *,
     t1,
@@ -180,7 +183,7 @@ def ensemble_statistics(
 
     **Arguments:**
 
-    - `model`, `y0`, `t1`, `dt`, `key`, `method`, `truncate_k`, `retry_substeps`,
+    - `system`, `y0`, `t1`, `dt`, `key`, `method`, `truncate_k`, `retry_substeps`,
       `levy_area`: as for `simulate`.
     - `n_samples`: the total number of samples; `chunk_size`: samples per chunk (at most
       `n_samples` are run).
@@ -190,7 +193,7 @@ def ensemble_statistics(
       `"kurtosis"` to return.
     - `observable`: `None` for the state itself, or a function of one sample's saved states
       `(n_saved, *state_shape)` giving an array `(n_saved, ...)` (for example
-      `lambda ys: model.hamiltonian(ys)` under `vmap`) whose moments are taken instead. It
+      `lambda ys: system.hamiltonian(ys)` under `vmap`) whose moments are taken instead. It
       must be hashable (a module-level function or a lambda kept alive by the caller) to be
       compiled once.
     - `sharding`: as for `simulate`, applied to each chunk (`chunk_size` must be a multiple
@@ -204,7 +207,7 @@ def ensemble_statistics(
     """
     p = plan_ensemble(
         "ensemble_statistics",
-        model,
+        system,
         y0,
         t1=t1,
         dt=dt,
@@ -244,7 +247,7 @@ def ensemble_statistics(
         raise TypeError(
             "ensemble_statistics takes moments of real numbers; "
             + (
-                "the states of " + model.algebra.name + " are complex: pass an observable "
+                "the states of " + system.algebra.name + " are complex: pass an observable "
                 "giving real numbers, such as the coefficients "
                 "observable=lambda ys: slps_jax.zeitlin.mat2shr(ys), an energy or the Casimirs."
                 if observable is None
@@ -258,12 +261,12 @@ def ensemble_statistics(
     )
     n_chunks = -(-n_samples // chunk_size)
     bar = progress_bar(n_chunks, "ensemble_statistics", unit="chunk") if progress else None
-    with automatic(p.sharding, (model, y0, p.key)) as (sharding, (model, y0, key)):
+    with automatic(p.sharding, (system, y0, p.key)) as (sharding, (system, y0, key)):
         zero = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
         state = (jnp.zeros((), jnp.int32), zero)
         args = (
             method,
-            model,
+            system,
             y0,
             key,
             p.path,
@@ -302,7 +305,7 @@ def ensemble_statistics(
                 retried=p.retry is not None,
             ),
             RuntimeWarning,
-            stacklevel=2,
+            stacklevel=user_stacklevel(),
         )
     with np.errstate(divide="ignore", invalid="ignore"):
         var = m2 / (n - 1) if n > 1 else np.full_like(m2, np.nan)

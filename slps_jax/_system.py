@@ -39,10 +39,10 @@ class Tables:
         return cls(children)
 
 
-def differentiable_leaves(model):
+def differentiable_leaves(system):
     """The system's leaves (a `Tables` as one), its tree structure, and the indices of the
     inexact leaves other than tables: the parameters a derivative acts on."""
-    leaves, treedef = jax.tree_util.tree_flatten(model, is_leaf=lambda x: isinstance(x, Tables))
+    leaves, treedef = jax.tree_util.tree_flatten(system, is_leaf=lambda x: isinstance(x, Tables))
     idx = [
         i
         for i, leaf in enumerate(leaves)
@@ -82,8 +82,8 @@ class LiePoissonSystem:
       derivatives, `salt_noise(chi)` ($H_r = \chi_r\cdot y$) or
       `random_inertia_noise(sigma)` ($H_r = \tfrac12\sum_j\sigma_{rj}y_j^2$).
 
-    `model.n_noises` is $s$ (1 with `c`). The computation runs in the promoted floating dtype
-    of the parameters (`model.dtype`). Raises `ValueError` (`TypeError` for a non-callable
+    `system.n_noises` is $s$ (1 with `c`). The computation runs in the promoted floating dtype
+    of the parameters (`system.dtype`). Raises `ValueError` (`TypeError` for a non-callable
     `hamiltonian` or `noise`) for invalid concrete values, before anything is compiled;
     traced values are not checked.
 
@@ -286,9 +286,9 @@ def _noise_or_c(c, noise, params, leaves, algebra: AbstractAlgebra = SO3):
     return c, None
 
 
-def check_model(model):
-    if not isinstance(model, LiePoissonSystem):
+def check_system(system):
+    if not isinstance(system, LiePoissonSystem):
         raise TypeError(
-            f"model must be a RigidBody or a LiePoissonSystem, got {type(model).__name__}: "
+            f"system must be a RigidBody or a LiePoissonSystem, got {type(system).__name__}: "
             f"build one with slps_jax.RigidBody(inertia, c)."
         )

@@ -1,5 +1,5 @@
 """Data-driven transport noise for Euler–Zeitlin: the empirical orthogonal functions of the
-transport a coarse model misses (Cotter, Crisan, Holm, Pan & Shevchenko 2019; Ephrati,
+transport a coarse system misses (Cotter, Crisan, Holm, Pan & Shevchenko 2019; Ephrati,
 Cifani, Luesink & Geurts 2023). `docs/data-driven-noise.md` derives the estimator."""
 
 from __future__ import annotations
@@ -64,11 +64,11 @@ def fit_transport_noise(
     n_modes=None,
     method: AbstractMethod | None = None,
 ):
-    r"""Transport noise for the coarse model su(N) from snapshots of a finer run.
+    r"""Transport noise for the coarse system su(N) from snapshots of a finer run.
 
-    For each window $k$ of `window` intervals, the coarse deterministic model restarts from the
+    For each window $k$ of `window` intervals, the coarse deterministic system restarts from the
     coarse-grained snapshot (`zeitlin.truncate`); the difference between the data's transport
-    stream and the coarse model's, integrated over the window (each interval's streams
+    stream and the coarse system's, integrated over the window (each interval's streams
     averaged over its ends), is $\Delta\Psi_k \approx \sum_r \xi_r\Delta B_{r,k}$: the
     unresolved transport. The EOFs of the $\Delta\Psi_k$ (an SVD of their anomalies in the
     $\ell m$ coefficients, orthonormal in $L^2$) keep the leading modes, each scaled by its
@@ -78,19 +78,19 @@ def fit_transport_noise(
 
     - `states`: `(K * window + 1, M, M)` vorticity snapshots of su(M), spaced `dt` in time
       (physical seconds, as `EulerZeitlin`), $M \ge N$, $K \ge 2$.
-    - `dt`: the snapshots' spacing; `N`: the coarse model's size.
+    - `dt`: the snapshots' spacing; `N`: the coarse system's size.
     - `window`: intervals per window (default 1): the time scale at which the white noise's
       variance matches the data's. The missed transport of a smooth flow is correlated in
       time, so a noise fitted over one step is too weak at longer leads: choose a window of
       the order of the forecasts' lead (`docs/data-driven-noise.md`, "Choosing the window").
     - `streams`: `(K * window, M', M')` transport streams $\psi$ over each interval
       ($dW = [\psi, W]\,dt$, so $-\nabla H_0$: $\Delta_{M'}^{-1}W/\hbar$ for Euler–Zeitlin),
-      $M' \ge N$; default: the fine model's own, $-\nabla H_0$ of the snapshots averaged over
-      each interval's ends. Data whose transport is known (a model driven by known noise)
+      $M' \ge N$; default: the fine system's own, $-\nabla H_0$ of the snapshots averaged over
+      each interval's ends. Data whose transport is known (a system driven by known noise)
       passes it here: vorticity alone cannot reveal a noise's stream.
     - `variance`: keep the fewest modes that explain this share (default 0.9); or
     - `n_modes`: keep this many.
-    - `method`: the coarse model's integrator (default `IsospectralMidpoint()`).
+    - `method`: the coarse system's integrator (default `IsospectralMidpoint()`).
 
     Left out: the time correlation of the traces (Ephrati et al. fit Ornstein–Uhlenbeck or
     pdf-matched processes); the noise here is white in time.
@@ -125,7 +125,7 @@ def fit_transport_noise(
             )
     elif not 0 < variance <= 1:
         raise ValueError(f"fit_transport_noise: variance must be in (0, 1], got {variance!r}.")
-    if streams is None:  # the fine model's own stream, averaged over each interval's ends
+    if streams is None:  # the fine system's own stream, averaged over each interval's ends
         g = -np.asarray(jax.vmap(EulerZeitlin(M).gradient)(jnp.asarray(states)))
         psi = 0.5 * (g[:-1] + g[1:])
     else:
@@ -142,14 +142,14 @@ def fit_transport_noise(
     scale = zeitlin.hbar(psi.shape[-1]) / zeitlin.hbar(N)
     psi = scale * np.asarray(zeitlin.truncate(jnp.asarray(psi), N))
     coarse = zeitlin.truncate(jnp.asarray(states[::window]), N)  # (K + 1, N, N)
-    model = EulerZeitlin(N)
+    system = EulerZeitlin(N)
     method = IsospectralMidpoint() if method is None else method
     zero = jnp.zeros((window, 1), jnp.real(coarse).dtype)
     # (K, window + 1, N, N): each window's coarse deterministic run; a failed step raises
-    paths = jax.vmap(lambda w: integrate(model, w, zero, dt, method=method, save_every=1))(
+    paths = jax.vmap(lambda w: integrate(system, w, zero, dt, method=method, save_every=1))(
         coarse[:-1]
     )
-    g = -np.asarray(jax.vmap(jax.vmap(model.gradient))(paths))
+    g = -np.asarray(jax.vmap(jax.vmap(system.gradient))(paths))
     model_psi = 0.5 * (g[:, :-1] + g[:, 1:])  # (K, window, N, N)
     delta = dt * np.sum(psi.reshape(K, window, N, N) - model_psi, axis=1)
     c = np.asarray(zeitlin.mat2shr(jnp.asarray(delta)))[:, 1:]  # (the l = 0 part is zero)

@@ -402,7 +402,7 @@ def shr2mat(omega, N):
     coefficients `omega` (shape `(..., n)`, $n \le N^2$, index $\ell^2 + \ell + m$), complex
     `(..., N, N)`, skew-Hermitian; traceless when $\omega_{00} = 0$. quflow's `shr2mat`.
     Only the degrees given are used: with $L^2 \ge n$, the tables hold $NL^2$ numbers
-    (the full $N^3$ at $n = N^2$), so a smooth state of a large model is cheap to build."""
+    (the full $N^3$ at $n = N^2$), so a smooth state of a large system is cheap to build."""
     omega = jnp.asarray(omega)
     L = _degrees(omega.shape[-1], N)
     if omega.shape[-1] < L * L:

@@ -108,7 +108,7 @@ def test_a_second_fit_with_the_same_settings_compiles_nothing():
     counting[0] = False
     assert events == []
     assert len(first.loss) > 1 and len(second.loss) > 1
-    assert abs(float(second.model.c) - 0.13) < abs(0.11 - 0.13)
+    assert abs(float(second.system.c) - 0.13) < abs(0.11 - 0.13)
 
 
 # --------------------------------------------------------------------------------------

@@ -16,7 +16,7 @@ import scipy.integrate
 import scipy.special
 
 import slps_jax as sj
-from slps_jax._exact import ellipj, exact_flow, exact_solution
+from slps_jax._exact import ellipj, rigid_body_flow
 
 R2 = math.sqrt(2.0)
 PAPER_INERTIA = (R2 + R2 / 1.51, R2 - 0.51 * R2 / 1.51, 1.0)
@@ -27,12 +27,12 @@ SEP_Y0 = (0.5, 0.3, 0.25)
 
 
 def body(inertia, c=0.2):
-    """Stand-in for `RigidBody`: only the attributes `exact_flow` reads."""
+    """Stand-in for `RigidBody`: only the attributes the closed form reads."""
     return types.SimpleNamespace(inertia=inertia, c=c)
 
 
 def _flow(inertia, y0, t):
-    return exact_flow(body(inertia), y0, t)
+    return rigid_body_flow(body(inertia), y0, t)
 
 
 flow = jax.jit(_flow)
@@ -354,7 +354,7 @@ def test_exact_solution_jit_vmap():
     inertia, y0, t = (np.stack(x) for x in zip(*cases))
     w = np.random.default_rng(6).normal(size=8) * np.sqrt(np.abs(t))
     c = 0.2
-    solve = jax.jit(jax.vmap(lambda i, y, t, w: exact_solution(body(i, c), y, t, w)))
+    solve = jax.jit(jax.vmap(lambda i, y, t, w: sj.exact_solution(sj.RigidBody(i, c), y, t, w)))
     batched = solve(inertia, y0, t, w)
     for k in range(len(cases)):
         np.testing.assert_allclose(

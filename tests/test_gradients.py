@@ -184,7 +184,7 @@ def test_calibration_recovers_known_parameters():
         steps=30,
         progress=False,
     )
-    fitted = np.r_[np.asarray(res.model.inertia), float(res.model.c)]
+    fitted = np.r_[np.asarray(res.system.inertia), float(res.system.c)]
     truth = np.r_[np.asarray(true.inertia), float(true.c)]
     assert res.loss[-1] < 1e-3 * res.loss[0]
     free = np.array([True, True, False, True])

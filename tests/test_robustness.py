@@ -382,22 +382,29 @@ def test_brownian_increments_rejects_bad_input(bad, exc, match):
 BAD_FLOW = [
     (dict(y0=np.zeros((4, 3))), ValueError, r"y0.*vmap"),
     (dict(y0=[0.1, np.nan, 0.2]), ValueError, "y0"),
-    (dict(t=[0.1, 0.2]), ValueError, r"t must have shape"),
-    (dict(t=np.inf), ValueError, "t must be finite"),
-    (dict(t="1"), TypeError, "t"),
-    (dict(model=object()), TypeError, "inertia"),
-    (dict(model=mock.Mock(inertia=np.array([1.0, -2.0, 3.0]))), ValueError, "positive"),
-    (dict(model=mock.Mock(inertia=np.array([1.0, 2.0]))), ValueError, r"inertia.*\(3,\)"),
+    (dict(times=[0.1, np.inf]), ValueError, "times must be finite"),
+    (dict(times="1"), TypeError, "times"),
+    (dict(system=object()), TypeError, "RigidBody"),
+    (dict(system=sj.GeneralisedRigidBody([1.0, 2.0, 3.0], c=0.2)), ValueError, "y0"),
+    (dict(max_step=0.0), ValueError, "max_step"),
 ]
 
 
 @pytest.mark.parametrize("bad,exc,match", BAD_FLOW)
-def test_exact_flow_rejects_bad_input(paper, bad, exc, match):
+def test_drift_flow_rejects_bad_input(paper, bad, exc, match):
     model, y0 = paper
-    kwargs = dict(model=model, y0=y0, t=0.5)
+    kwargs = dict(system=model, y0=y0, times=0.5)
     kwargs.update(bad)
+    if "max_step" in bad:  # (the Runge–Kutta path's own argument)
+        kwargs.update(system=sj.GeneralisedRigidBody([1.0, 2.0, 3.0], c=0.2), y0=np.zeros((3, 3)))
     with pytest.raises(exc, match=match):
-        sj.exact_flow(kwargs["model"], kwargs["y0"], kwargs["t"])
+        sj.drift_flow(kwargs.pop("system"), kwargs.pop("y0"), kwargs.pop("times"), **kwargs)
+
+
+def test_drift_flow_without_a_closed_form_needs_concrete_times():
+    body = sj.GeneralisedRigidBody([1.0, 2.0, 3.0], c=0.2)
+    with pytest.raises(TypeError, match="concrete times"):
+        jax.jit(lambda t: sj.drift_flow(body, jnp.zeros((3, 3)), t))(0.5)
 
 
 @pytest.mark.parametrize(
@@ -405,15 +412,21 @@ def test_exact_flow_rejects_bad_input(paper, bad, exc, match):
     [
         (dict(W_t=np.zeros(3)), ValueError, r"W_t.*vmap"),
         (dict(W_t=np.nan), ValueError, "W_t"),
-        (dict(model=mock.Mock(spec=["inertia"], inertia=np.ones(3))), TypeError, "`c`"),
+        (dict(t=[1.0, 2.0]), ValueError, r"t.*vmap"),
+        (
+            dict(model=sj.RigidBody([1.0, 2.0, 3.0], noise=sj.salt_noise(np.eye(3)))),
+            ValueError,
+            "c=",
+        ),
+        (dict(model=object()), TypeError, "RigidBody"),
     ],
 )
 def test_exact_solution_rejects_bad_input(paper, bad, exc, match):
     model, y0 = paper
-    kwargs = dict(model=model, W_t=0.1)
+    kwargs = dict(model=model, W_t=0.1, t=1.0)
     kwargs.update(bad)
     with pytest.raises(exc, match=match):
-        sj.exact_solution(kwargs["model"], y0, 1.0, kwargs["W_t"])
+        sj.exact_solution(kwargs["model"], y0, kwargs["t"], kwargs["W_t"])
 
 
 @pytest.mark.parametrize(
@@ -459,9 +472,9 @@ def test_method_constructors_reject_bad_options(ctor, kwargs, exc, match):
         ctor(**kwargs)
 
 
-def test_exact_flow_still_works_under_jit_and_vmap(paper):
+def test_drift_flow_of_the_rigid_body_works_under_jit_and_vmap(paper):
     model, y0 = paper
-    ys = jax.jit(jax.vmap(lambda t: sj.exact_flow(model, y0, t)))(jnp.array([0.3, -0.7]))
+    ys = jax.jit(jax.vmap(lambda t: sj.drift_flow(model, y0, t)))(jnp.array([0.3, -0.7]))
     from reference import rigid_body_flow
 
     for t, y in zip((0.3, -0.7), np.asarray(ys)):

@@ -393,8 +393,8 @@ def test_calibrate_recovers_a_salt_amplitude():
         progress=False,
     )
     assert res.names[3] == "chi[0, 0]"
-    assert float(res.model.noise.chi[0, 0]) == pytest.approx(0.4, abs=1e-6)
-    np.testing.assert_array_equal(np.asarray(res.model.noise.chi).ravel()[1:], CHI.ravel()[1:])
+    assert float(res.system.noise.chi[0, 0]) == pytest.approx(0.4, abs=1e-6)
+    np.testing.assert_array_equal(np.asarray(res.system.noise.chi).ravel()[1:], CHI.ravel()[1:])
 
 
 # --------------------------------------------------------------------------------------

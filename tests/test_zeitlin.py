@@ -146,9 +146,7 @@ def test_a_single_degree_state_is_steady(body):
     for el in (1, 3):
         W = z.shr2mat(_coefficients(N, [el], seed=el), N)
         assert float(jnp.max(jnp.abs(body.vector_field(W)))) < 1e-12
-        np.testing.assert_allclose(
-            sj.deterministic_flow(body, W, np.array([1.0]))[0], W, atol=1e-12
-        )
+        np.testing.assert_allclose(sj.drift_flow(body, W, np.array([1.0]))[0], W, atol=1e-12)
         # (a step of the implicit midpoint rule is steady at a steady state too; the
         # isospectral rule's is not, to O(h^3): its midpoint has other degrees)
         sol = sj.simulate(
@@ -170,7 +168,7 @@ def test_rossby_haurwitz_wave_turns_at_its_exact_speed(body):
     N, a, e, t = body.N, 0.8, 0.3, 1.5
     om = np.zeros(N * N)
     om[z.elm2ind(1, 0)], om[z.elm2ind(2, 2)] = a, e
-    W = sj.deterministic_flow(body, z.shr2mat(om, N), np.array([t]))[0]
+    W = sj.drift_flow(body, z.shr2mat(om, N), np.array([t]))[0]
     out = np.asarray(z.mat2shr(W))
     angle = 2 * (a / math.sqrt(3)) * t  # cos 2(phi - c t) in Y_22 ~ cos 2phi, Y_2-2 ~ -sin 2phi
     np.testing.assert_allclose(
@@ -184,7 +182,7 @@ def test_rossby_haurwitz_wave_turns_at_its_exact_speed(body):
 def test_energy_and_casimirs_conserved_by_the_exact_flow(body):
     N = body.N
     W0 = z.shr2mat(_coefficients(N, [1, 2, 3, 4], seed=6), N) * 0.5
-    Ws = sj.deterministic_flow(body, W0, np.array([0.5, 1.0]))
+    Ws = sj.drift_flow(body, W0, np.array([0.5, 1.0]))
     # the flow moves the state, and keeps E and every tr W^k
     assert float(jnp.max(jnp.abs(Ws[-1] - W0))) > 1e-2
     np.testing.assert_allclose(body.energy(Ws), body.energy(W0), rtol=1e-11)

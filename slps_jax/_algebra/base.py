@@ -146,9 +146,9 @@ class AbstractAlgebra:
     def from_local(self, x):
         return x
 
-    def local_field(self, model, x, dt, noise):
+    def local_field(self, system, x, dt, noise):
         r"""$F(x) = [x, \nabla K(x)]$ of one step (`noise` its `BrownianStep`), local form."""
-        return self.bracket(x, model.step_gradient(x, dt, noise))
+        return self.bracket(x, system.step_gradient(x, dt, noise))
 
     def local_coordinates(self, x):
         """Real coordinates of a local form: the unknowns of an implicit solve."""
@@ -157,14 +157,14 @@ class AbstractAlgebra:
     def from_local_coordinates(self, u):
         return self.from_coordinates(u)
 
-    def coordinate_field(self, model, u, dt, noise):
+    def coordinate_field(self, system, u, dt, noise):
         """`local_field` on the local form's coordinates."""
         x = self.from_local_coordinates(u)
-        return self.local_coordinates(self.local_field(model, x, dt, noise))
+        return self.local_coordinates(self.local_field(system, x, dt, noise))
 
-    def coordinate_field_jacobian(self, model, u, dt, noise):
+    def coordinate_field_jacobian(self, system, u, dt, noise):
         """`(coordinate_field(u), its Jacobian)`; here by forward-mode autodiff."""
-        f = lambda u: self.coordinate_field(model, u, dt, noise)
+        f = lambda u: self.coordinate_field(system, u, dt, noise)
         return f(u), jax.jacfwd(f)(u)
 
     # -- the group

@@ -301,8 +301,8 @@ class SO3Algebra(AbstractAlgebra):
     def from_local(self, x):
         return unvec(x)
 
-    def local_field(self, model, x, dt, noise):
-        return cross(x, self.step_gradient_local(model, x, dt, noise))
+    def local_field(self, system, x, dt, noise):
+        return cross(x, self.step_gradient_local(system, x, dt, noise))
 
     def local_coordinates(self, x):
         return x  # (the components are the coordinates)
@@ -310,74 +310,74 @@ class SO3Algebra(AbstractAlgebra):
     def from_local_coordinates(self, u):
         return u
 
-    def coordinate_field(self, model, u, dt, noise):
-        return self.local_field(model, u, dt, noise)
+    def coordinate_field(self, system, u, dt, noise):
+        return self.local_field(system, u, dt, noise)
 
-    def coordinate_field_jacobian(self, model, u, dt, noise):
-        g, hess = self.step_gradient_hessian_local(model, u, dt, noise)
+    def coordinate_field_jacobian(self, system, u, dt, noise):
+        g, hess = self.step_gradient_hessian_local(system, u, dt, noise)
         # d(u x g(u))/du = hat(u) grad^2 K - hat(g)
         return cross(u, g), madd(mm_any(hat(u), hess), mscale(-1.0, hat(g)))
 
-    def _drift(self, model, v):
+    def _drift(self, system, v):
         r"""$\nabla H_0(v)$: written out for a diagonal quadratic $H_0$
-        (`model.quadratic_drift`), else by JAX."""
-        d = model.quadratic_drift
+        (`system.quadratic_drift`), else by JAX."""
+        d = system.quadratic_drift
         if d is not None:
             return mul(vec(d), v)
-        return vec(jax.grad(model.hamiltonian)(unvec(v)))
+        return vec(jax.grad(system.hamiltonian)(unvec(v)))
 
-    def _drift_hessian(self, model, v):
+    def _drift_hessian(self, system, v):
         r"""$(\nabla H_0(v), \nabla^2 H_0(v))$, the Hessian diagonal (`is_diagonal`) for a
         diagonal quadratic $H_0$, else by JAX in one forward-mode pass."""
-        d = model.quadratic_drift
+        d = system.quadratic_drift
         if d is not None:
             d = vec(d)
             return mul(d, v), d
-        grad = jax.grad(model.hamiltonian)
+        grad = jax.grad(system.hamiltonian)
         hess, g = jax.jacfwd(lambda u: (grad(u), grad(u)), has_aux=True)(unvec(v))
         return vec(g), mat(hess)
 
-    def _noise(self, model, v, w):
+    def _noise(self, system, v, w):
         r"""$u(v) = \sum_r w_r \nabla H_r(v)$ of the noise family (`AbstractNoise.gradient`)."""
-        return vec(model.noise.gradient(unvec(v), w, model.params, self))
+        return vec(system.noise.gradient(unvec(v), w, system.params, self))
 
-    def _noise_jacobian(self, model, v, w):
+    def _noise_jacobian(self, system, v, w):
         r"""$(u, \partial u/\partial v)$ (`AbstractNoise.gradient_jacobian`); the Jacobian is
         `None` for linear noise (zero: no arithmetic with zeros)."""
-        if model.noise.linear:
-            return self._noise(model, v, w), None
-        u, ju = model.noise.gradient_jacobian(unvec(v), w, model.params, self)
+        if system.noise.linear:
+            return self._noise(system, v, w), None
+        u, ju = system.noise.gradient_jacobian(unvec(v), w, system.params, self)
         return vec(u), mat(ju)
 
-    def _area(self, model, v, area):
+    def _area(self, system, v, area):
         r"""$\nabla G_A(v)$."""
-        return vec(model.area_gradient(unvec(v), area))
+        return vec(system.area_gradient(unvec(v), area))
 
-    def _area_jacobian(self, model, v, area):
+    def _area_jacobian(self, system, v, area):
         r"""$(\nabla G_A(v), \nabla^2 G_A(v))$; `None` (zero) for linear noise, whose
         $G_A$ is linear."""
-        if model.noise.linear:
-            return self._area(model, v, area), None
-        grad = lambda u: model.area_gradient(u, area)
+        if system.noise.linear:
+            return self._area(system, v, area), None
+        grad = lambda u: system.area_gradient(u, area)
         jac, g = jax.jacfwd(lambda u: (grad(u), grad(u)), has_aux=True)(unvec(v))
         return vec(g), mat(jac)
 
-    def step_gradient_local(self, model, v, dt, noise):
+    def step_gradient_local(self, system, v, dt, noise):
         r"""$\nabla K(v)$ of a step's Hamiltonian $K = h H_0 + \sum_r \Delta W_r H_r$ (plus
         $G_A$ with areas), on components. With `c=`, $K = \tau H_0$, $\tau = h + c\Delta W$.
         `noise` is the step's `BrownianStep`."""
         noise = as_step(noise)
-        if model.noise is None:
-            return scale(dt + model.noise_time(noise.dW), self._drift(model, v))
-        g = add(scale(dt, self._drift(model, v)), self._noise(model, v, noise.dW))
-        return add(g, self._area(model, v, noise.area)) if model.has_area(noise) else g
+        if system.noise is None:
+            return scale(dt + system.noise_time(noise.dW), self._drift(system, v))
+        g = add(scale(dt, self._drift(system, v)), self._noise(system, v, noise.dW))
+        return add(g, self._area(system, v, noise.area)) if system.has_area(noise) else g
 
-    def step_gradient_hessian_local(self, model, v, dt, noise):
+    def step_gradient_hessian_local(self, system, v, dt, noise):
         r"""$(\nabla K(v), \nabla^2 K(v))$ on components (`step_fields_local`'s first two)."""
-        k, hk, _, _ = self.step_fields_local(model, v, dt, noise, second=False)
+        k, hk, _, _ = self.step_fields_local(system, v, dt, noise, second=False)
         return k, hk
 
-    def step_fields_local(self, model, v, dt, noise, second=True):
+    def step_fields_local(self, system, v, dt, noise, second=True):
         r"""What scheme (42)'s in-map needs of a step (`sine_chart_in_map`), on components:
         $(\nabla K, \nabla^2 K, u, \partial u/\partial v)$ at `v`, with
         $u = \sum_r \Delta W_r \nabla H_r$ the increments' part of the noise (the areas'
@@ -385,15 +385,15 @@ class SO3Algebra(AbstractAlgebra):
         and its Jacobian are `None`; a Jacobian is `None` where it is zero (linear noise), and
         diagonal (`is_diagonal`) where the closed form is."""
         noise = as_step(noise)
-        g, hess = self._drift_hessian(model, v)
-        if model.noise is None:
-            cdw = model.noise_time(noise.dW)
+        g, hess = self._drift_hessian(system, v)
+        if system.noise is None:
+            cdw = system.noise_time(noise.dW)
             k, hk = scale(dt + cdw, g), scale_any(dt + cdw, hess)
             return (k, hk, scale(cdw, g), scale_any(cdw, hess)) if second else (k, hk, None, None)
-        u, ju = self._noise_jacobian(model, v, noise.dW)
+        u, ju = self._noise_jacobian(system, v, noise.dW)
         k, hk = add(scale(dt, g), u), add_any(scale_any(dt, hess), ju)
-        if model.has_area(noise):
-            ga, ha = self._area_jacobian(model, v, noise.area)
+        if system.has_area(noise):
+            ga, ha = self._area_jacobian(system, v, noise.area)
             k, hk = add(k, ga), add_any(hk, ha)
         return (k, hk, u, ju) if second else (k, hk, None, None)
 

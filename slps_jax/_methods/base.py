@@ -70,7 +70,7 @@ class AbstractMethod:
     can_fail = True
 
     # A method whose step with increments (h, dW) is a flow for the time h + c dW, composing
-    # in time, sets this to that flow, `flow_in_time(model, y, tau)`: the driver then adds up
+    # in time, sets this to that flow, `flow_in_time(system, y, tau)`: the driver then adds up
     # the times and evaluates the flow only where a state is saved (`Exact`).
     flow_in_time = None
 
@@ -91,12 +91,12 @@ class AbstractMethod:
         """Whether the step uses the Lévy areas (`strong_orders.areas` is not `None`)."""
         return cls.strong_orders.areas is not None
 
-    def step(self, model, y, dt, dW):
+    def step(self, system, y, dt, dW):
         """Advance one sample by one step.
 
-        **Arguments:** `model` (a system offering `requires`), `y` a state (shape
-        `model.algebra.shape`), the step `dt` (a scalar) and the step's noise `dW`: a
-        `BrownianStep` (increments of shape `(model.n_noises,)`, and Lévy areas when the
+        **Arguments:** `system` (a system offering `requires`), `y` a state (shape
+        `system.algebra.shape`), the step `dt` (a scalar) and the step's noise `dW`: a
+        `BrownianStep` (increments of shape `(system.n_noises,)`, and Lévy areas when the
         method `uses_levy_area()` and the driver drew them), or an array of increments (a step
         without areas). The system's step functions (`step_gradient`, ...) take it as it is.
 
@@ -104,7 +104,7 @@ class AbstractMethod:
         """
         raise NotImplementedError
 
-    def check_initial(self, model, y0):
+    def check_initial(self, system, y0):
         """Raise `ValueError` if the concrete initial value `y0` (NumPy, of the state's shape) is outside
         the method's domain."""
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from .._exact import exact_flow
+from .._exact import rigid_body_flow
 from .._system import NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
 from .base import AbstractMethod, StrongOrders, explicit_info
 
@@ -18,7 +18,7 @@ class Exact(AbstractMethod):
     flow $\varphi$ run to the random time $t + cW(t)$, and composing the exact flow over the
     steps gives the exact solution at every step for the given increments (up to round-off,
     which grows like the flow's conditioning). A reference for the other methods and a fast
-    exact sampler of the rigid body; it has no Newton solve. See `exact_flow`. The driver
+    exact sampler of the rigid body; it has no Newton solve. See `drift_flow`. The driver
     evaluates the flow only where a state is saved, at the sum of the step times since the
     last one (`flow_in_time`): one evaluation per sample for the final state only.
     """
@@ -31,8 +31,8 @@ class Exact(AbstractMethod):
 
     # The flows compose: the driver sums the step times and evaluates the flow only at the
     # saved states (once for the final state), on the very same increments.
-    flow_in_time = staticmethod(exact_flow)
+    flow_in_time = staticmethod(rigid_body_flow)
 
-    def step(self, model, y, dt, dW):
-        y_next = exact_flow(model, y, dt + model.noise_time(dW)).astype(y.dtype)
+    def step(self, system, y, dt, dW):
+        y_next = rigid_body_flow(system, y, dt + system.noise_time(dW)).astype(y.dtype)
         return y_next, explicit_info(y_next)

@@ -28,12 +28,12 @@ class Heun(AbstractMethod):
 
     strong_orders = StrongOrders(one=1.0, increments=0.5)
 
-    def step(self, model, y, dt, dW):
-        alg = model.algebra
+    def step(self, system, y, dt, dW):
+        alg = system.algebra
         tmap = jax.tree_util.tree_map
 
         def f(x):
-            return alg.local_field(model, x, dt, dW)
+            return alg.local_field(system, x, dt, dW)
 
         x = alg.local(y)  # (components on so(3))
         k1 = f(x)

@@ -93,15 +93,15 @@ class IsospectralMidpoint(AbstractMethod):
                 f"{self.jacobian!r}."
             )
 
-    def step(self, model, y, dt, dW):
+    def step(self, system, y, dt, dW):
         dtype = y.dtype
         tol = default_tol(dtype) if self.tol is None else self.tol
-        alg = model.algebra
+        alg = system.algebra
         yn = alg.to_matrix(y)
         eye = jnp.eye(yn.shape[-1], dtype=yn.dtype)
 
         def half_w(x):  # (1/2) W^ = -(1/2) grad K(X) for a matrix X of the group's algebra
-            return -0.5 * alg.to_matrix(model.step_gradient(alg.project_group(x), dt, dW))
+            return -0.5 * alg.to_matrix(system.step_gradient(alg.project_group(x), dt, dW))
 
         # The midpoint X lies in the group's Lie algebra, not always in the system's: on
         # su(N), tr Y_n = 0 gives tr X = tr((W/2)^2 X), and X is solved for in u(N).

@@ -269,7 +269,7 @@ def solve_on_branch(sine_fn, z, *, tol, max_iter, feasible=True, unroll=0):
         )
         return s.x, s.result == RESULTS.successful, (s.result, s.iterations, s.residual)
 
-    # Derivatives (with respect to the model's parameters, y and dW) by the implicit
+    # Derivatives (with respect to the system's parameters, y and dW) by the implicit
     # function theorem at the root, never through the iterations; v = 0 (A = Id) where it
     # failed.
     zero = comp.scale(0.0, z)
@@ -291,7 +291,7 @@ def branch_point(y):
     return y + (q * jnp.sqrt(jnp.maximum(w, 0.0))) @ adjoint(q), w[0]
 
 
-def group_in_map(model, a, dt, dW, second):
+def group_in_map(system, a, dt, dW, second):
     r"""Scheme (42)'s in-map on SO(n), $-2\,\mathrm{skew}(A^T \partial\bar S/\partial A)$, for
     the truncated generating function
     $\bar S(A) = \tfrac12\operatorname{tr}A - K(V) - \tfrac14\operatorname{tr}(A\,u^Tu)$,
@@ -300,14 +300,14 @@ def group_in_map(model, a, dt, dW, second):
     last term is $\tfrac14(u^TAu - \operatorname{tr}A|u|^2)$ of so(3)
     (`docs/so-n.md`); $\partial\bar S/\partial A$ by reverse-mode autodiff."""
 
-    alg = model.algebra
+    alg = system.algebra
 
     def sbar(a):
         v = alg.project(a)
-        u = second * model.noise_gradient(v, dW)
+        u = second * system.noise_gradient(v, dW)
         return (
             0.5 * jnp.real(jnp.trace(a))
-            - model.step_hamiltonian(v, dt, dW)
+            - system.step_hamiltonian(v, dt, dW)
             - 0.25 * jnp.real(jnp.trace(a @ adjoint(u) @ u))
         )
 
@@ -399,15 +399,15 @@ class LiePoisson(AbstractMethod):
                 f"LiePoisson: jacobian must be 'auto', 'chart' or 'newton', got {self.jacobian!r}."
             )
 
-    def check_initial(self, model, y0):
-        if self.scale is not None and QUADRATIC not in model.structure:
+    def check_initial(self, system, y0):
+        if self.scale is not None and QUADRATIC not in system.structure:
             raise ValueError(
                 "LiePoisson(scale=...) needs quadratic Hamiltonians with one noise proportional "
                 "to the drift (c=), such as the rigid body's: scaling y is a time change only "
                 "then; this system has not that structure."
             )
         lam = 1.0 if self.scale is None else self.scale
-        norm = model.algebra.spectral_norm(y0)
+        norm = system.algebra.spectral_norm(y0)
         if norm / lam >= 1.0:
             raise ValueError(
                 f"LiePoisson needs the spectral norm of y0 (||Y0||_2; |y0| on so(3)) below 1 "
@@ -417,20 +417,20 @@ class LiePoisson(AbstractMethod):
                 f"s = {1.5 * norm:.3g}; the norm is conserved, so it suffices at the start."
             )
 
-    def step(self, model, y, dt, dW):
+    def step(self, system, y, dt, dW):
         dtype = y.dtype
         tol = default_tol(dtype) if self.tol is None else self.tol
-        if SO3_VECTORS not in model.structure:
-            return self._step_group(model, y, dt, dW, tol)
+        if SO3_VECTORS not in system.structure:
+            return self._step_group(system, y, dt, dW, tol)
         # scale: z = y / lam at time scaled by lam (a time change for quadratic Hamiltonians)
         lam_s = 1.0 if self.scale is None else self.scale
         z = comp.scale(1.0 / lam_s, comp.vec(y))
         dt_s, dW_s = lam_s * dt, scale(dW, lam_s)
-        alg = model.algebra
+        alg = system.algebra
 
         def sine_fn(v, lam, jacobian=True):
             def fields(v):
-                step = alg.step_fields_local(model, v, dt_s, dW_s, second=self.second_order)
+                step = alg.step_fields_local(system, v, dt_s, dW_s, second=self.second_order)
                 return scaled(lam, step)
 
             return sine_chart_in_map(v, z, fields, jacobian)
@@ -448,12 +448,12 @@ class LiePoisson(AbstractMethod):
         y_next = comp.unvec(comp.mv(a, comp.vec(y))).astype(dtype)
         return y_next, StepInfo(finite_result(y_next, result), iterations, residual.astype(dtype))
 
-    def _step_group(self, model, y, dt, dW, tol):
+    def _step_group(self, system, y, dt, dW, tol):
         r"""The step on SO(n) and U(N): Newton in Cayley coordinates
         $A = A_0\,\mathrm{cay}(X)$ about the branch point $A_0$ of $Y_n$ (`branch_point`), on
         the real coordinates of $X$, with the same continuation as on so(3);
         $Y_{n+1} = A Y_n A^H$."""
-        alg = model.algebra
+        alg = system.algebra
         real = real_dtype(y.dtype)
         lam = 1.0 if self.scale is None else self.scale
         z = y / lam
@@ -471,7 +471,7 @@ class LiePoisson(AbstractMethod):
         def residual(x, lam_):
             a = rotation(x)
             return alg.group_coordinates(
-                group_in_map(model, a, lam_ * dt_s, scale(dW_s, lam_), second) - alg.to_matrix(z)
+                group_in_map(system, a, lam_ * dt_s, scale(dW_s, lam_), second) - alg.to_matrix(z)
             )
 
         zero = jnp.zeros((alg.group_dim,), real)

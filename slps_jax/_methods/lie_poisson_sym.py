@@ -18,16 +18,16 @@ from .composition import TRIPLE_JUMP, combine
 from .lie_poisson import branch_rotation, scaled, sine_chart_in_map, solve_on_branch
 
 
-def _solve_rotation(model, y, dt, dW, sign, tol, max_iter, active):
+def _solve_rotation(system, y, dt, dW, sign, tol, max_iter, active):
     """The rotation `A` (branch `theta < pi/2`) that solves the first-order in-map at `y` of
     the step Hamiltonian `x -> sign K(sign x)`, `K = dt H_0 + sum_r dW_r H_r` (fields from
-    the model), by `LiePoisson`'s solver (`solve_on_branch`: Newton in the sine chart with
+    the system), by `LiePoisson`'s solver (`solve_on_branch`: Newton in the sine chart with
     continuation, implicit derivatives)."""
 
     def sine_fn(v, lam, jacobian=True):
         def fields(u):  # the first-order in-map of u -> sign K(sign u)
             x = comp.scale(sign, u)
-            k, hk, _, _ = model.algebra.step_fields_local(model, x, dt, dW, False)
+            k, hk, _, _ = system.algebra.step_fields_local(system, x, dt, dW, False)
             return scaled(lam, (k, comp.scale_any(sign, hk), None, None))
 
         return sine_chart_in_map(v, y, fields, jacobian)
@@ -38,7 +38,7 @@ def _solve_rotation(model, y, dt, dW, sign, tol, max_iter, active):
     return branch_rotation(v)[0], StepInfo(result, iterations, res)
 
 
-def _composition(model, y, dt, dW, weights, tol, max_iter, info):
+def _composition(system, y, dt, dW, weights, tol, max_iter, info):
     """`Phi_{w_k} o ... o Phi_{w_1}` with `Phi_w = psi_{w/2} o psi*_{w/2}`, `psi_w` the
     first-order step of the step Hamiltonian `w K`, on components, for samples whose `info`
     is ok.
@@ -59,7 +59,7 @@ def _composition(model, y, dt, dW, weights, tol, max_iter, info):
         sign = jnp.where(k % 2 == 0, -1.0, 1.0)
         w = 0.5 * gammas[k // 2]
         r, new = _solve_rotation(
-            model, comp.scale(sign, u), w * dt, scale(dW, w), sign, tol, max_iter, info.ok
+            system, comp.scale(sign, u), w * dt, scale(dW, w), sign, tol, max_iter, info.ok
         )
         return comp.mv(r, u), combine([info, new])
 
@@ -88,18 +88,18 @@ class _SymmetricLiePoisson(AbstractMethod):
     def __post_init__(self):
         check_options(self)
 
-    def check_initial(self, model, y0):
+    def check_initial(self, system, y0):
         _check_unit_ball(type(self).__name__, y0)
 
     _substeps = (1.0,)
 
-    def step(self, model, y, dt, dW):
+    def step(self, system, y, dt, dW):
         dtype = y.dtype
         tol = default_tol(dtype) if self.tol is None else self.tol
         yc = comp.vec(y)
         inside = jnp.where(comp.dot(yc, yc) < 1.0, RESULTS.successful, RESULTS.outside_domain)
         info0 = StepInfo(inside.astype(jnp.int32), jnp.zeros((), jnp.int32), jnp.zeros((), dtype))
-        yc, info = _composition(model, yc, dt, dW, self._substeps, tol, self.max_iter, info0)
+        yc, info = _composition(system, yc, dt, dW, self._substeps, tol, self.max_iter, info0)
         y_next = comp.unvec(yc).astype(dtype)
         return y_next, StepInfo(
             finite_result(y_next, info.result), info.iterations, info.residual.astype(dtype)

@@ -44,8 +44,8 @@ class Midpoint(AbstractMethod):
     def __post_init__(self):
         check_options(self)
 
-    def step(self, model, y, dt, dW):
-        alg = model.algebra
+    def step(self, system, y, dt, dW):
+        alg = system.algebra
         tol = default_tol(y.dtype) if self.tol is None else self.tol
         # Newton with the field's Jacobian (written out on so(3), by autodiff otherwise) up to
         # so(5); above, the fixed-point iteration
@@ -63,18 +63,20 @@ class Midpoint(AbstractMethod):
             return tmap(lambda a, b, c: a - b - c, u1, u0, f)
 
         def residual(u1):
-            return minus(u1, alg.coordinate_field(model, mid(u1), dt, dW))
+            return minus(u1, alg.coordinate_field(system, mid(u1), dt, dW))
 
-        def system(u1):
-            f, jf = alg.coordinate_field_jacobian(model, mid(u1), dt, dW)
+        def linearised(u1):
+            f, jf = alg.coordinate_field_jacobian(system, mid(u1), dt, dW)
             return minus(u1, f), identity_plus(-0.5, jf)
 
         def fixed_point(u1):
             return residual(u1), lambda r: r
 
         def solve():
-            start = tmap(jnp.add, u0, alg.coordinate_field(model, u0, dt, dW))
-            s = newton(system if newton_mode else fixed_point, start, tol=tol, max_iter=max_iter)
+            start = tmap(jnp.add, u0, alg.coordinate_field(system, u0, dt, dW))
+            s = newton(
+                linearised if newton_mode else fixed_point, start, tol=tol, max_iter=max_iter
+            )
             return s.x, s.result == RESULTS.successful, (s.result, s.iterations, s.residual)
 
         # Derivatives by the implicit function theorem at the root, not through Newton.

@@ -37,9 +37,9 @@ class Milstein(AbstractMethod):
 
     strong_orders = StrongOrders(one=1.0, increments=0.5, areas=1.0)
 
-    def step(self, model, y, dt, dW):
+    def step(self, system, y, dt, dW):
         noise = as_step(dW)
-        alg = model.algebra
+        alg = system.algebra
         dtype = y.dtype
         w = noise.dW.astype(dtype)
         s = w.shape[0]
@@ -48,7 +48,7 @@ class Milstein(AbstractMethod):
             jmat = jmat + noise.area.astype(dtype)
 
         def field(z, weights):  # sum_r weights_r f_r(z)
-            return alg.bracket(z, model.noise_gradient(z, weights))
+            return alg.bracket(z, system.noise_gradient(z, weights))
 
         eye = jnp.eye(s, dtype=dtype)
         f = jax.vmap(lambda e: field(y, e))(eye)  # (s, *shape): f_q(y)
@@ -57,6 +57,6 @@ class Milstein(AbstractMethod):
         diff = jax.vmap(
             lambda fq, jq: (field(y + eps * fq, jq) - field(y - eps * fq, jq)) / (2.0 * eps)
         )(f, jmat)
-        drift = alg.bracket(y, dt * model.gradient(y))
+        drift = alg.bracket(y, dt * system.gradient(y))
         y_next = (y + drift + jnp.tensordot(w, f, axes=1) + jnp.sum(diff, axis=0)).astype(dtype)
         return y_next, explicit_info(y_next)

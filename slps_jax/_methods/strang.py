@@ -74,8 +74,8 @@ class Strang(AbstractMethod):
     strong_orders = StrongOrders(one=1.0, increments=None)
     poisson = True
 
-    def step(self, model, y, dt, dW):
-        return _composed_step(model, y, dt + model.noise_time(dW), (1.0,))
+    def step(self, system, y, dt, dW):
+        return _composed_step(system, y, dt + system.noise_time(dW), (1.0,))
 
 
 def _strang_flow(yc, inv_i, tau):
@@ -85,8 +85,8 @@ def _strang_flow(yc, inv_i, tau):
     return yc
 
 
-def _composed_step(model, y, tau, weights):
-    inv_i = comp.vec(model.inverse_inertia())
+def _composed_step(system, y, tau, weights):
+    inv_i = comp.vec(system.inverse_inertia())
     yc = comp.vec(y)
     # A loop, not an unrolled chain, even for one Strang step: each flow reads every
     # component twice, and XLA's CPU backend fuses an unrolled chain of flows (with whatever
@@ -127,8 +127,8 @@ class Strang4(AbstractMethod):
     strong_orders = StrongOrders(one=2.0, increments=None)
     poisson = True
 
-    def step(self, model, y, dt, dW):
-        return _composed_step(model, y, dt + model.noise_time(dW), TRIPLE_JUMP)
+    def step(self, system, y, dt, dW):
+        return _composed_step(system, y, dt + system.noise_time(dW), TRIPLE_JUMP)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -160,12 +160,12 @@ class SaltSplitting(AbstractMethod):
     strong_orders = StrongOrders(one=None, increments=0.5, areas=1.0)
     poisson = True
 
-    def step(self, model, y, dt, dW):
-        inv_i = comp.vec(model.inverse_inertia())
+    def step(self, system, y, dt, dW):
+        inv_i = comp.vec(system.inverse_inertia())
         noise = as_step(dW)
-        u = model.noise_gradient(y, noise)  # (constant: linear Hamiltonians)
+        u = system.noise_gradient(y, noise)  # (constant: linear Hamiltonians)
         if noise.area is not None:  # the area term's rotation axis (`area_gradient`)
-            u = u + model.area_gradient(y, noise.area)
+            u = u + system.area_gradient(y, noise.area)
         u = comp.vec(u)
         noise = comp.exp(comp.scale(-0.5, u))
 
