@@ -7,9 +7,9 @@ The library in four layers:
   drift Hamiltonian and its noise (`c=`, or several noises with their own Hamiltonians:
   `salt_noise`, `random_inertia_noise`, a function), parameters as pytree leaves:
   `LiePoissonSystem` (derivatives by JAX) and its analytic special cases `RigidBody` and
-  `GeneralisedRigidBody` (so(n)). A system declares its `structure`.
+  `GeneralisedRigidBody` (so(n)).
 - **Method**: a small immutable object with `step(system, y, dt, dW)` (`dW` the step's noise,
-  a `BrownianStep`: increments and, when drawn, Lévy areas), the structures it `requires`,
+  a `BrownianStep`: increments and, when drawn, Lévy areas), the capabilities it `requires`,
   its `strong_orders` by kind of noise and whether it is `poisson`; implicit methods share
   one Newton solver whose `RESULTS` code says why a step failed.
 - **Driver**: `integrate` (given increments), `simulate` (an ensemble, increments drawn inside),

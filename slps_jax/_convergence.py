@@ -16,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _brownian
+from ._capabilities import NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
 from ._checks import check_count, check_positive, check_retry, real_dtype, user_stacklevel
 from ._deprecated import renamed_arguments, warn
 from ._failures import message, summary
@@ -24,7 +25,6 @@ from ._integrate import ensemble_dynamic_jit
 from ._methods.base import AbstractMethod
 from ._methods.midpoint import Midpoint
 from ._plan import check_levy_option, check_method, check_system, check_y0
-from ._system import NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
 
 
 @dataclasses.dataclass(frozen=True)
@@ -86,7 +86,7 @@ def _exact_endpoints(system, y0, t1, w_t):
     """The exact solutions at `t1` on paths ending at `w_t`: the drift's flow at the times
     `t1 + c w_t` (closed form for the rigid body, compiled once; Runge–Kutta on the NumPy
     times otherwise)."""
-    if RIGID_BODY in system.structure:
+    if RIGID_BODY(system):
         return _time_changed_flow(system, y0, t1, w_t)
     times = float(t1) + np.asarray(system.c) * np.asarray(w_t)
     return drift_flow(system, y0, times).astype(y0.dtype)
@@ -148,24 +148,43 @@ def _warn_single_precision(caller, dtype):
         )
 
 
-def _study(
-    caller,
-    system,
-    y0,
-    t1,
-    dts,
-    n_samples,
-    key,
-    methods,
-    reference,
-    reference_dt,
-    reference_factor,
-    truncate_k,
-    retry_substeps,
-    levy_area="auto",
-):
-    """Validate a study's arguments (before anything compiles) and set up its shared paths
-    and reference (see `strong_convergence`)."""
+# A study's arguments, by the names of `strong_convergence`'s and `weak_convergence`'s
+# (which pass theirs by name, `locals()`).
+_STUDY_ARGUMENTS = (
+    "system",
+    "y0",
+    "t1",
+    "dts",
+    "n_samples",
+    "key",
+    "methods",
+    "reference",
+    "reference_dt",
+    "reference_factor",
+    "truncate_k",
+    "retry_substeps",
+    "levy_area",
+)
+
+
+def _study(caller, arguments):
+    """Validate a study's arguments (`_STUDY_ARGUMENTS` among `arguments`, before anything
+    compiles) and set up its shared paths and reference (see `strong_convergence`)."""
+    (
+        system,
+        y0,
+        t1,
+        dts,
+        n_samples,
+        key,
+        methods,
+        reference,
+        reference_dt,
+        reference_factor,
+        truncate_k,
+        retry_substeps,
+        levy_area,
+    ) = (arguments[name] for name in _STUDY_ARGUMENTS)
     check_system(system)
     if isinstance(methods, dict):
         if not methods:
@@ -203,7 +222,7 @@ def _study(
             f"reference must be 'exact', 'midpoint', a method instance or a callable flow, "
             f"got {reference!r}."
         )
-    if not is_method and NOISE_PROPORTIONAL_TO_DRIFT not in system.structure:
+    if not is_method and not NOISE_PROPORTIONAL_TO_DRIFT(system):
         raise ValueError(
             "This system's noise is not proportional to its drift: it has no "
             "time-change solution. Pass a method as the reference, for example "
@@ -299,7 +318,7 @@ def _study(
         w_t = _brownian_endpoints(keys, fine.without_areas(), n_fine)
         y_ref = _exact_endpoints(system, y0, jnp.asarray(t1, dtype), w_t)
         # (the closed form: round-off; Runge–Kutta: about 1e-13, not estimated)
-        reference_error = 0.0 if RIGID_BODY in system.structure else math.nan
+        reference_error = 0.0 if RIGID_BODY(system) else math.nan
 
     kind = "method" if is_method else "flow" if callable(reference) else "exact"
     return _Study(
@@ -426,22 +445,7 @@ def strong_convergence(
     well below the errors you fit.
     """
     n_bootstrap = check_count("n_bootstrap", n_bootstrap, minimum=2)
-    st = _study(
-        "strong_convergence",
-        system,
-        y0,
-        t1,
-        dts,
-        n_samples,
-        key,
-        methods,
-        reference,
-        reference_dt,
-        reference_factor,
-        truncate_k,
-        retry_substeps,
-        levy_area,
-    )
+    st = _study("strong_convergence", locals())
     dts, y_ref = st.dts, st.y_ref
     errors, stderr, order, order_se, seconds, n_failed = {}, {}, {}, {}, {}, {}
     log_h = np.log(dts)
@@ -581,22 +585,7 @@ def weak_convergence(
         raise ValueError(
             f"observable(y) must return a scalar or shape (m,), got shape {shape[1:]}."
         )
-    st = _study(
-        "weak_convergence",
-        system,
-        y0,
-        t1,
-        dts,
-        n_samples,
-        key,
-        methods,
-        reference,
-        reference_dt,
-        reference_factor,
-        truncate_k,
-        retry_substeps,
-        levy_area,
-    )
+    st = _study("weak_convergence", locals())
     z = statistics.NormalDist().inv_cdf(0.5 + confidence / 2)
     g_ref = np.asarray(g(st.y_ref))
     if st.kind == "exact":
@@ -604,7 +593,7 @@ def weak_convergence(
         times = st.t1 + float(system.c) * math.sqrt(st.t1) * x
         states = drift_flow(system, st.y0, np.asarray(times, real_dtype(st.y0.dtype)))
         reference_mean = np.asarray(w @ np.asarray(g(states))) / math.sqrt(2 * math.pi)
-        exact = RIGID_BODY in system.structure  # (Runge–Kutta: about 1e-13, not estimated)
+        exact = RIGID_BODY(system)  # (Runge–Kutta: about 1e-13, not estimated)
         reference_error = np.zeros(shape[1]) if exact else np.full(shape[1], np.nan)
     else:
         good = ~st.ref_failed

@@ -10,7 +10,7 @@ import numpy as np
 
 from . import zeitlin
 from ._algebra import su
-from ._system import QUADRATIC, LiePoissonSystem, Tables
+from ._system import LiePoissonSystem, Tables
 
 
 def _euler_hamiltonian(w, params):
@@ -110,10 +110,7 @@ class EulerZeitlin(LiePoissonSystem):
             return f"EulerZeitlin({self.N}, noise={type(self.noise).__name__} of {self.n_noises})"
         return f"EulerZeitlin({self.N}, c={self.c!r})"
 
-    @property
-    def structure(self):
-        """With `c=` (or no noise) every Hamiltonian is quadratic (`LiePoisson(scale=...)`)."""
-        return super().structure | ({QUADRATIC} if self.noise is None else set())
+    quadratic_hamiltonian = True
 
     def stream(self, w):
         r"""The stream matrix $P = \Delta_N^{-1}W$ (traceless), over leading axes."""

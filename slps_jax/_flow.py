@@ -10,10 +10,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._capabilities import NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
 from ._checks import check_positive, concrete, numeric_array, real_array
 from ._deprecated import alias, renamed_arguments
 from ._exact import _check_real, rigid_body_flow
-from ._system import NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY, check_system
+from ._system import check_system
 
 
 @functools.partial(jax.jit, static_argnames=("n_steps",))
@@ -85,7 +86,7 @@ def drift_flow(system, y0, times, *, max_step=2.0**-10):
     **Returns:** the states, shape `times.shape + y0.shape`.
     """
     check_system(system)
-    if RIGID_BODY not in system.structure:
+    if not RIGID_BODY(system):
         return _runge_kutta_flow(system, y0, times, max_step)
     times = real_array("times", times)
     t_np = concrete(times)
@@ -119,7 +120,7 @@ def exact_solution(system, y0, t, W_t):
     other systems take arrays of times in `drift_flow`).
     """
     check_system(system)
-    if NOISE_PROPORTIONAL_TO_DRIFT not in system.structure:
+    if not NOISE_PROPORTIONAL_TO_DRIFT(system):
         raise ValueError(
             "exact_solution needs a system with one noise proportional to the drift (c=); "
             "this one has noises of its own (noise=): it has no time-change solution."

@@ -23,7 +23,7 @@ from ._checks import (
 from ._deprecated import renamed_arguments
 from ._failures import report
 from ._methods.base import AbstractMethod, finite_result
-from ._plan import check_levy_area, check_method, check_system, check_y0, plan_ensemble
+from ._plan import check_levy_area, check_method, check_system, check_y0, options, plan_ensemble
 from ._retry import robust_step
 from ._sharding import as_given, automatic, sharded_keys
 from ._solution import RESULTS, Solution
@@ -437,21 +437,7 @@ def simulate(
     **Returns:** a `Solution`.
     """
     check_throw(throw)
-    p = plan_ensemble(
-        "simulate",
-        system,
-        y0,
-        t1=t1,
-        dt=dt,
-        n_samples=n_samples,
-        key=key,
-        method=method,
-        save_every=save_every,
-        truncate_k=truncate_k,
-        retry_substeps=retry_substeps,
-        sharding=sharding,
-        levy_area=levy_area,
-    )
+    p = plan_ensemble("simulate", system, y0, options(locals()))
     sol = run_ensemble(p, newton_stats=newton_stats, saved=save_every is not None)
     report("simulate", throw, retry_substeps is not None, sol.fail_step, sol.result)
     return sol

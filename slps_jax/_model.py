@@ -11,7 +11,7 @@ import numpy as np
 
 from ._algebra import so
 from ._checks import concrete, float_dtype, real_array
-from ._system import QUADRATIC, RIGID_BODY, LiePoissonSystem, _noise_or_c
+from ._system import LiePoissonSystem, _noise_or_c
 
 
 def _rigid_body_hamiltonian(y, inertia):
@@ -28,7 +28,7 @@ class RigidBody(LiePoissonSystem):
 
     The analytic special case of `LiePoissonSystem` (Hamiltonian
     $H(y) = \tfrac12 y^T I^{-1} y$, `params` the inertia): its gradient and Hessian are
-    written out, and it offers the rigid body's structure (`inverse_inertia`) that some
+    written out, and it has the rigid body's closed forms (`inverse_inertia`) that some
     methods need (`LiePoisson`, `Strang`, `Exact`). A pytree whose leaves are `inertia` and
     `c`, so `jax.grad` reaches both.
 
@@ -80,14 +80,9 @@ class RigidBody(LiePoissonSystem):
         return obj
 
     def __repr__(self):
-        return f"RigidBody(inertia={self.inertia!r}, " + (
-            f"c={self.c!r})" if self.noise is None else f"noise={self.noise!r})"
-        )
+        return f"RigidBody(inertia={self.inertia!r}, {self.noise_repr()})"
 
-    @property
-    def structure(self):
-        quadratic = {QUADRATIC} if self.noise is None else set()
-        return super().structure | {RIGID_BODY} | quadratic
+    quadratic_hamiltonian = True
 
     @property
     def params(self):
@@ -162,13 +157,9 @@ class GeneralisedRigidBody(LiePoissonSystem):
         return obj
 
     def __repr__(self):
-        return f"GeneralisedRigidBody(j={self.j!r}, " + (
-            f"c={self.c!r})" if self.noise is None else f"noise={self.noise!r})"
-        )
+        return f"GeneralisedRigidBody(j={self.j!r}, {self.noise_repr()})"
 
-    @property
-    def structure(self):
-        return super().structure | ({QUADRATIC} if self.noise is None else set())
+    quadratic_hamiltonian = True
 
     @property
     def params(self):

@@ -1,6 +1,6 @@
 """What every run checks before anything compiles, and the validated plan of an ensemble.
 
-The checks here need systems and methods: a method against the structure a system offers
+The checks here need systems and methods: a method against the capabilities of a system
 (`check_pair`, the one place a method's `requires` is enforced), `y0` against the system's
 algebra and the method's domain, the Lévy-area options. `plan_ensemble` validates the
 arguments of an ensemble once, for `simulate`, `ensemble_statistics` and (through
@@ -15,7 +15,7 @@ import jax
 import numpy as np
 
 from . import _brownian
-from ._algebra import SO3_VECTORS
+from ._capabilities import RIGID_BODY, SO3_VECTORS
 from ._checks import (
     check_count,
     check_grid,
@@ -31,20 +31,20 @@ from ._deprecated import renamed_arguments
 from ._methods import METHODS, IsospectralMidpoint, Midpoint
 from ._methods.base import AbstractMethod
 from ._sharding import check_sharding
-from ._system import RIGID_BODY, LiePoissonSystem, check_system
+from ._system import LiePoissonSystem, check_system
 
 
 def check_pair(method, system):
-    """The one check of a method against a system: what the method `requires` (a set of
-    structures, such as the rigid body's) the system must offer (`structure`)."""
-    missing = method.requires - system.structure
+    """The one check of a method against a system: the capabilities the method `requires`
+    (such as the rigid body's closed forms), each tested on the system."""
+    missing = method.missing(system)
     if missing:
-        works = [cls.__name__ for cls in METHODS if cls.requires <= system.structure]
+        works = [cls.__name__ for cls in METHODS if not cls.missing(system)]
         only = " (it works for a RigidBody only)" if RIGID_BODY in missing else ""
         raise TypeError(
-            f"{type(method).__name__} needs a system with the structure "
-            f"{', '.join(sorted(missing))}{only}; this {type(system).__name__} does not have "
-            f"it. Methods for this system: {', '.join(works)}."
+            f"{type(method).__name__} needs a system with "
+            f"{'; '.join(sorted(map(str, missing)))}{only}; this {type(system).__name__} "
+            f"does not have it. Methods for this system: {', '.join(works)}."
         )
 
 
@@ -55,7 +55,7 @@ def default_method(system):
     (every Casimir kept, the cheapest Poisson method there), `Midpoint` on so(3)* (the
     smallest error at a given cost among the methods that keep the Casimir, for one noise
     and with Lévy areas for several; it never failed in the stress matrix)."""
-    return Midpoint() if SO3_VECTORS in system.structure else IsospectralMidpoint()
+    return Midpoint() if SO3_VECTORS(system) else IsospectralMidpoint()
 
 
 def check_method(method, system=None):
@@ -171,25 +171,35 @@ class EnsemblePlan:
         return real_dtype(self.y0.dtype)
 
 
-def plan_ensemble(
-    caller,
-    system,
-    y0,
-    *,
-    t1,
-    dt,
-    n_samples,
-    key,
-    method,
-    save_every,
-    truncate_k,
-    retry_substeps,
-    sharding,
-    levy_area,
-    chunk_size=None,
-):
-    """Check an ensemble's arguments (the sharding against `chunk_size` when it is run in
-    chunks) and return its `EnsemblePlan`."""
+# An ensemble's options, by the names of `simulate`'s keywords (`ensemble_statistics` adds
+# `chunk_size`); the entry points pass theirs by name, `options(locals())`.
+ENSEMBLE_OPTIONS = (
+    "t1",
+    "dt",
+    "n_samples",
+    "key",
+    "method",
+    "save_every",
+    "truncate_k",
+    "retry_substeps",
+    "sharding",
+    "levy_area",
+    "chunk_size",
+)
+
+
+def options(arguments):
+    """The ensemble's options among a caller's `arguments` (its `locals()`)."""
+    return {name: arguments[name] for name in ENSEMBLE_OPTIONS if name in arguments}
+
+
+def plan_ensemble(caller, system, y0, options):
+    """Check an ensemble's arguments (`options`: `ENSEMBLE_OPTIONS` by name; the sharding
+    against `chunk_size` when it is run in chunks) and return its `EnsemblePlan`."""
+    t1, dt, n_samples, key, method, save_every, truncate_k, retry_substeps, sharding = (
+        options[name] for name in ENSEMBLE_OPTIONS[:9]
+    )
+    levy_area, chunk_size = options["levy_area"], options.get("chunk_size")
     check_system(system)
     method = check_method(method, system)
     y0 = check_y0(y0, method, system)

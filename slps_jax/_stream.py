@@ -25,7 +25,7 @@ from ._deprecated import renamed_arguments
 from ._failures import message
 from ._integrate import ensemble
 from ._methods.base import AbstractMethod
-from ._plan import plan_ensemble
+from ._plan import options, plan_ensemble
 from ._progress import advance, progress_bar
 from ._sharding import automatic
 
@@ -205,22 +205,7 @@ def ensemble_statistics(
     substeps, `retry_substeps`) are left out of the moments and counted in `n_failed`, with a
     `RuntimeWarning`: the run returns its results, and failures are never used as data.
     """
-    p = plan_ensemble(
-        "ensemble_statistics",
-        system,
-        y0,
-        t1=t1,
-        dt=dt,
-        n_samples=n_samples,
-        key=key,
-        method=method,
-        save_every=save_every,
-        truncate_k=truncate_k,
-        retry_substeps=retry_substeps,
-        sharding=sharding,
-        levy_area=levy_area,
-        chunk_size=chunk_size,
-    )
+    p = plan_ensemble("ensemble_statistics", system, y0, options(locals()))
     method, y0, dt, n_steps, k = p.method, p.y0, p.dt, p.n_steps, p.save_every
     n_samples = p.n_samples
     chunk_size = p.chunk_size

@@ -11,14 +11,8 @@ import numpy as np
 from ._algebra import SO3, AbstractAlgebra
 from ._brownian import as_step
 from ._checks import concrete, float_dtype, real_array, real_dtype
+from ._deprecated import warn
 from ._noise_hamiltonians import AbstractNoise, as_noise
-
-# What a system offers, which methods may declare they need (`AbstractMethod.requires`).
-NOISE_PROPORTIONAL_TO_DRIFT = "noise proportional to the drift"  # one noise, H_1 = c H_0
-RIGID_BODY = "rigid body"  # H_0 = y^T I^{-1} y / 2 on so(3)*, `inverse_inertia()` available
-LINEAR_NOISE = "linear noise"  # every H_r linear (SALT): the noise gradient does not depend on y
-# (and what the algebra offers, `AbstractAlgebra.structure`: SO3_VECTORS)
-QUADRATIC = "quadratic Hamiltonians"  # H_0 and every H_r quadratic: y -> y/s is a time change
 
 
 @jax.tree_util.register_pytree_node_class
@@ -131,7 +125,7 @@ class LiePoissonSystem:
         name = getattr(self.hamiltonian_fn, "__name__", repr(self.hamiltonian_fn))
         return (
             f"LiePoissonSystem(hamiltonian={name}, params={self.params!r}, "
-            + (f"c={self.c!r}" if self.noise is None else f"noise={self.noise!r}")
+            + self.noise_repr()
             + ("" if self.algebra is SO3 else f", algebra={self.algebra!r}")
             + ")"
         )
@@ -148,13 +142,22 @@ class LiePoissonSystem:
     r"""`D` (the state's shape) when $H_0(y) = \tfrac12\langle y, D \odot y\rangle$, so
     that $\nabla H_0(y) = D \odot y$; `None` otherwise (derivatives by JAX)."""
 
+    def noise_repr(self):
+        """`c=...` or `noise=...`, for the systems' `__repr__`."""
+        return f"c={self.c!r}" if self.noise is None else f"noise={self.noise!r}"
+
+    # Whether H_0 is a quadratic form (declared by the systems that know it: the rigid
+    # bodies, Euler–Zeitlin); with c= then y -> y/s is a time change (`LiePoisson(scale=)`).
+    quadratic_hamiltonian = False
+
     @property
     def structure(self):
-        """The structures the system offers (methods declare which they need)."""
-        vectors = self.algebra.structure
-        if self.noise is None:
-            return vectors | {NOISE_PROPORTIONAL_TO_DRIFT}
-        return vectors | ({LINEAR_NOISE} if self.noise.linear else frozenset())
+        """Deprecated: the descriptions of the capabilities the system has (methods now
+        declare `Capability` objects in `requires`, which test the system itself)."""
+        from ._capabilities import CAPABILITIES  # (a layer above: only for the old name)
+
+        warn(f"`{type(self).__name__}.structure`", "the capabilities of slps_jax (`requires`)")
+        return frozenset(c.description for c in CAPABILITIES if c(self))
 
     @property
     def dtype(self):

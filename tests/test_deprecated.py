@@ -93,3 +93,8 @@ def test_flow_reference_is_the_exact_reference():
 def test_calibration_result_model_is_system():
     res = sj.CalibrationResult(RB, np.zeros(1), None, np.ones(4))
     assert deprecated(lambda: res.model, ".system") is RB
+
+
+def test_structure_lists_the_capabilities():
+    names = deprecated(lambda: RB.structure, "capabilities")
+    assert any("closed forms" in n for n in names) and len(names) == 4

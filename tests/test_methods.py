@@ -1,7 +1,7 @@
 """Every registered method (`slps_jax._methods.METHODS`) on every kind of system: one suite.
 
 A new method added to the registry is checked here without writing a test for it: on each
-system whose structures it declares (`requires`) it runs a small ensemble with every sample
+system with the capabilities it declares (`requires`) it runs a small ensemble with every sample
 successful and finite, and keeps the quadratic Casimir (`|y|^2`, or `tr Y^2` on so(n)) to
 round-off if it is a Poisson integrator (a theorem; on su(3) for complex states); on the
 first such system it also runs in
@@ -31,7 +31,7 @@ def _quartic(y, p):
 
 
 _CHI = 0.4 * np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.5, 1.0]])
-SYSTEMS = {  # one of each kind: the structures they offer differ
+SYSTEMS = {  # one of each kind: their capabilities differ
     "paper rigid body": (sj.RigidBody.paper(), np.asarray(sj.PAPER_Y0)),
     "rigid body, 3 SALT noises": (
         sj.RigidBody([1.0, 2.0, 3.0], noise=sj.salt_noise(_CHI)),
@@ -55,7 +55,31 @@ N_SAMPLES, N_STEPS, DT = 4, 16, 2.0**-5
 
 
 def supports(cls, system):
-    return cls.requires <= SYSTEMS[system][0].structure
+    return not cls.missing(SYSTEMS[system][0])
+
+
+def test_capabilities_are_what_each_system_is():
+    """Each capability against what the systems above are, written out by hand."""
+    from slps_jax import _capabilities as cap
+
+    expected = {
+        "paper rigid body": {
+            cap.RIGID_BODY,
+            cap.NOISE_PROPORTIONAL_TO_DRIFT,
+            cap.QUADRATIC,
+            cap.SO3_VECTORS,
+        },
+        "rigid body, 3 SALT noises": {cap.RIGID_BODY, cap.LINEAR_NOISE, cap.SO3_VECTORS},
+        "quartic H": {cap.NOISE_PROPORTIONAL_TO_DRIFT, cap.SO3_VECTORS},
+        "so(4) rigid body": {cap.NOISE_PROPORTIONAL_TO_DRIFT, cap.QUADRATIC},
+        "Euler-Zeitlin su(3), 2 SALT noises": {cap.LINEAR_NOISE},
+    }
+    for name, (system, _) in SYSTEMS.items():
+        assert {c for c in cap.CAPABILITIES if c(system)} == expected[name], name
+    assert {c for c in cap.CAPABILITIES if c(sj.EulerZeitlin(3, c=0.1))} == {
+        cap.NOISE_PROPORTIONAL_TO_DRIFT,
+        cap.QUADRATIC,
+    }
 
 
 def quadratic_casimir(model, ys):

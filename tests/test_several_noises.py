@@ -25,10 +25,8 @@ INERTIA = jnp.asarray([1.0, 2.0, 3.0])
 # Three SALT noises about non-parallel axes.
 CHI = 0.4 * np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.5, 1.0]])
 # Every Poisson method of the registry that runs on the SALT rigid body.
-_SALT_STRUCTURE = sj.RigidBody(INERTIA, noise=sj.salt_noise(CHI)).structure
-POISSON = {
-    cls.__name__: cls() for cls in METHODS if cls.poisson and cls.requires <= _SALT_STRUCTURE
-}
+_SALT = sj.RigidBody(INERTIA, noise=sj.salt_noise(CHI))
+POISSON = {cls.__name__: cls() for cls in METHODS if cls.poisson and not cls.missing(_SALT)}
 
 
 def rigid_body_h(y, inertia):

@@ -1,6 +1,5 @@
 """The Lie algebras a system may live on, behind one interface (`AbstractAlgebra`)."""
 
-from .base import SO3_VECTORS as SO3_VECTORS
 from .base import AbstractAlgebra as AbstractAlgebra
 from .base import adjoint as adjoint
 from .base import matmul as matmul

@@ -34,10 +34,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-# What an algebra may offer to methods beyond the interface (`structure`), declared by the
-# methods that need it in `requires`.
-SO3_VECTORS = "so(3)* as 3-vectors"  # states are y in R^3 (the component fast paths)
-
 
 def adjoint(m):
     """$M^H$ over the last two axes (the transpose for real matrices)."""
@@ -91,7 +87,6 @@ class AbstractAlgebra:
     dim: int
     matrix_size: int  # the size n of the matrices (`to_matrix`)
     is_complex = False  # states are complex arrays
-    structure = frozenset()
 
     # -- the vector space
 

@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._brownian import as_step
-from .base import SO3_VECTORS, AbstractAlgebra
+from .base import AbstractAlgebra
 
 
 def vec(x):
@@ -252,7 +252,6 @@ class SO3Algebra(AbstractAlgebra):
     shape = (3,)
     matrix_size = 3
     condition = "a 3-vector"
-    structure = frozenset({SO3_VECTORS})
 
     def distance(self, y):
         return 0.0  # (every 3-vector is a state)

@@ -58,9 +58,10 @@ class AbstractMethod:
     to reject initial values outside their domain before anything is compiled.
     """
 
-    # The structures a system must offer (`LiePoissonSystem.structure`); the driver refuses
-    # a pair that lacks one and names the methods that would work. Empty: any system.
-    requires = frozenset()
+    # The capabilities a system must have (`Capability` objects, each a test of the system:
+    # `RIGID_BODY`, `NOISE_PROPORTIONAL_TO_DRIFT`, ...); the driver refuses a pair that lacks
+    # one and names the methods that would work. Empty: any system.
+    requires: frozenset = frozenset()
 
     # Whether a step can fail on finite input (an implicit solve without an admissible root,
     # an explicit step that overflows). Exact flows and compositions of exact rotations
@@ -85,6 +86,11 @@ class AbstractMethod:
     # theorem for every Poisson method; the higher ones on so(n) only for coadjoint-orbit
     # methods such as `IsospectralMidpoint` and `LiePoisson`).
     poisson = False
+
+    @classmethod
+    def missing(cls, system):
+        """The capabilities in `requires` that `system` lacks (empty: the method runs on it)."""
+        return [capability for capability in cls.requires if not capability(system)]
 
     @classmethod
     def uses_levy_area(cls):

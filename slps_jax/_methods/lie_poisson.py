@@ -10,13 +10,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._algebra import SO3_VECTORS, adjoint
+from .._algebra import adjoint
 from .._algebra import so3 as comp
+from .._algebra.so3 import SO3Algebra
 from .._brownian import scale
+from .._capabilities import QUADRATIC
 from .._checks import check_options, real_dtype
 from .._newton import implicit_root, newton, solve_array
 from .._solution import RESULTS
-from .._system import QUADRATIC
 from .base import AbstractMethod, StepInfo, StrongOrders, default_tol, finite_result
 
 
@@ -400,11 +401,11 @@ class LiePoisson(AbstractMethod):
             )
 
     def check_initial(self, system, y0):
-        if self.scale is not None and QUADRATIC not in system.structure:
+        if self.scale is not None and not QUADRATIC(system):
             raise ValueError(
                 "LiePoisson(scale=...) needs quadratic Hamiltonians with one noise proportional "
                 "to the drift (c=), such as the rigid body's: scaling y is a time change only "
-                "then; this system has not that structure."
+                "then; this system has not."
             )
         lam = 1.0 if self.scale is None else self.scale
         norm = system.algebra.spectral_norm(y0)
@@ -418,10 +419,13 @@ class LiePoisson(AbstractMethod):
             )
 
     def step(self, system, y, dt, dW):
+        tol = default_tol(y.dtype) if self.tol is None else self.tol
+        return _chart_step(system.algebra)(self, system, y, dt, dW, tol)
+
+    def _step_sine(self, system, y, dt, dW, tol):
+        r"""The step on so(3)* (3-vectors): Newton on the sine vector of $A_n$, the in-map of
+        the generating function in closed form (`sine_chart_in_map`)."""
         dtype = y.dtype
-        tol = default_tol(dtype) if self.tol is None else self.tol
-        if SO3_VECTORS not in system.structure:
-            return self._step_group(system, y, dt, dW, tol)
         # scale: z = y / lam at time scaled by lam (a time change for quadratic Hamiltonians)
         lam_s = 1.0 if self.scale is None else self.scale
         z = comp.scale(1.0 / lam_s, comp.vec(y))
@@ -504,3 +508,16 @@ class LiePoisson(AbstractMethod):
         # move the Casimirs)
         y_next = alg.act(a, y).astype(y.dtype)
         return y_next, StepInfo(finite_result(y_next, result), iterations, res.astype(real))
+
+
+@functools.singledispatch
+def _chart_step(algebra):
+    """How scheme (42) parametrises the rotation, by the algebra's type: in Cayley
+    coordinates about the branch point on SO(n) and U(N) ..."""
+    return LiePoisson._step_group
+
+
+@_chart_step.register
+def _(algebra: SO3Algebra):
+    """... and by its sine vector on SO(3), where the in-map has a closed form."""
+    return LiePoisson._step_sine

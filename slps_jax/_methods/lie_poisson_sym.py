@@ -7,10 +7,10 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from .._algebra import SO3_VECTORS
 from .._algebra import so3 as comp
 from .._batching import batched_like
 from .._brownian import scale
+from .._capabilities import SO3_VECTORS
 from .._checks import check_options
 from .._solution import RESULTS
 from .base import AbstractMethod, StepInfo, StrongOrders, default_tol, finite_result
