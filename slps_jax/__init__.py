@@ -19,9 +19,11 @@ The library in four layers:
   `drift_flow` and, with one noise proportional to the drift, the `exact_solution`.
 """
 
-# System
+# Public helper modules
 from . import so3 as so3
 from . import zeitlin as zeitlin
+
+# Algebras
 from ._algebra import SO3 as SO3
 from ._algebra import AbstractAlgebra as AbstractAlgebra
 from ._algebra import so as so
@@ -31,23 +33,12 @@ from ._algebra import su as su
 from ._brownian import BrownianStep as BrownianStep
 from ._brownian import brownian_increments as brownian_increments
 
-# Studies
-from ._calibrate import CalibrationResult as CalibrationResult
-from ._calibrate import calibrate as calibrate
-from ._calibrate import moments as moments
-from ._convergence import ConvergenceResult as ConvergenceResult
-from ._convergence import WeakConvergenceResult as WeakConvergenceResult
-from ._convergence import strong_convergence as strong_convergence
-from ._convergence import weak_convergence as weak_convergence
-from ._euler_zeitlin import EulerZeitlin as EulerZeitlin
-from ._flow import deterministic_flow as deterministic_flow  # deprecated: drift_flow
-from ._flow import drift_flow as drift_flow
-from ._flow import exact_flow as exact_flow  # deprecated: drift_flow
-from ._flow import exact_solution as exact_solution
-
 # Driver
-from ._integrate import integrate as integrate
-from ._integrate import simulate as simulate
+from ._driver.integrate import integrate as integrate
+from ._driver.integrate import simulate as simulate
+from ._driver.plan import default_method as default_method
+from ._driver.stream import EnsembleStatistics as EnsembleStatistics
+from ._driver.stream import ensemble_statistics as ensemble_statistics
 
 # Methods
 from ._methods.base import AbstractMethod as AbstractMethod
@@ -65,21 +56,49 @@ from ._methods.milstein import Milstein as Milstein
 from ._methods.strang import SaltSplitting as SaltSplitting
 from ._methods.strang import Strang as Strang
 from ._methods.strang import Strang4 as Strang4
-from ._model import PAPER_Y0 as PAPER_Y0
-from ._model import GeneralisedRigidBody as GeneralisedRigidBody
-from ._model import RigidBody as RigidBody
-from ._noise_hamiltonians import AbstractNoise as AbstractNoise
-from ._noise_hamiltonians import random_inertia_noise as random_inertia_noise
-from ._noise_hamiltonians import salt_noise as salt_noise
-from ._plan import default_method as default_method
-from ._scores import ForecastScores as ForecastScores
-from ._scores import forecast_scores as forecast_scores
-from ._solution import RESULTS as RESULTS
-from ._solution import Solution as Solution
-from ._stream import EnsembleStatistics as EnsembleStatistics
-from ._stream import ensemble_statistics as ensemble_statistics
-from ._system import LiePoissonSystem as LiePoissonSystem
-from ._transport_fit import TransportNoiseFit as TransportNoiseFit
-from ._transport_fit import fit_transport_noise as fit_transport_noise
+
+# Studies
+from ._studies.calibrate import CalibrationResult as CalibrationResult
+from ._studies.calibrate import calibrate as calibrate
+from ._studies.calibrate import moments as moments
+from ._studies.convergence import ConvergenceResult as ConvergenceResult
+from ._studies.convergence import WeakConvergenceResult as WeakConvergenceResult
+from ._studies.convergence import strong_convergence as strong_convergence
+from ._studies.convergence import weak_convergence as weak_convergence
+from ._studies.scores import ForecastScores as ForecastScores
+from ._studies.scores import forecast_scores as forecast_scores
+from ._studies.transport_fit import TransportNoiseFit as TransportNoiseFit
+from ._studies.transport_fit import fit_transport_noise as fit_transport_noise
+
+# Results: the failure codes, a run's Solution
+from ._support.solution import RESULTS as RESULTS
+from ._support.solution import Solution as Solution
+
+# Systems
+from ._systems.euler_zeitlin import EulerZeitlin as EulerZeitlin
+from ._systems.flow import deterministic_flow as deterministic_flow  # deprecated: drift_flow
+from ._systems.flow import drift_flow as drift_flow
+from ._systems.flow import exact_flow as exact_flow  # deprecated: drift_flow
+from ._systems.flow import exact_solution as exact_solution
+from ._systems.noise import AbstractNoise as AbstractNoise
+from ._systems.noise import random_inertia_noise as random_inertia_noise
+from ._systems.noise import salt_noise as salt_noise
+from ._systems.rigid_body import PAPER_Y0 as PAPER_Y0
+from ._systems.rigid_body import GeneralisedRigidBody as GeneralisedRigidBody
+from ._systems.rigid_body import RigidBody as RigidBody
+from ._systems.system import LiePoissonSystem as LiePoissonSystem
+
+# The architecture, bottom to top: a unit (a subpackage, or a top-level module) imports only
+# units of its own layer or below (tests/test_layering.py reads this).
+_LAYERS = (
+    ("_support", "zeitlin"),  # leaves: import nothing of the package
+    ("_brownian", "_algebra", "so3"),
+    ("_systems",),
+    ("_methods",),
+    ("_driver",),
+    ("_studies",),
+    ("__init__",),
+    ("_cli", "__main__"),  # the command line
+)
 
 __version__ = "0.1.0"

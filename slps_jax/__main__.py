@@ -1,7 +1,7 @@
 """Command line: `slps-jax paper [--out DIR] [--fast]` and `slps-jax summary [--fast]` (the
 help text a user sees is `DESCRIPTION`).
 
-`paper` reproduces Figures 4.1-4.4 of Liu & Wang with their parameters (see `_paper.py`).
+`paper` reproduces Figures 4.1-4.4 of Liu & Wang with their parameters (see `_cli/paper.py`).
 `summary` runs the paper's setup (Liu & Wang, Section 4.4) end to end and prints: the strong
 (RMS) error at T = 1 against the exact solution for h = 2^-5 ... 2^-9 with fitted orders, the
 drift of the Casimir and the Hamiltonian over 10^4 steps, and Newton statistics of scheme (42).
@@ -29,7 +29,7 @@ def summary(n_samples=500, fast=False, seed=0):
     key = jax.random.key(seed)
     levels = range(5, 8) if fast else range(5, 10)
     dts = [2.0**-k for k in levels]
-    from ._paper import paper_methods
+    from ._cli.paper import paper_methods
 
     methods = paper_methods()
     say(
@@ -210,7 +210,7 @@ def main(argv=None):
     if not args.no_cache:
         use_compilation_cache(jax)
     if args.command == "paper":
-        from ._paper import run
+        from ._cli.paper import run
 
         assert out is not None
         run(out_dir=out, fast=args.fast, seed=args.seed)

@@ -17,7 +17,7 @@ import optax
 import pytest
 
 import slps_jax as sj
-from slps_jax._calibrate import _levenberg_marquardt
+from slps_jax._studies.calibrate import _levenberg_marquardt
 
 Y0 = (0.7, 0.7, 0.0)
 DT, N, TS = 0.25, 8, [1.0]

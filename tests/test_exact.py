@@ -16,7 +16,7 @@ import scipy.integrate
 import scipy.special
 
 import slps_jax as sj
-from slps_jax._exact import ellipj, rigid_body_flow
+from slps_jax._systems.elliptic_flow import ellipj, rigid_body_flow
 
 R2 = math.sqrt(2.0)
 PAPER_INERTIA = (R2 + R2 / 1.51, R2 - 0.51 * R2 / 1.51, 1.0)

@@ -1,6 +1,7 @@
-"""The package's layering, as the README's design section states it: a module imports only
-modules of its own layer or below, the leaves nothing of the package, and nothing but the
-command line the command-line module `_paper`. Imports inside functions count too."""
+"""The package's layering, as the package declares it (`slps_jax._LAYERS`, read from the
+source): a unit (a subpackage, or a module at the top) imports only units of its own layer
+or below, the leaves nothing of the package; every unit has a layer, and the README's
+design section names every unit. Imports inside functions count too."""
 
 import ast
 import pathlib
@@ -11,18 +12,13 @@ PACKAGE = ROOT / "slps_jax"
 
 
 def _layers():
-    """`{module: layer}` from the README's numbered list under "## Design"."""
-    text = (ROOT / "README.md").read_text()
-    design = re.search(r"^## Design.*?(?=^## |\Z)", text, re.S | re.M)
-    assert design, "README.md has no '## Design' section"
-    layers = {}
-    for line in design.group(0).splitlines():
-        m = re.match(r"^(\d+)\. (.*)", line)
-        if m:
-            for name in re.findall(r"`([A-Za-z_][A-Za-z0-9_]*)`", m.group(2)):
-                layers.setdefault(name, int(m.group(1)))
-    assert layers, "no numbered layering list in the README's design section"
-    return layers
+    """`{unit: layer}` from `_LAYERS` in `slps_jax/__init__.py` (read, not imported)."""
+    tree = ast.parse((PACKAGE / "__init__.py").read_text())
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and [t.id for t in node.targets] == ["_LAYERS"]:
+            layers = ast.literal_eval(node.value)
+            return {unit: k for k, units in enumerate(layers) for unit in units}
+    raise AssertionError("slps_jax/__init__.py declares no _LAYERS")
 
 
 def _unit(path):
@@ -69,7 +65,13 @@ def test_every_module_has_a_layer_and_imports_none_above_it():
     files = sorted(PACKAGE.rglob("*.py"))
     units = {_unit(f) for f in files}
     missing = units - set(layers)
-    assert not missing, f"modules missing from the README's layering: {sorted(missing)}"
+    assert not missing, f"units missing from slps_jax._LAYERS: {sorted(missing)}"
+    stale = set(layers) - units
+    assert not stale, f"slps_jax._LAYERS names units that do not exist: {sorted(stale)}"
+    design = re.search(r"^## Design.*?(?=^## |\Z)", (ROOT / "README.md").read_text(), re.S | re.M)
+    assert design, "README.md has no '## Design' section"
+    unnamed = {u for u in units if f"`{u}`" not in design.group(0)} - {"__init__", "__main__"}
+    assert not unnamed, f"the README's design section does not name {sorted(unnamed)}"
     wrong = []
     for f in files:
         me = _unit(f)
@@ -79,11 +81,9 @@ def test_every_module_has_a_layer_and_imports_none_above_it():
                     f"{f.relative_to(ROOT)} ({me}, layer {layers[me]}) imports "
                     f"{other} (layer {layers[other]})"
                 )
-            if other == "_paper" and me != "__main__":
-                wrong.append(f"{f.relative_to(ROOT)} imports the command line's _paper")
     assert not wrong, "\n".join(wrong)
     leaves = [u for u, layer in layers.items() if layer == 0]
-    assert "_checks" in leaves
+    assert "_support" in leaves
     for f in files:
         if _unit(f) in leaves:
             assert not _imports(f) - {_unit(f)}, f"{f.relative_to(ROOT)} is a leaf"
@@ -91,7 +91,7 @@ def test_every_module_has_a_layer_and_imports_none_above_it():
 
 def test_the_checker_sees_imports():
     # the parser itself: relative, absolute and function-level imports are found
-    found = _imports(PACKAGE / "_stream.py")
-    assert {"_brownian", "_integrate", "_plan", "_failures", "_progress"} <= found, found
-    assert "__init__" in _imports(PACKAGE / "_paper.py")
+    found = _imports(PACKAGE / "_driver" / "stream.py")
+    assert {"_brownian", "_driver", "_support"} <= found, found
+    assert "__init__" in _imports(PACKAGE / "_cli" / "paper.py")
     assert "_algebra" in _imports(PACKAGE / "_methods" / "strang.py")

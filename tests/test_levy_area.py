@@ -16,9 +16,8 @@ import numpy as np
 import pytest
 
 import slps_jax as sj
-from slps_jax import _brownian
+from slps_jax import RESULTS, _brownian
 from slps_jax._methods.base import AbstractMethod, StepInfo, StrongOrders
-from slps_jax._solution import RESULTS
 
 CHI = 0.5 * np.array([[1.0, 0.2, 0.0], [0.0, 1.0, 0.3], [0.4, 0.0, 1.0]])
 Y0 = jnp.asarray([0.45, -0.5, 0.4])

@@ -28,8 +28,8 @@ from levy_reference import (
 from reference import fitted_order
 
 import slps_jax as sj
+from slps_jax import AbstractNoise
 from slps_jax._methods import METHODS
-from slps_jax._noise_hamiltonians import AbstractNoise
 
 N_PATHS, N_FINE, T = 128, 2**10, 1.0
 HS = [2.0**-k for k in range(3, 6)]

@@ -60,7 +60,7 @@ def supports(cls, system):
 
 def test_capabilities_are_what_each_system_is():
     """Each capability against what the systems above are, written out by hand."""
-    from slps_jax import _capabilities as cap
+    from slps_jax._systems import capabilities as cap
 
     expected = {
         "paper rigid body": {

@@ -233,8 +233,8 @@ def no_compile():
         raise AssertionError("compiled before validating")
 
     targets = ["ensemble_jit", "_integrate_jit", "ensemble_dynamic_jit"]
-    patches = [mock.patch(f"slps_jax._integrate.{t}", boom) for t in targets]
-    patches.append(mock.patch("slps_jax._convergence.ensemble_dynamic_jit", boom))
+    patches = [mock.patch(f"slps_jax._driver.integrate.{t}", boom) for t in targets]
+    patches.append(mock.patch("slps_jax._studies.convergence.ensemble_dynamic_jit", boom))
     for p in patches:
         p.start()
     yield

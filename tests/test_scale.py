@@ -193,7 +193,8 @@ def _energy(ys):
 
 
 def test_streaming_compiles_once_and_shows_progress(reference, capsys, monkeypatch):
-    from slps_jax import _progress, _stream
+    from slps_jax._driver import stream as _stream
+    from slps_jax._support import progress as _progress
 
     model, y0, _ = reference
     monkeypatch.setattr(_progress, "interactive", lambda: True)  # as on a terminal

@@ -131,7 +131,7 @@ def test_paper_command_output_folders(monkeypatch, capsys, tmp_path):
     wins; a folder that cannot be made is a one-line error (exit 2) before any work;
     `--help` describes the commands and every option."""
     import slps_jax.__main__ as cli
-    import slps_jax._paper as paper_module
+    import slps_jax._cli.paper as paper_module
     from slps_jax.__main__ import main
 
     seen, cached = [], []

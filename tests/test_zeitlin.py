@@ -453,7 +453,7 @@ def test_a_model_on_the_eigenbasis_route_steps_and_differentiates_as_the_default
     skip: its paths and its gradients through retried steps (the retry's Jacobians
     with respect to the model's leaves) equal the default route's, against finite
     differences too; a route it does not know is refused."""
-    from slps_jax._system import Tables, differentiable_leaves
+    from slps_jax._systems.system import Tables, differentiable_leaves
 
     w0 = z.shr2mat(0.3 * np.arange(16) / 16, 4)
     e = z.shr2mat(np.eye(16)[[1, 6]], 4)

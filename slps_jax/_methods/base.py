@@ -7,8 +7,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from .._checks import real_dtype
-from .._solution import RESULTS
+from .._support.checks import real_dtype
+from .._support.solution import RESULTS
 
 
 class StepInfo(NamedTuple):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from .._solution import RESULTS
+from .._support.solution import RESULTS
 from .base import StepInfo
 
 # gamma1 = 1/(2 - 2^(1/3)), gamma0 = 1 - 2 gamma1: Phi_{g1 t} o Phi_{g0 t} o Phi_{g1 t} of a

@@ -5,8 +5,8 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from .._capabilities import NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
-from .._exact import rigid_body_flow
+from .._systems.capabilities import NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
+from .._systems.elliptic_flow import rigid_body_flow
 from .base import AbstractMethod, StrongOrders, explicit_info
 
 

@@ -8,10 +8,10 @@ import jax
 import jax.numpy as jnp
 
 from .._algebra import adjoint, matmul
-from .._checks import check_options, real_dtype
-from .._newton import implicit_root, jacobian_mode, newton, solve_array
-from .._solution import RESULTS
+from .._support.checks import check_options, real_dtype
+from .._support.solution import RESULTS
 from .base import AbstractMethod, StepInfo, StrongOrders, default_tol, finite_result
+from .newton import implicit_root, jacobian_mode, newton, solve_array
 
 
 @dataclasses.dataclass(frozen=True)

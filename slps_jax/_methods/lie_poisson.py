@@ -14,11 +14,11 @@ from .._algebra import adjoint
 from .._algebra import so3 as comp
 from .._algebra.so3 import SO3Algebra
 from .._brownian import scale
-from .._capabilities import QUADRATIC
-from .._checks import check_options, real_dtype
-from .._newton import implicit_root, newton, solve_array
-from .._solution import RESULTS
+from .._support.checks import check_options, real_dtype
+from .._support.solution import RESULTS
+from .._systems.capabilities import QUADRATIC
 from .base import AbstractMethod, StepInfo, StrongOrders, default_tol, finite_result
+from .newton import implicit_root, newton, solve_array
 
 
 def branch_rotation(v):

@@ -8,11 +8,11 @@ import jax
 import jax.numpy as jnp
 
 from .._algebra import so3 as comp
-from .._batching import batched_like
 from .._brownian import scale
-from .._capabilities import SO3_VECTORS
-from .._checks import check_options
-from .._solution import RESULTS
+from .._support.batching import batched_like
+from .._support.checks import check_options
+from .._support.solution import RESULTS
+from .._systems.capabilities import SO3_VECTORS
 from .base import AbstractMethod, StepInfo, StrongOrders, default_tol, finite_result
 from .composition import TRIPLE_JUMP, combine
 from .lie_poisson import branch_rotation, scaled, sine_chart_in_map, solve_on_branch

@@ -7,10 +7,10 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from .._checks import check_options, real_dtype
-from .._newton import identity_plus, implicit_root, jacobian_mode, newton
-from .._solution import RESULTS
+from .._support.checks import check_options, real_dtype
+from .._support.solution import RESULTS
 from .base import AbstractMethod, StepInfo, StrongOrders, default_tol, finite_result
+from .newton import identity_plus, implicit_root, jacobian_mode, newton
 
 
 @dataclasses.dataclass(frozen=True)

@@ -9,7 +9,7 @@ import jax.numpy as jnp
 
 from .._algebra import so3 as comp
 from .._brownian import as_step
-from .._capabilities import LINEAR_NOISE, NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
+from .._systems.capabilities import LINEAR_NOISE, NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
 from .base import AbstractMethod, StrongOrders, explicit_info
 from .composition import TRIPLE_JUMP
 

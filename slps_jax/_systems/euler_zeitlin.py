@@ -8,9 +8,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import zeitlin
-from ._algebra import su
-from ._system import LiePoissonSystem, Tables
+from .. import zeitlin
+from .._algebra import su
+from .system import LiePoissonSystem, Tables
 
 
 def _euler_hamiltonian(w, params):

@@ -14,9 +14,10 @@ import dataclasses
 import jax
 import numpy as np
 
-from . import _brownian
-from ._capabilities import RIGID_BODY, SO3_VECTORS
-from ._checks import (
+from .. import _brownian
+from .._methods import METHODS, IsospectralMidpoint, Midpoint
+from .._methods.base import AbstractMethod
+from .._support.checks import (
     check_count,
     check_grid,
     check_options,
@@ -27,11 +28,10 @@ from ._checks import (
     real_array,
     real_dtype,
 )
-from ._deprecated import renamed_arguments
-from ._methods import METHODS, IsospectralMidpoint, Midpoint
-from ._methods.base import AbstractMethod
-from ._sharding import check_sharding
-from ._system import LiePoissonSystem, check_system
+from .._support.deprecated import renamed_arguments
+from .._systems.capabilities import RIGID_BODY, SO3_VECTORS
+from .._systems.system import LiePoissonSystem, check_system
+from .sharding import check_sharding
 
 
 def check_pair(method, system):

@@ -33,12 +33,12 @@ import jax
 import jax.numpy as jnp
 from jax.flatten_util import ravel_pytree
 
-from . import _brownian
-from ._batching import batched_like
-from ._checks import real_dtype
-from ._methods.base import finite_result
-from ._solution import RESULTS
-from ._system import differentiable_leaves
+from .. import _brownian
+from .._methods.base import finite_result
+from .._support.batching import batched_like
+from .._support.checks import real_dtype
+from .._support.solution import RESULTS
+from .._systems.system import differentiable_leaves
 
 # A failed step is split into k, k^2, ..., k^RETRY_LEVELS equal parts before giving up.
 RETRY_LEVELS = 3

@@ -15,16 +15,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _brownian
-from ._capabilities import NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
-from ._checks import check_count, check_positive, check_retry, real_dtype, user_stacklevel
-from ._deprecated import renamed_arguments, warn
-from ._failures import message, summary
-from ._flow import drift_flow
-from ._integrate import ensemble_dynamic_jit
-from ._methods.base import AbstractMethod
-from ._methods.midpoint import Midpoint
-from ._plan import check_levy_option, check_method, check_system, check_y0
+from .. import _brownian
+from .._driver.failures import message, summary
+from .._driver.integrate import ensemble_dynamic_jit
+from .._driver.plan import check_levy_option, check_method, check_system, check_y0
+from .._methods.base import AbstractMethod
+from .._methods.midpoint import Midpoint
+from .._support.checks import check_count, check_positive, check_retry, real_dtype, user_stacklevel
+from .._support.deprecated import renamed_arguments, warn
+from .._systems.capabilities import NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
+from .._systems.flow import drift_flow
 
 
 @dataclasses.dataclass(frozen=True)

@@ -9,9 +9,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._algebra import so
-from ._checks import concrete, float_dtype, real_array
-from ._system import LiePoissonSystem, _noise_or_c
+from .._algebra import so
+from .._support.checks import concrete, float_dtype, real_array
+from .system import LiePoissonSystem, _noise_or_c
 
 
 def _rigid_body_hamiltonian(y, inertia):

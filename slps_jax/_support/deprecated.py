@@ -8,7 +8,7 @@ import warnings
 from collections.abc import Callable
 from typing import Any, ParamSpec, TypeVar
 
-from ._checks import user_stacklevel
+from .checks import user_stacklevel
 
 P = ParamSpec("P")
 R = TypeVar("R")

@@ -19,15 +19,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _brownian
-from ._checks import user_stacklevel
-from ._deprecated import renamed_arguments
-from ._failures import message
-from ._integrate import ensemble
-from ._methods.base import AbstractMethod
-from ._plan import options, plan_ensemble
-from ._progress import advance, progress_bar
-from ._sharding import automatic
+from .. import _brownian
+from .._methods.base import AbstractMethod
+from .._support.checks import user_stacklevel
+from .._support.deprecated import renamed_arguments
+from .._support.progress import advance, progress_bar
+from .failures import message
+from .integrate import ensemble
+from .plan import options, plan_ensemble
+from .sharding import automatic
 
 STATISTICS = ("mean", "var", "cov", "skewness", "kurtosis")
 

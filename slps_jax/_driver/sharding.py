@@ -33,7 +33,7 @@ try:
 except ImportError:  # JAX before mesh axis types: every axis is automatic
     AxisType = None
 
-from ._brownian import sample_keys
+from .._brownian import sample_keys
 
 
 def auto_sharding():

@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._checks import concrete, float_dtype, numeric_array
+from .._support.checks import concrete, float_dtype, numeric_array
 
 
 class AbstractNoise:

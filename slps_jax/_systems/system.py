@@ -8,11 +8,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._algebra import SO3, AbstractAlgebra
-from ._brownian import as_step
-from ._checks import concrete, float_dtype, real_array, real_dtype
-from ._deprecated import warn
-from ._noise_hamiltonians import AbstractNoise, as_noise
+from .._algebra import SO3, AbstractAlgebra
+from .._brownian import as_step
+from .._support.checks import concrete, float_dtype, real_array, real_dtype
+from .._support.deprecated import warn
+from .noise import AbstractNoise, as_noise
 
 
 @jax.tree_util.register_pytree_node_class
@@ -154,7 +154,7 @@ class LiePoissonSystem:
     def structure(self):
         """Deprecated: the descriptions of the capabilities the system has (methods now
         declare `Capability` objects in `requires`, which test the system itself)."""
-        from ._capabilities import CAPABILITIES  # (a layer above: only for the old name)
+        from .capabilities import CAPABILITIES  # (a layer above: only for the old name)
 
         warn(f"`{type(self).__name__}.structure`", "the capabilities of slps_jax (`requires`)")
         return frozenset(c.description for c in CAPABILITIES if c(self))

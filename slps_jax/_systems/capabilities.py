@@ -8,8 +8,8 @@ import dataclasses
 from collections.abc import Callable
 from typing import Any
 
-from ._algebra.so3 import SO3Algebra
-from ._model import RigidBody
+from .._algebra.so3 import SO3Algebra
+from .rigid_body import RigidBody
 
 
 @dataclasses.dataclass(frozen=True)

@@ -7,9 +7,9 @@ from typing import NamedTuple, cast
 import jax
 import jax.numpy as jnp
 
-from ._algebra.so3 import solve3
-from ._batching import batched_like
-from ._solution import RESULTS
+from .._algebra.so3 import solve3
+from .._support.batching import batched_like
+from .._support.solution import RESULTS
 
 _RUNNING = -1  # a result code that is not one: the iteration goes on
 
@@ -129,7 +129,7 @@ def newton(fn, x0, *, tol, max_iter, active=True, admissible=None, continuation=
         zero,
         zero,
     )
-    init = batched_like(init, (x0, active))  # (one pass over `fn` under vmap: `_batching`)
+    init = batched_like(init, (x0, active))  # (one pass over `fn` under vmap: `_support.batching`)
 
     def evaluate(s):
         if continuation:

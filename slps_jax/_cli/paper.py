@@ -15,7 +15,7 @@ import sys
 import time
 from typing import Any
 
-from ._convergence import order_text
+from .._studies.convergence import order_text
 
 
 def _settings(fast) -> dict[str, Any]:
@@ -86,7 +86,7 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
 
     import slps_jax as sj
 
-    from ._progress import advance, progress_bar
+    from .._support.progress import advance, progress_bar
 
     os.makedirs(out_dir, exist_ok=True)
     cfg = _settings(fast)

@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from ._checks import real_array
+from .._support.checks import real_array
 
 # Descending Landen steps. Each step squares the nome, so the moduli k_n = c_n / a_n fall
 # doubly exponentially; the slowest case is the largest m the AGM branch sees, 1 − eps²

@@ -15,14 +15,14 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from . import _brownian
-from ._deprecated import renamed_attribute
-from ._failures import message
-from ._integrate import run_ensemble
-from ._methods.base import AbstractMethod
-from ._model import RigidBody
-from ._noise_hamiltonians import _ParameterNoise
-from ._plan import check_levy_option, check_method, plan_ensemble
+from .. import _brownian
+from .._driver.failures import message
+from .._driver.integrate import run_ensemble
+from .._driver.plan import check_levy_option, check_method, plan_ensemble
+from .._methods.base import AbstractMethod
+from .._support.deprecated import renamed_attribute
+from .._systems.noise import _ParameterNoise
+from .._systems.rigid_body import RigidBody
 
 
 def moments(ys):

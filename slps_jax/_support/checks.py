@@ -2,7 +2,7 @@
 wherever it is made. Every check runs in Python on concrete values, before anything
 compiles; traced values (inside `jit`, `vmap`, `grad`) pass unchecked. A leaf module: the
 checks that need systems or methods (their pairing, `y0` against the algebra) are in
-`_plan.py`, `check_system` in `_system.py`.
+`_driver/plan.py`, `check_system` in `_systems/system.py`.
 
 Dtype policy: the system's dtype (that of its parameters and `c`) is the dtype of the
 computation. `y0` and `dW` are cast to it: a float32 `y0` with a float64 system is promoted
@@ -177,7 +177,7 @@ def check_options(method):
             raise ValueError(f"{name}: unroll must be an integer >= 0, got {n!r}.")
 
 
-_PACKAGE = os.path.dirname(os.path.abspath(__file__))
+_PACKAGE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # slps_jax/
 
 
 def user_stacklevel():

@@ -10,11 +10,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._capabilities import NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
-from ._checks import check_positive, concrete, numeric_array, real_array
-from ._deprecated import alias, renamed_arguments
-from ._exact import _check_real, rigid_body_flow
-from ._system import check_system
+from .._support.checks import check_positive, concrete, numeric_array, real_array
+from .._support.deprecated import alias, renamed_arguments
+from .capabilities import NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
+from .elliptic_flow import _check_real, rigid_body_flow
+from .system import check_system
 
 
 @functools.partial(jax.jit, static_argnames=("n_steps",))

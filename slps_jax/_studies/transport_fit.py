@@ -11,13 +11,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import zeitlin
-from ._checks import check_count, check_positive
-from ._euler_zeitlin import EulerZeitlin
-from ._integrate import integrate
-from ._methods.base import AbstractMethod
-from ._methods.isospectral import IsospectralMidpoint
-from ._noise_hamiltonians import salt_noise
+from .. import zeitlin
+from .._driver.integrate import integrate
+from .._methods.base import AbstractMethod
+from .._methods.isospectral import IsospectralMidpoint
+from .._support.checks import check_count, check_positive
+from .._systems.euler_zeitlin import EulerZeitlin
+from .._systems.noise import salt_noise
 
 
 @dataclasses.dataclass(frozen=True)

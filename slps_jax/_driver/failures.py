@@ -15,9 +15,9 @@ import jax
 import jax.core
 import numpy as np
 
-from ._checks import user_stacklevel
-from ._sharding import gather
-from ._solution import RESULTS
+from .._support.checks import user_stacklevel
+from .._support.solution import RESULTS
+from .sharding import gather
 
 ADVICE = (
     "A smaller dt usually helps (or LiePoisson(scale=...) near |y| = 1, or a method "

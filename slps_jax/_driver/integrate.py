@@ -9,9 +9,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _brownian
-from ._batching import batched_like
-from ._checks import (
+from .. import _brownian
+from .._methods.base import AbstractMethod, finite_result
+from .._support.batching import batched_like
+from .._support.checks import (
     check_positive,
     check_retry,
     check_save_every,
@@ -20,13 +21,12 @@ from ._checks import (
     real_array,
     real_dtype,
 )
-from ._deprecated import renamed_arguments
-from ._failures import report
-from ._methods.base import AbstractMethod, finite_result
-from ._plan import check_levy_area, check_method, check_system, check_y0, options, plan_ensemble
-from ._retry import robust_step
-from ._sharding import as_given, automatic, sharded_keys
-from ._solution import RESULTS, Solution
+from .._support.deprecated import renamed_arguments
+from .._support.solution import RESULTS, Solution
+from .failures import report
+from .plan import check_levy_area, check_method, check_system, check_y0, options, plan_ensemble
+from .retry import robust_step
+from .sharding import as_given, automatic, sharded_keys
 
 
 def _highest_precision(fn):
@@ -92,7 +92,7 @@ def _path(method, system, y0, dt, draw, n_blocks, block_len, want_stats, retry=N
     sample is given up.
 
     `like`: the arrays that tell the sample apart (its key, or its `y0` and increments): the
-    loop's carry starts batched where they are (`_batching`).
+    loop's carry starts batched where they are (`_support.batching`).
 
     Returns the saved states `(n_blocks, *state_shape)`, the step of failure (-1 if none), the number
     of retried steps, and the Newton statistics `(iterations sum, iterations max, residual

@@ -1,0 +1,1 @@
+"""The command line's jobs: `slps-jax paper` (`paper`)."""
