@@ -1,4 +1,5 @@
-"""Helpers shared by the benchmark scripts: timing, machine description, output files.
+"""Helpers shared by the benchmark scripts: arguments (`parser`), timing, machine description,
+output files.
 
 Timing follows diffrax's benchmarks: compile once (timed on its own, ahead of time with
 `jax.jit(f).lower(*args).compile()`), run once to warm up, then time repeated calls that end
@@ -22,6 +23,17 @@ DEFAULT_OUT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results"
 # A script's `--fast` run is a smoke run (the test suite's): its timings take `repeats` calls
 # and no more, whatever `min_total` asks.
 SMOKE = "--fast" in sys.argv[1:]
+
+
+def parser(doc, fast, out=DEFAULT_OUT):
+    """The arguments every script takes: `--fast` (a smoke run, the test suite's; `fast` says
+    what it runs) and `--out` (the output folder, default `out`); a script adds its own."""
+    import argparse
+
+    p = argparse.ArgumentParser(description=doc.split("\n\n")[0])
+    p.add_argument("--fast", action="store_true", help=fast)
+    p.add_argument("--out", default=out, help="output folder")
+    return p
 
 
 def machine_info():

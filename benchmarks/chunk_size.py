@@ -11,7 +11,6 @@ has converged, and large batches fall out of cache, so smaller chunks can be fas
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import sys
@@ -19,14 +18,13 @@ import time
 import warnings
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import _common  # noqa: E402
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = _common.parser(__doc__, "2000 samples, chunks of 500, 2000", out=None)
     parser.add_argument("--samples", type=int, default=10**5)
     parser.add_argument("--chunks", default="1000,10000,100000")
-    parser.add_argument("--fast", action="store_true", help="2000 samples, chunks of 500, 2000")
-    parser.add_argument("--out", default=None)
     args = parser.parse_args(argv)
     if args.fast:
         args.samples, args.chunks = 2000, "500,2000"

@@ -9,6 +9,12 @@ cache of an earlier case helps a later one: what a notebook user pays for a new 
     python benchmarks/compile_time.py --methods LiePoisson --fast
     python benchmarks/compile_time.py --ab-retry none --methods LiePoisson --how simulate
                                                       # the default retry against none
+    python benchmarks/compile_time.py --system salt --ab OLD_PYTHON --python NEW_PYTHON
+                                                      # two installations, SALT with areas
+
+`--system`: `rigid` (the paper's body, `c = 0.2`; the default), `salt` (the rigid body with
+three SALT noises and, for the methods that use them, their Lévy areas) or `so4` (the
+generalised rigid body on so(4), `c = 0.2`). The Heun baselines run on `rigid` only.
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ import sys
 import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import _common  # noqa: E402
 
 METHODS = [
     "LiePoisson",
@@ -40,7 +47,23 @@ def _lines(lowered):
     return lowered.as_text().count("\n")
 
 
-def measure(name, how, n_samples, n_steps, retry=None):
+SYSTEMS = ("rigid", "salt", "so4")
+
+
+def _system(sj, name):
+    """The system and initial value of `--system`."""
+    import numpy as np
+
+    if name == "salt":
+        chi = 0.4 * np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.5, 1.0]])
+        return sj.RigidBody([1.0, 2.0, 3.0], noise=sj.salt_noise(chi)), np.array([0.6, 0.5, 0.3])
+    if name == "so4":
+        y0 = sj.so(4).from_coordinates(np.array([0.3, -0.2, 0.1, 0.25, 0.15, -0.1]))
+        return sj.GeneralisedRigidBody([1.0, 2.0, 3.0, 4.0], c=0.2), np.asarray(y0)
+    return sj.RigidBody.paper(), np.asarray(sj.PAPER_Y0)
+
+
+def measure(name, how, n_samples, n_steps, retry=None, system_name="rigid"):
     """Seconds to trace+lower and to compile, and StableHLO lines, of one case.
     `retry`: `None` for the library's default `retry_substeps`, else `"none"` or `"k"`."""
     import jax
@@ -49,12 +72,12 @@ def measure(name, how, n_samples, n_steps, retry=None):
     jax.config.update("jax_enable_x64", True)
     import slps_jax as sj
 
-    system = sj.RigidBody.paper()
-    y0 = jnp.asarray(sj.PAPER_Y0)
+    system, y0 = _system(sj, system_name)
+    y0 = jnp.asarray(y0)
     dt = 2.0**-9
     dW = jax.random.normal(jax.random.key(0), (n_samples, n_steps)) * dt**0.5
     if name in (REFERENCE, SCAN_HEUN):
-        if how == "simulate":
+        if how == "simulate" or system_name != "rigid":
             return None
         import work_precision as wp
 
@@ -74,10 +97,23 @@ def measure(name, how, n_samples, n_steps, retry=None):
         method = eval(name if "(" in name else name + "()", {"__builtins__": {}}, vars(sj))
         opts = {} if retry is None else {"retry_substeps": None if retry == "none" else int(retry)}
         if how == "integrate":
+            # (several noises: drawn with the library, with the areas for a method that uses them)
+            areas = system.n_noises > 1 and method.uses_levy_area()
+            if system.n_noises > 1:
+                dW = sj.brownian_increments(
+                    jax.random.key(0),
+                    n_steps,
+                    dt,
+                    n_samples=n_samples,
+                    n_noises=system.n_noises,
+                    levy_area=areas,
+                )
+            args = dW if areas else (dW,)
             fn = jax.vmap(
-                lambda dw: sj.integrate(system, y0, dw, dt, method=method, throw=False, **opts)
+                lambda dw, a=None: sj.integrate(
+                    system, y0, dw, dt, method=method, throw=False, levy_area=a, **opts
+                )
             )
-            args = (dW,)
         else:
 
             def fn(key):
@@ -95,7 +131,12 @@ def measure(name, how, n_samples, n_steps, retry=None):
 
             args = (jax.random.key(1),)
     start = time.perf_counter()
-    lowered = jax.jit(fn).lower(*args)
+    try:
+        lowered = jax.jit(fn).lower(*args)
+    except TypeError as err:  # a method this system cannot serve: no case
+        if "needs a system" in str(err):
+            return None
+        raise
     t_lower = time.perf_counter() - start
     start = time.perf_counter()
     compiled = lowered.compile()
@@ -132,7 +173,8 @@ def child(python, name, how, args, retry=None):
                 "--steps",
                 str(args.steps),
             ]
-            + ([] if retry is None else ["--retry", retry]),
+            + ([] if retry is None else ["--retry", retry])
+            + ["--system", args.system],
             capture_output=True,
             text=True,
             check=True,
@@ -194,14 +236,12 @@ def ab(args):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = _common.parser(__doc__, "50 samples x 64 steps", out=None)
     parser.add_argument("--methods", default=",".join(METHODS + [REFERENCE, SCAN_HEUN]))
     parser.add_argument("--how", default="integrate,simulate")
     parser.add_argument("--samples", type=int, default=500)
     parser.add_argument("--steps", type=int, default=512)
-    parser.add_argument("--fast", action="store_true", help="50 samples x 64 steps")
     parser.add_argument("--one", action="store_true", help=argparse.SUPPRESS)
-    parser.add_argument("--out", default=None)
     parser.add_argument(
         "--ab",
         default=None,
@@ -225,6 +265,7 @@ def main(argv=None):
         "(default: the library's default)",
     )
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--system", choices=SYSTEMS, default="rigid")
     parser.add_argument(
         "--python",
         default=sys.executable,
@@ -235,7 +276,7 @@ def main(argv=None):
     if args.fast:
         args.samples, args.steps = 50, 64
     if args.one:  # a child process: one case, JSON on stdout
-        row = measure(args.methods, args.how, args.samples, args.steps, args.retry)
+        row = measure(args.methods, args.how, args.samples, args.steps, args.retry, args.system)
         print(json.dumps(row))
         return
     import jax

@@ -20,7 +20,6 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-import argparse  # noqa: E402
 import math  # noqa: E402
 import os  # noqa: E402
 import sys  # noqa: E402
@@ -53,13 +52,10 @@ def statistic(params, method, n_samples, n_steps, dt, retry_kw=None):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument(
-        "--fast",
-        action="store_true",
-        help="50 samples, 32 steps, LiePoisson only (the reverse pass's memory: Midpoint)",
+    parser = _common.parser(
+        __doc__,
+        "50 samples, 32 steps, LiePoisson only (the reverse pass's memory: Midpoint)",
     )
-    parser.add_argument("--out", default=_common.DEFAULT_OUT)
     parser.add_argument(
         "--retry",
         default=None,

@@ -33,7 +33,6 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-import argparse  # noqa: E402
 import math  # noqa: E402
 import os  # noqa: E402
 import sys  # noqa: E402
@@ -201,9 +200,7 @@ def plot(rows, summary, path, t1):
 
 
 def parse(argv):
-    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--fast", action="store_true", help="T = 100, 8 paths (about 20 s)")
-    p.add_argument("--out", default=_common.DEFAULT_OUT, help="output folder")
+    p = _common.parser(__doc__, "T = 100, 8 paths (about 20 s)")
     p.add_argument("--t1", type=float, default=None, help="final time (1000)")
     p.add_argument("--samples", type=int, default=None, help="number of paths (20)")
     p.add_argument("--dt", type=float, default=0.01, help="step size (0.01)")

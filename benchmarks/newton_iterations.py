@@ -21,7 +21,6 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-import argparse  # noqa: E402
 import os  # noqa: E402
 import sys  # noqa: E402
 
@@ -45,9 +44,7 @@ def step_infos(system, method, ys, dW, dt):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--fast", action="store_true", help="100 samples, h = 2^-5 ... 2^-7")
-    parser.add_argument("--out", default=_common.DEFAULT_OUT)
+    parser = _common.parser(__doc__, "100 samples, h = 2^-5 ... 2^-7")
     args = parser.parse_args(argv)
     os.makedirs(args.out, exist_ok=True)
 

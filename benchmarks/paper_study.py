@@ -138,14 +138,11 @@ def parse(argv):
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     import _common
 
-    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument(
-        "--fast",
-        action="store_true",
-        help="tiny size for the test suite: 100 samples, h = 2^-5 ... 2^-7, "
+    p = _common.parser(
+        __doc__,
+        "tiny size for the test suite: 100 samples, h = 2^-5 ... 2^-7, "
         "the LiePoisson case only, one process",
     )
-    p.add_argument("--out", default=_common.DEFAULT_OUT, help="output folder")
     p.add_argument("--samples", type=int, default=None, help="number of samples (500)")
     p.add_argument("--kmin", type=int, default=None)
     p.add_argument("--kmax", type=int, default=None)

@@ -12,7 +12,6 @@ time of each run (compilation included, one per step size and setting).
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import os
@@ -21,6 +20,7 @@ import time
 import warnings
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import _common  # noqa: E402
 
 
 def run(n_samples, chunk_size, dt, retry):
@@ -48,12 +48,10 @@ def run(n_samples, chunk_size, dt, retry):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = _common.parser(__doc__, "4000 samples, h = 2^-4", out=None)
     parser.add_argument("--samples", type=int, default=10**6)
     parser.add_argument("--chunk", type=int, default=1000)
     parser.add_argument("--levels", default="4,5,6", help="k of the step sizes 2^-k")
-    parser.add_argument("--fast", action="store_true", help="4000 samples, h = 2^-4")
-    parser.add_argument("--out", default=None)
     args = parser.parse_args(argv)
     if args.fast:
         args.samples, args.chunk, args.levels = 4000, 1000, "4"

@@ -305,13 +305,10 @@ def plot(time_rows, mem_rows, path, fixed_steps, fixed_samples):
 
 
 def parse(argv):
-    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument(
-        "--fast",
-        action="store_true",
-        help="tiny size for the test suite (Strang only, 50-100 samples, 32-64 steps)",
+    p = _common.parser(
+        __doc__,
+        "tiny size for the test suite (Strang only, 50-100 samples, 32-64 steps)",
     )
-    p.add_argument("--out", default=_common.DEFAULT_OUT, help="output folder")
     p.add_argument("--methods", default=None, help="comma-separated (LiePoisson,Strang)")
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument(

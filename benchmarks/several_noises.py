@@ -46,7 +46,6 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-import argparse  # noqa: E402
 import math  # noqa: E402
 import os  # noqa: E402
 import sys  # noqa: E402
@@ -129,11 +128,9 @@ def diffrax_heun(w, h, n_steps, h_fine):
 
 
 def parse(argv):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument(
-        "--fast",
-        action="store_true",
-        help="a smoke run: 32 samples, h = 2^-4 and 2^-5, reference at 2^-8, weak "
+    p = _common.parser(
+        __doc__,
+        "a smoke run: 32 samples, h = 2^-4 and 2^-5, reference at 2^-8, weak "
         "errors of two methods, a short long-time run, small so(4) and "
         "area-cost runs",
     )
@@ -142,9 +139,6 @@ def parse(argv):
         action="store_true",
         help="only the cost of drawing the areas (written to "
         "several_noises_area_costs.md and .json)",
-    )
-    p.add_argument(
-        "--out", default=_common.DEFAULT_OUT, help="output folder (default: %(default)s)"
     )
     return p.parse_args(argv)
 

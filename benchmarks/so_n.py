@@ -32,7 +32,6 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-import argparse  # noqa: E402
 import os  # noqa: E402
 import sys  # noqa: E402
 
@@ -330,15 +329,10 @@ def figure(path, cost_rows, wp_rows):
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument(
-        "--fast",
-        action="store_true",
-        help="a smoke run: n = 3 without the Newton-Jacobian variants; 8 samples; "
+    p = _common.parser(
+        __doc__,
+        "a smoke run: n = 3 without the Newton-Jacobian variants; 8 samples; "
         "h = 2^-3, 2^-4; 200 steps",
-    )
-    p.add_argument(
-        "--out", default=_common.DEFAULT_OUT, help="output folder (default: %(default)s)"
     )
     args = p.parse_args(argv)
     os.makedirs(args.out, exist_ok=True)

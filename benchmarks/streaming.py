@@ -77,9 +77,7 @@ def child(n_samples, chunk_size):
 
 
 def parse(argv):
-    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--fast", action="store_true", help="10^3 and 10^4 samples, chunks of 10^3")
-    p.add_argument("--out", default=_common.DEFAULT_OUT, help="output folder")
+    p = _common.parser(__doc__, "10^3 and 10^4 samples, chunks of 10^3")
     p.add_argument("--child", nargs=2, type=int, help=argparse.SUPPRESS)
     return p.parse_args(argv)
 

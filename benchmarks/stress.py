@@ -48,7 +48,6 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-import argparse  # noqa: E402
 import math  # noqa: E402
 import os  # noqa: E402
 import sys  # noqa: E402
@@ -339,13 +338,10 @@ def run_noise_cell(settings, method_name, seed=0):
 
 
 def parse(argv):
-    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument(
-        "--fast",
-        action="store_true",
-        help="a smoke run for the test suite: one hard corner, every method, 8 samples",
+    p = _common.parser(
+        __doc__,
+        "a smoke run for the test suite: one hard corner, every method, 8 samples",
     )
-    p.add_argument("--out", default=_common.DEFAULT_OUT, help="output folder")
     p.add_argument("--methods", default=None, help="comma-separated subset of " + ",".join(METHODS))
     return p.parse_args(argv)
 

@@ -31,7 +31,6 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-import argparse  # noqa: E402
 import os  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
@@ -118,9 +117,7 @@ def device_name(cpu_model):
 
 
 def parse(argv):
-    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--fast", action="store_true", help="tiny sizes for the test suite")
-    p.add_argument("--out", default=_common.DEFAULT_OUT, help="output folder")
+    p = _common.parser(__doc__, "tiny sizes for the test suite")
     p.add_argument(
         "--max-samples", type=int, default=None, help="largest n_samples (CPU 10^5, GPU 10^7)"
     )

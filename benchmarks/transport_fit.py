@@ -20,7 +20,6 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-import argparse  # noqa: E402
 import os  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
@@ -76,11 +75,7 @@ def case(M, N, windows=WINDOWS, window=WINDOW, members=MEMBERS):
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--fast", action="store_true", help="a smoke run: M = 12, N = 6, small sizes")
-    p.add_argument(
-        "--out", default=_common.DEFAULT_OUT, help="output folder (default: %(default)s)"
-    )
+    p = _common.parser(__doc__, "a smoke run: M = 12, N = 6, small sizes")
     args = p.parse_args(argv)
     os.makedirs(args.out, exist_ok=True)
     info = _common.machine_info()

@@ -41,7 +41,6 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-import argparse  # noqa: E402
 import math  # noqa: E402
 import os  # noqa: E402
 import sys  # noqa: E402
@@ -398,13 +397,10 @@ def plot(rows, path, n_samples, fastest_row):
 
 
 def parse(argv):
-    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument(
-        "--fast",
-        action="store_true",
-        help="tiny size for the test suite: 40 samples, h = 2^-3, 2^-4, a subset of the methods",
+    p = _common.parser(
+        __doc__,
+        "tiny size for the test suite: 40 samples, h = 2^-3, 2^-4, a subset of the methods",
     )
-    p.add_argument("--out", default=_common.DEFAULT_OUT, help="output folder")
     p.add_argument("--samples", type=int, default=None, help="number of samples (500)")
     p.add_argument("--kmin", type=int, default=None, help="largest step 2^-kmin (3)")
     p.add_argument("--kmax", type=int, default=None, help="smallest step 2^-kmax (10)")

@@ -33,7 +33,6 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-import argparse  # noqa: E402
 import os  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
@@ -515,15 +514,11 @@ def figure(path, rows):
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--fast", action="store_true", help="a smoke run: N = 8; 200 steps")
+    p = _common.parser(__doc__, "a smoke run: N = 8; 200 steps")
     p.add_argument(
         "--check-quflow",
         action="store_true",
         help="compare conventions and dynamics with quflow (needs quflow)",
-    )
-    p.add_argument(
-        "--out", default=_common.DEFAULT_OUT, help="output folder (default: %(default)s)"
     )
     p.add_argument(
         "--scale",
