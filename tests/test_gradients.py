@@ -156,34 +156,19 @@ def test_calibration_recovers_known_parameters():
         ys
     ) / np.sqrt(n_obs)
     init = sj.RigidBody(true.inertia * jnp.array([1.1, 0.95, 1.0]), 0.25)
-    with pytest.raises(ValueError, match="Hold one moment fixed"):
-        sj.calibrate(
-            stats,
-            Y0,
-            ts=ts,
-            dt=dt,
-            n_samples=n_fit,
-            key=jax.random.key(1),
-            init=init,
-            observed_stderr=stderr,
-            method=sj.Strang(),
-            progress=False,
-        )
-    res = sj.calibrate(
-        stats,
-        Y0,
+    kw = dict(
         ts=ts,
         dt=dt,
         n_samples=n_fit,
         key=jax.random.key(1),
         init=init,
         observed_stderr=stderr,
-        observed_n_samples=n_obs,
-        fixed=("I_3",),
         method=sj.Strang(),
-        steps=30,
         progress=False,
     )
+    with pytest.raises(ValueError, match="Hold one moment fixed"):
+        sj.calibrate(stats, Y0, **kw)
+    res = sj.calibrate(stats, Y0, observed_n_samples=n_obs, fixed=("I_3",), steps=30, **kw)
     fitted = np.r_[np.asarray(res.system.inertia), float(res.system.c)]
     truth = np.r_[np.asarray(true.inertia), float(true.c)]
     assert res.loss[-1] < 1e-3 * res.loss[0]

@@ -217,28 +217,21 @@ def test_levy_area_arguments_are_checked():
         sj.integrate(model, Y0, dW, 0.1, levy_area=jnp.abs(A), method=sj.Midpoint())
     with pytest.raises(ValueError, match=r"finite; steps \[2\]"):
         sj.integrate(model, Y0, dW, 0.1, levy_area=A.at[2, 0, 1].set(np.nan), method=sj.Midpoint())
-    with pytest.raises(TypeError, match="levy_area=True: Heun"):
-        sj.simulate(
-            model,
-            Y0,
-            t1=0.4,
-            dt=0.1,
-            n_samples=2,
-            key=jax.random.key(0),
-            method=sj.Heun(),
-            levy_area=True,
-        )
-    with pytest.raises(TypeError, match="'auto', True or False"):
-        sj.simulate(
-            model,
-            Y0,
-            t1=0.4,
-            dt=0.1,
-            n_samples=2,
-            key=jax.random.key(0),
-            method=sj.Midpoint(),
-            levy_area="yes",
-        )
+    for method, option, match in [
+        (sj.Heun(), True, "levy_area=True: Heun"),
+        (sj.Midpoint(), "yes", "'auto', True or False"),
+    ]:
+        with pytest.raises(TypeError, match=match):
+            sj.simulate(
+                model,
+                Y0,
+                t1=0.4,
+                dt=0.1,
+                n_samples=2,
+                key=jax.random.key(0),
+                method=method,
+                levy_area=option,
+            )
     with pytest.raises(ValueError, match="needs n_noises"):
         sj.brownian_increments(jax.random.key(0), 4, 0.1, levy_area=True)
 
