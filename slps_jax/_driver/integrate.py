@@ -13,6 +13,7 @@ from .. import _brownian
 from .._methods.base import AbstractMethod, finite_result
 from .._support.batching import batched_like
 from .._support.checks import (
+    arguments_for,
     check_positive,
     check_retry,
     check_save_every,
@@ -24,7 +25,7 @@ from .._support.checks import (
 from .._support.deprecated import renamed_arguments
 from .._support.solution import RESULTS, Solution
 from .failures import report
-from .plan import check_levy_area, check_method, check_system, check_y0, options, plan_ensemble
+from .plan import check_levy_area, check_method, check_system, check_y0, plan_ensemble
 from .retry import robust_step
 from .sharding import as_given, automatic, sharded_keys
 
@@ -437,7 +438,7 @@ def simulate(
     **Returns:** a `Solution`.
     """
     check_throw(throw)
-    p = plan_ensemble("simulate", system, y0, options(locals()))
+    p = plan_ensemble("simulate", **arguments_for(plan_ensemble, locals()))
     sol = run_ensemble(p, newton_stats=newton_stats, saved=save_every is not None)
     report("simulate", throw, retry_substeps is not None, sol.fail_step, sol.result)
     return sol

@@ -171,35 +171,26 @@ class EnsemblePlan:
         return real_dtype(self.y0.dtype)
 
 
-# An ensemble's options, by the names of `simulate`'s keywords (`ensemble_statistics` adds
-# `chunk_size`); the entry points pass theirs by name, `options(locals())`.
-ENSEMBLE_OPTIONS = (
-    "t1",
-    "dt",
-    "n_samples",
-    "key",
-    "method",
-    "save_every",
-    "truncate_k",
-    "retry_substeps",
-    "sharding",
-    "levy_area",
-    "chunk_size",
-)
-
-
-def options(arguments):
-    """The ensemble's options among a caller's `arguments` (its `locals()`)."""
-    return {name: arguments[name] for name in ENSEMBLE_OPTIONS if name in arguments}
-
-
-def plan_ensemble(caller, system, y0, options):
-    """Check an ensemble's arguments (`options`: `ENSEMBLE_OPTIONS` by name; the sharding
-    against `chunk_size` when it is run in chunks) and return its `EnsemblePlan`."""
-    t1, dt, n_samples, key, method, save_every, truncate_k, retry_substeps, sharding = (
-        options[name] for name in ENSEMBLE_OPTIONS[:9]
-    )
-    levy_area, chunk_size = options["levy_area"], options.get("chunk_size")
+def plan_ensemble(
+    caller,
+    system,
+    y0,
+    *,
+    t1,
+    dt,
+    n_samples,
+    key,
+    method,
+    save_every,
+    truncate_k,
+    retry_substeps,
+    sharding,
+    levy_area,
+    chunk_size=None,
+):
+    """Check an ensemble's arguments (the sharding against `chunk_size` when it is run in
+    chunks) and return its `EnsemblePlan`. The entry points pass theirs on by name,
+    `arguments_for(plan_ensemble, locals())`."""
     check_system(system)
     method = check_method(method, system)
     y0 = check_y0(y0, method, system)

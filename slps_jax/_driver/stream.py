@@ -21,12 +21,12 @@ import numpy as np
 
 from .. import _brownian
 from .._methods.base import AbstractMethod
-from .._support.checks import user_stacklevel
+from .._support.checks import arguments_for, user_stacklevel
 from .._support.deprecated import renamed_arguments
 from .._support.progress import advance, progress_bar
 from .failures import message
 from .integrate import ensemble
-from .plan import options, plan_ensemble
+from .plan import plan_ensemble
 from .sharding import automatic
 
 STATISTICS = ("mean", "var", "cov", "skewness", "kurtosis")
@@ -205,7 +205,7 @@ def ensemble_statistics(
     substeps, `retry_substeps`) are left out of the moments and counted in `n_failed`, with a
     `RuntimeWarning`: the run returns its results, and failures are never used as data.
     """
-    p = plan_ensemble("ensemble_statistics", system, y0, options(locals()))
+    p = plan_ensemble("ensemble_statistics", **arguments_for(plan_ensemble, locals()))
     method, y0, dt, n_steps, k = p.method, p.y0, p.dt, p.n_steps, p.save_every
     n_samples = p.n_samples
     chunk_size = p.chunk_size

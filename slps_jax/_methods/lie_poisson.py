@@ -512,12 +512,12 @@ class LiePoisson(AbstractMethod):
 
 @functools.singledispatch
 def _chart_step(algebra):
-    """How scheme (42) parametrises the rotation, by the algebra's type: in Cayley
-    coordinates about the branch point on SO(n) and U(N) ..."""
+    """The step of scheme (42) for the algebra's type: by default Newton in Cayley coordinates
+    about the branch point (SO(n), U(N))."""
     return LiePoisson._step_group
 
 
 @_chart_step.register
 def _(algebra: SO3Algebra):
-    """... and by its sine vector on SO(3), where the in-map has a closed form."""
+    """On SO(3), Newton on the sine vector of the rotation: the in-map in closed form."""
     return LiePoisson._step_sine

@@ -141,7 +141,10 @@ class _Fit:
         """The weighted residuals of the statistics at the free parameters `theta`, and (aux)
         the number of failed samples (raised by `calibrate`, with its own advice)."""
         system = _system_at(self.full(theta, theta_all), self.family, self.shape)
-        options = dict(
+        p = plan_ensemble(
+            "simulate",
+            system,
+            self.y0,
             t1=self.t1,
             dt=self.dt,
             n_samples=self.n_samples,
@@ -153,7 +156,6 @@ class _Fit:
             sharding=None,
             levy_area=self.levy_area,
         )
-        p = plan_ensemble("simulate", system, self.y0, options)
         sol = run_ensemble(p, newton_stats=False, saved=True)
         stats = jax.vmap(self.statistic, in_axes=1)(sol.ys[:, np.asarray(self.saved)])
         return ((stats - observed) * weight).ravel(), jnp.sum(sol.fail_step >= 0)

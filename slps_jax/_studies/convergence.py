@@ -21,7 +21,14 @@ from .._driver.integrate import ensemble_dynamic_jit
 from .._driver.plan import check_levy_option, check_method, check_system, check_y0
 from .._methods.base import AbstractMethod
 from .._methods.midpoint import Midpoint
-from .._support.checks import check_count, check_positive, check_retry, real_dtype, user_stacklevel
+from .._support.checks import (
+    arguments_for,
+    check_count,
+    check_positive,
+    check_retry,
+    real_dtype,
+    user_stacklevel,
+)
 from .._support.deprecated import renamed_arguments, warn
 from .._systems.capabilities import NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
 from .._systems.flow import drift_flow
@@ -148,43 +155,26 @@ def _warn_single_precision(caller, dtype):
         )
 
 
-# A study's arguments, by the names of `strong_convergence`'s and `weak_convergence`'s
-# (which pass theirs by name, `locals()`).
-_STUDY_ARGUMENTS = (
-    "system",
-    "y0",
-    "t1",
-    "dts",
-    "n_samples",
-    "key",
-    "methods",
-    "reference",
-    "reference_dt",
-    "reference_factor",
-    "truncate_k",
-    "retry_substeps",
-    "levy_area",
-)
-
-
-def _study(caller, arguments):
-    """Validate a study's arguments (`_STUDY_ARGUMENTS` among `arguments`, before anything
-    compiles) and set up its shared paths and reference (see `strong_convergence`)."""
-    (
-        system,
-        y0,
-        t1,
-        dts,
-        n_samples,
-        key,
-        methods,
-        reference,
-        reference_dt,
-        reference_factor,
-        truncate_k,
-        retry_substeps,
-        levy_area,
-    ) = (arguments[name] for name in _STUDY_ARGUMENTS)
+def _study(
+    caller,
+    system,
+    y0,
+    *,
+    t1,
+    dts,
+    n_samples,
+    key,
+    methods,
+    reference,
+    reference_dt,
+    reference_factor,
+    truncate_k,
+    retry_substeps,
+    levy_area,
+):
+    """Validate a study's arguments (before anything compiles) and set up its shared paths
+    and reference (see `strong_convergence`). The studies pass theirs on by name,
+    `arguments_for(_study, locals())`."""
     check_system(system)
     if isinstance(methods, dict):
         if not methods:
@@ -445,7 +435,7 @@ def strong_convergence(
     well below the errors you fit.
     """
     n_bootstrap = check_count("n_bootstrap", n_bootstrap, minimum=2)
-    st = _study("strong_convergence", locals())
+    st = _study("strong_convergence", **arguments_for(_study, locals()))
     dts, y_ref = st.dts, st.y_ref
     errors, stderr, order, order_se, seconds, n_failed = {}, {}, {}, {}, {}, {}
     log_h = np.log(dts)
@@ -585,7 +575,7 @@ def weak_convergence(
         raise ValueError(
             f"observable(y) must return a scalar or shape (m,), got shape {shape[1:]}."
         )
-    st = _study("weak_convergence", locals())
+    st = _study("weak_convergence", **arguments_for(_study, locals()))
     z = statistics.NormalDist().inv_cdf(0.5 + confidence / 2)
     g_ref = np.asarray(g(st.y_ref))
     if st.kind == "exact":

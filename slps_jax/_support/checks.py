@@ -12,6 +12,7 @@ float32 system asks for. Non-real inputs (complex, bool, strings) are rejected.
 
 from __future__ import annotations
 
+import inspect
 import math
 import os
 import sys
@@ -188,3 +189,10 @@ def user_stacklevel():
     while frame is not None and frame.f_code.co_filename.startswith(_PACKAGE):
         frame, level = frame.f_back, level + 1
     return level
+
+
+def arguments_for(fn, arguments):
+    """The entries of `arguments` (a caller's `locals()`) that `fn` takes by name: an entry
+    point passes its shared options on once, and their names live in `fn`'s signature only."""
+    names = inspect.signature(fn).parameters
+    return {name: value for name, value in arguments.items() if name in names}

@@ -80,7 +80,7 @@ class RigidBody(LiePoissonSystem):
         return obj
 
     def __repr__(self):
-        return f"RigidBody(inertia={self.inertia!r}, {self.noise_repr()})"
+        return f"RigidBody(inertia={self.inertia!r}, {self._noise_repr()})"
 
     quadratic_hamiltonian = True
 
@@ -157,7 +157,7 @@ class GeneralisedRigidBody(LiePoissonSystem):
         return obj
 
     def __repr__(self):
-        return f"GeneralisedRigidBody(j={self.j!r}, {self.noise_repr()})"
+        return f"GeneralisedRigidBody(j={self.j!r}, {self._noise_repr()})"
 
     quadratic_hamiltonian = True
 

@@ -125,7 +125,7 @@ class LiePoissonSystem:
         name = getattr(self.hamiltonian_fn, "__name__", repr(self.hamiltonian_fn))
         return (
             f"LiePoissonSystem(hamiltonian={name}, params={self.params!r}, "
-            + self.noise_repr()
+            + self._noise_repr()
             + ("" if self.algebra is SO3 else f", algebra={self.algebra!r}")
             + ")"
         )
@@ -142,7 +142,7 @@ class LiePoissonSystem:
     r"""`D` (the state's shape) when $H_0(y) = \tfrac12\langle y, D \odot y\rangle$, so
     that $\nabla H_0(y) = D \odot y$; `None` otherwise (derivatives by JAX)."""
 
-    def noise_repr(self):
+    def _noise_repr(self):
         """`c=...` or `noise=...`, for the systems' `__repr__`."""
         return f"c={self.c!r}" if self.noise is None else f"noise={self.noise!r}"
 
