@@ -66,7 +66,10 @@ from ._studies.convergence import WeakConvergenceResult as WeakConvergenceResult
 from ._studies.convergence import strong_convergence as strong_convergence
 from ._studies.convergence import weak_convergence as weak_convergence
 from ._studies.scores import ForecastScores as ForecastScores
+from ._studies.scores import PairedComparison as PairedComparison
+from ._studies.scores import crps_ensemble as crps_ensemble
 from ._studies.scores import forecast_scores as forecast_scores
+from ._studies.scores import paired_comparison as paired_comparison
 from ._studies.transport_fit import TransportNoiseFit as TransportNoiseFit
 from ._studies.transport_fit import fit_transport_noise as fit_transport_noise
 
