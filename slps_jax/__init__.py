@@ -31,7 +31,9 @@ from ._algebra import su as su
 
 # Brownian motion
 from ._brownian import BrownianStep as BrownianStep
+from ._brownian import OrnsteinUhlenbeck as OrnsteinUhlenbeck
 from ._brownian import brownian_increments as brownian_increments
+from ._brownian import ou_increments as ou_increments
 
 # Driver
 from ._driver.integrate import integrate as integrate

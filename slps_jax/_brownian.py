@@ -435,3 +435,149 @@ def _brownian_paths(key, path, *, n_samples, n_steps, one_noise, levy_area):
     keys = sample_keys(key, 1 if n_samples is None else n_samples)
     out = jax.vmap(one)(keys)
     return jax.tree_util.tree_map(lambda x: x[0], out) if n_samples is None else out
+
+
+class OrnsteinUhlenbeck:
+    r"""A smooth driver for `simulate`: unit-variance Ornstein–Uhlenbeck traces
+    $d\eta_r = -\eta_r/T_r\,dt + \sqrt{2/T_r}\,dB_r$, started from their stationary law, each
+    step's increment the integral $\int\eta_r\,dt$ over the step (a random ODE: no Lévy
+    areas, no truncation). `correlation_time`: `(s,)` positive times $T_r$, one per noise of
+    the system (`TransportNoiseFit.correlation_time`), or a scalar for every noise.
+
+    `simulate(system, y0, ..., driver=OrnsteinUhlenbeck(T))`; `ou_increments` materialises
+    the same increments for `integrate`."""
+
+    def __init__(self, correlation_time):
+        T = np.asarray(correlation_time, dtype=float)
+        if T.ndim > 1 or T.size == 0 or not np.all(np.isfinite(T) & (T > 0)):
+            raise ValueError(
+                f"OrnsteinUhlenbeck: correlation_time must be positive times, a scalar or "
+                f"(s,), got {correlation_time!r}."
+            )
+        self.correlation_time = T
+
+    def __repr__(self):
+        return f"OrnsteinUhlenbeck(correlation_time={self.correlation_time.tolist()})"
+
+    def path(self, dt, n_noises, dtype):
+        """The driver's steps of size `dt` (a Python float) for `n_noises` noises."""
+        T = np.broadcast_to(self.correlation_time, np.shape(self.correlation_time) or (n_noises,))
+        if T.shape != (n_noises,):
+            raise ValueError(
+                f"OrnsteinUhlenbeck: {T.shape[0]} correlation times for a system with "
+                f"{n_noises} noises."
+            )
+        a = np.exp(-dt / T)
+        # given eta_n: eta_{n+1} = a eta_n + e1, I = T (1 - a) eta_n + e2, (e1, e2) Gaussian
+        v11 = 1.0 - a * a
+        v22 = 2.0 * T * (dt - 2.0 * T * (1.0 - a) + 0.5 * T * (1.0 - a * a))
+        v12 = T * (1.0 - a) ** 2
+        l11 = np.sqrt(v11)
+        l21 = v12 / l11
+        l22 = np.sqrt(np.maximum(v22 - l21 * l21, 0.0))
+        consts = tuple(np.asarray(x, dtype) for x in (a, T * (1.0 - a), l11, l21, l22))
+        return OrnsteinUhlenbeckPath(np.asarray(dt, dtype), consts)
+
+
+@jax.tree_util.register_pytree_node_class
+class OrnsteinUhlenbeckPath:
+    """The Ornstein–Uhlenbeck driver as the driver asks for it (`BrownianPath`'s sibling):
+    `sampler(key)` is a `StatefulDraws`, since a trace's next increment depends on its
+    present value. Sample `key`'s path does not depend on how the steps are blocked: step
+    `n` draws from `fold_in(key', n)`. A pytree: `dt` and the step's constants are leaves."""
+
+    levy_area = False
+
+    def __init__(self, dt, consts):
+        self.dt = dt
+        self.consts = consts
+
+    @property
+    def n_noises(self):
+        return self.consts[0].shape[0]
+
+    def without_areas(self):
+        return self
+
+    def sampler(self, key):
+        return StatefulDraws(self, key)
+
+    def tree_flatten(self):
+        return (self.dt, *self.consts), None
+
+    @classmethod
+    def tree_unflatten(cls, aux, leaves):
+        return cls(leaves[0], tuple(leaves[1:]))
+
+
+class StatefulDraws:
+    """The steps' noise of one sample of a driver with a state: `init`, the state before the
+    first step, and `block(state, n0, length, n_live)`, the noises of steps `n0 ...
+    n0 + length - 1` (a `BrownianStep` with a leading axis) and the state after the first
+    `n_live` of them (the rest are the driver loop's padding)."""
+
+    def __init__(self, path, key):
+        k0, self.key = jax.random.split(key)
+        dtype = path.dt.dtype
+        self.path = path
+        self.init = jax.random.normal(k0, (path.n_noises,), dtype)
+
+    def block(self, eta, n0, length, n_live):
+        a, b, l11, l21, l22 = self.path.consts
+        s, dtype = a.shape[0], a.dtype
+        z = jax.vmap(
+            lambda j: jax.random.normal(jax.random.fold_in(self.key, n0 + j), (2, s), dtype)
+        )(jnp.arange(length, dtype=jnp.asarray(n0).dtype))
+
+        def step(eta, zj):
+            z, live = zj
+            nxt = a * eta + l11 * z[0]
+            return jnp.where(live, nxt, eta), b * eta + l21 * z[0] + l22 * z[1]
+
+        eta, dW = jax.lax.scan(step, eta, (z, jnp.arange(length) < n_live))
+        return eta, BrownianStep(dW, None)
+
+
+def ou_increments(key, n_steps, dt, correlation_time, *, n_samples=None, dtype=None):
+    r"""The increments that `simulate(..., driver=OrnsteinUhlenbeck(correlation_time))`
+    draws, materialised for `integrate` (a smooth driver: no Lévy areas): over each step the
+    integral $\int\eta_r\,dt$ of unit-variance Ornstein–Uhlenbeck traces
+    $d\eta_r = -\eta_r/T_r\,dt + \sqrt{2/T_r}\,dB_r$, started from their stationary law, each
+    step's pair $(\eta_{n+1}, \int\eta)$ drawn exactly from its Gaussian law given $\eta_n$.
+
+    - `key`: a `jax.random.key`; `n_steps`, `dt`: number and size of the steps.
+    - `correlation_time`: `(s,)` positive times $T_r$ (`fit.correlation_time`), or a scalar
+      for one trace.
+    - `n_samples`: `None` for one path (sample 0's), else that many; row `i` is what
+      `simulate` draws for sample `i` with the same key.
+    - `dtype`: a floating dtype (default: the default float).
+
+    **Returns:** `(n_steps, s)`, or `(n_samples, n_steps, s)`.
+    """
+    key = check_key(key)
+    for name, n in (("n_steps", n_steps), ("n_samples", n_samples)):
+        if name == "n_samples" and n is None:
+            continue
+        if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 1:
+            raise ValueError(f"{name} must be a positive integer, got {n!r}.")
+    dt = float(dt) if np.ndim(dt) == 0 and not isinstance(dt, (bool, str)) else math.nan
+    if not (math.isfinite(dt) and dt > 0):
+        raise ValueError(f"ou_increments: dt must be positive and finite, got {dt!r}.")
+    try:
+        driver = OrnsteinUhlenbeck(correlation_time)
+    except ValueError as e:
+        raise ValueError(f"ou_increments: {e}") from None
+    s = max(driver.correlation_time.size, 1)
+    path = driver.path(dt, s, jnp.result_type(float) if dtype is None else dtype)
+    return _ou_paths(key, path, n_steps=int(n_steps), n_samples=n_samples)
+
+
+@functools.partial(jax.jit, static_argnames=("n_steps", "n_samples"))
+def _ou_paths(key, path, *, n_steps, n_samples):
+    def one(k):
+        draws = path.sampler(k)
+        return draws.block(draws.init, jnp.uint32(0), n_steps, n_steps)[1].dW
+
+    keys = sample_keys(key, 1 if n_samples is None else n_samples)
+    out = jax.vmap(one)(keys)
+    return out[0] if n_samples is None else out

@@ -114,7 +114,8 @@ def _path(method, system, y0, dt, draw, n_blocks, block_len, want_stats, retry=N
         ),
         like,
     )
-    carry0 = (y0, result0, fail0, jnp.array(0, jnp.int32), n_retried0, acc0)
+    state0, draw_block = _draws(draw)
+    carry0 = ((y0, result0, fail0, jnp.array(0, jnp.int32), n_retried0, acc0), state0)
 
     def steps(carry, length, n_live):
         # `length` (a Python int) slots from the carry's step counter, the first `n_live`
@@ -122,9 +123,9 @@ def _path(method, system, y0, dt, draw, n_blocks, block_len, want_stats, retry=N
         # step instead lets XLA's CPU backend fuse the random-number generator into the
         # method's arithmetic, which it then re-evaluates many times over (Strang in
         # `simulate`: 150x slower).
-        n0 = carry[3]
-        dWs = jax.vmap(lambda j: draw(n0 + j))(jnp.arange(length, dtype=n0.dtype))
-        return jax.lax.fori_loop(
+        inner, state = carry
+        state, dWs = draw_block(state, inner[3], length, n_live)
+        inner = jax.lax.fori_loop(
             0,
             length,
             lambda i, c: _step(
@@ -137,17 +138,31 @@ def _path(method, system, y0, dt, draw, n_blocks, block_len, want_stats, retry=N
                 want_stats=want_stats,
                 retry=retry,
             ),
-            carry,
+            inner,
         )
+        return inner, state
 
     def block(carry, _):
         carry = _checkpointed_loop(steps, block_len, carry)
-        return carry, carry[0]
+        return carry, carry[0][0]
 
-    (_, result, fail_step, _, n_retried, acc), ys = jax.lax.scan(
+    ((_, result, fail_step, _, n_retried, acc), _), ys = jax.lax.scan(
         block, carry0, None, length=n_blocks
     )
     return ys, fail_step, result, n_retried, acc
+
+
+def _draws(draw):
+    """`(state0, block)`: the noise of a sample as the loop draws it,
+    `block(state, n0, length, n_live) -> (state, noises of steps n0 ... n0 + length - 1)`.
+    A driver with a state (`_brownian.StatefulDraws`: Ornstein–Uhlenbeck) carries it through
+    the loop; a Brownian path or given increments are drawn by step index, with no state."""
+    if isinstance(draw, _brownian.StatefulDraws):
+        return draw.init, draw.block
+    return (), lambda state, n0, length, n_live: (
+        state,
+        jax.vmap(lambda j: draw(n0 + j))(jnp.arange(length, dtype=n0.dtype)),
+    )
 
 
 def _time_change_path(method, system, y0, dt, draw, n_blocks, block_len, acc0, like):
@@ -157,21 +172,23 @@ def _time_change_path(method, system, y0, dt, draw, n_blocks, block_len, acc0, l
     and adds up the times; the flow is evaluated once per saved state (once in all for the
     final state only). It cannot fail (explicit), so the failure outputs are constant."""
     tau0 = batched_like(jnp.zeros((), y0.dtype), like)  # (built once, outside the loops)
+    state0, draw_block = _draws(draw)
 
     def steps(carry, length, n_live):
-        tau, n0 = carry
-        dWs = jax.vmap(lambda j: draw(n0 + j))(jnp.arange(length, dtype=n0.dtype))
+        tau, n0, state = carry
+        state, dWs = draw_block(state, n0, length, n_live)
         times = jax.vmap(lambda w: dt + system.noise_time(w))(dWs)
         live = jnp.arange(length) < n_live
-        return tau + jnp.sum(jnp.where(live, times, 0.0)), n0 + jnp.minimum(length, n_live)
+        n = n0 + jnp.minimum(length, n_live)
+        return tau + jnp.sum(jnp.where(live, times, 0.0)), n, state
 
     def block(carry, _):
-        y, n = carry
-        tau, n = _checkpointed_loop(steps, block_len, (tau0, n))
+        y, n, state = carry
+        tau, n, state = _checkpointed_loop(steps, block_len, (tau0, n, state))
         y = method.flow_in_time(system, y, tau).astype(y.dtype)
-        return (y, n), y
+        return (y, n, state), y
 
-    _, ys = jax.lax.scan(block, (y0, jnp.array(0, jnp.int32)), None, length=n_blocks)
+    _, ys = jax.lax.scan(block, (y0, jnp.array(0, jnp.int32), state0), None, length=n_blocks)
     return (
         ys,
         jnp.array(-1, jnp.int32),
@@ -304,7 +321,7 @@ def integrate(
     method: AbstractMethod | str = "auto",
     save_every=None,
     throw=True,
-    retry_substeps=4,
+    retry_substeps: int | None = 4,
 ):
     r"""Integrate one path of $dy = f(y)(dt + c \circ dW)$ with the given increments.
 
@@ -388,9 +405,10 @@ def simulate(
     truncate_k=4,
     newton_stats=False,
     throw=False,
-    retry_substeps=4,
+    retry_substeps: int | None = 4,
     sharding=None,
     levy_area="auto",
+    driver=None,
 ):
     r"""Simulate an ensemble of paths of $dy = f(y)(dt + c \circ dW)$ on $[0, t_1]$.
 
@@ -434,6 +452,10 @@ def simulate(
       increments (`brownian_increments(..., levy_area=True)` gives the same), which makes
       such a method strong order 1 for non-commuting noise; the increments are the same
       with or without them. One noise has no areas.
+    - `driver`: `None` (default): Brownian motions; or `sj.OrnsteinUhlenbeck(T)`: smooth
+      unit Ornstein–Uhlenbeck traces of correlation times `T` (one per noise), each step's
+      increment their integral over the step, drawn exactly (no truncation, no Lévy areas;
+      `sj.ou_increments` gives the same increments for `integrate`).
 
     **Returns:** a `Solution`.
     """

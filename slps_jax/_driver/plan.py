@@ -164,7 +164,7 @@ class EnsemblePlan:
     save_every: int
     retry: int | None
     sharding: object
-    path: _brownian.BrownianPath
+    path: _brownian.BrownianPath | _brownian.OrnsteinUhlenbeckPath
 
     @property
     def dtype(self):
@@ -187,6 +187,7 @@ def plan_ensemble(
     sharding,
     levy_area,
     chunk_size=None,
+    driver=None,
 ):
     """Check an ensemble's arguments (the sharding against `chunk_size` when it is run in
     chunks) and return its `EnsemblePlan`. The entry points pass theirs on by name,
@@ -208,11 +209,23 @@ def plan_ensemble(
         sharding = check_sharding(sharding, chunk_size, name="chunk_size")
     key = _brownian.check_key(key)
     _brownian.check_truncation(dt, truncate_k)
-    levy_area = check_levy_option(levy_area, method, system)
     save_every = check_save_every(save_every, n_steps)
-    path = _brownian.BrownianPath.of(
-        dt, system.n_noises, real_dtype(y0.dtype), truncate_k=truncate_k, levy_area=levy_area
-    )
+    if driver is None:
+        levy_area = check_levy_option(levy_area, method, system)
+        path = _brownian.BrownianPath.of(
+            dt, system.n_noises, real_dtype(y0.dtype), truncate_k=truncate_k, levy_area=levy_area
+        )
+    elif isinstance(driver, _brownian.OrnsteinUhlenbeck):
+        if levy_area is True:
+            raise ValueError(
+                "levy_area=True with an OrnsteinUhlenbeck driver: a smooth driver has no Lévy "
+                "areas (leave levy_area at 'auto')."
+            )
+        path = driver.path(dt, system.n_noises, real_dtype(y0.dtype))
+    else:
+        raise TypeError(
+            f"driver must be None (Brownian motions) or sj.OrnsteinUhlenbeck(...), got {driver!r}."
+        )
     return EnsemblePlan(
         system,
         method,

@@ -167,10 +167,11 @@ def ensemble_statistics(
     statistics=("mean", "var"),
     observable: Callable[..., Any] | None = None,
     truncate_k=4,
-    retry_substeps=4,
+    retry_substeps: int | None = 4,
     sharding=None,
     progress=True,
     levy_area="auto",
+    driver=None,
 ):
     r"""Moments of an ensemble of $dy = f(y)(dt + c \circ dW)$, run in chunks of samples.
 
@@ -184,7 +185,7 @@ def ensemble_statistics(
     **Arguments:**
 
     - `system`, `y0`, `t1`, `dt`, `key`, `method`, `truncate_k`, `retry_substeps`,
-      `levy_area`: as for `simulate`.
+      `levy_area`, `driver`: as for `simulate`.
     - `n_samples`: the total number of samples; `chunk_size`: samples per chunk (at most
       `n_samples` are run).
     - `save_every`: `None` (statistics of the final state, and of `y0` at `t = 0`) or `k`
