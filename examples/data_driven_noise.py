@@ -1,27 +1,27 @@
 #!/usr/bin/env python
-"""Data-driven transport noise for Euler–Zeitlin, end to end (Cotter et al. 2019; Ephrati,
-Cifani, Luesink & Geurts 2023).
+"""Data-driven transport noise for Euler–Zeitlin, fitted and verified fairly (after Cotter,
+Crisan, Holm, Pan & Shevchenko 2019).
 
 1. A fine deterministic run, su(M), from a random vorticity of degrees 1..10 (amplitude
    ~ 1/l), step h.
-2. `fit_transport_noise` at su(N) on its first `train` steps, over windows of `window` steps.
-3. From `starts` later snapshots (coarse-grained: the truth), `lead` steps ahead: the
-   deterministic coarse forecast, an ensemble of `members` with the calibrated noise, and one
-   with an isotropic noise (the degrees 1..3 equally) of the same total variance.
-4. Scores of the degree 1..3 coefficients, pooled over the starts (`forecast_scores`):
-   spread / RMSE, CRPS against the deterministic forecast's mean absolute error, ranks; and
-   every member's Casimirs.
+2. `fit_transport_noise` at su(N) on its first `train` steps: the EOFs of the transport that
+   explains the tendency the coarse model misses, white in time.
+3. One amplitude factor for the calibrated noise and one for an isotropic noise (every
+   harmonic of degrees 2..N-1 alike, first scaled to the calibrated noise's total stream
+   L^2), each tuned (`tune_amplitude`, fair CRPS) on `tune`
+   forecasts started inside the training period.
+4. `starts` held-out forecasts after the training period, `lead` steps each, `members`
+   members: the deterministic coarse forecast and the two tuned ensembles.
+5. Scores chosen before scoring: the coefficients of degrees 2..N-1 (where the noise acts;
+   degree 1, the angular momentum, is kept by truth and model alike, reported apart). Per
+   start, the fair CRPS over the lead times; the paired comparison of the two ensembles and
+   of each ensemble against the deterministic forecast's mean absolute error (bootstrap
+   over starts, 90 %); spread / RMSE at each lead time; every member's Casimirs.
 
-The window sets the time scale at which the white noise matches the data's transport. The
-traces of the missed transport are smooth in time (lag-one autocorrelation near 1 at
-h = 0.01 s): matched over one step, the noise is far too weak at a lead of seconds; matched
-over half the lead, its spread follows the error.
+    python examples/data_driven_noise.py [--small] [--seed S] [--out DIR]
 
-    python examples/data_driven_noise.py [--small] [--windows W ...] [--out DIR]
-
-(the figure is of the first window's run).
-
-The full size (M = 64, N = 16) takes about a minute on a 2-core CPU.
+The full size (M = 32, N = 8, 16 starts of 4 s, 32 members) takes a few minutes on a 2-core
+CPU.
 """
 
 from __future__ import annotations
@@ -40,195 +40,245 @@ import numpy as np  # noqa: E402
 import slps_jax as sj  # noqa: E402
 from slps_jax import zeitlin  # noqa: E402
 
-FULL = dict(M=64, N=16, h=0.01, train=4000, window=200, lead=400, every=40, starts=4, members=32)
-SMALL = dict(M=24, N=8, h=0.02, train=400, window=40, lead=80, every=20, starts=2, members=8)
+FULL = dict(M=32, N=8, h=0.01, train=4000, tune=8, starts=16, lead=400, every=40, members=32)
+SMALL = dict(M=12, N=6, h=0.02, train=200, tune=3, starts=4, lead=40, every=20, members=6)
 
 
 def initial(M, degrees=10, seed=0):
-    """A random vorticity of degrees 1..`degrees`, coefficients N(0, 1/l^2)."""
+    """A random vorticity of degrees 1..`degrees` (at most M - 1), coefficients N(0, 1/l^2)."""
     rng = np.random.default_rng(seed)
+    degrees = min(degrees, M - 1)
     om = np.zeros((degrees + 1) ** 2)
     for el in range(1, degrees + 1):
-        for m in range(-el, el + 1):
-            om[zeitlin.elm2ind(el, m)] = rng.normal() / el
+        om[el * el : (el + 1) ** 2] = rng.normal(size=2 * el + 1) / el
     return zeitlin.shr2mat(om, M)
 
 
-def observe(w):
-    """The degree 1..3 coefficients (15) of states `(..., N, N)`."""
-    return np.asarray(zeitlin.mat2shr(w, L=4))[..., 1:]
+def observables(N):
+    """`{name: states (..., N, N) -> coefficients (..., k)}`: degrees 2..N-1 (the score),
+    and degree 1 (reported apart)."""
+    return {
+        "degrees 2..N-1": lambda w: zeitlin.mat2shr(w)[..., 4:],
+        "degree 1": lambda w: zeitlin.mat2shr(w, L=2)[..., 1:],
+    }
 
 
 def isotropic_noise(fit, N):
-    """`salt_noise` of the 15 harmonics of degrees 1..3, equal amplitudes, scaled to the
-    calibrated noise's total variance (the sum of its streams' squared L2 norms)."""
-    total = float(np.sum(np.asarray(zeitlin.enstrophy(-np.asarray(fit.noise.chi)))))
-    basis = zeitlin.shr2mat(np.eye(16)[1:], N)
-    basis = basis * np.sqrt(total / float(np.sum(np.asarray(zeitlin.enstrophy(basis)))))
-    return sj.salt_noise(-basis)
+    """`salt_noise` of every harmonic of degrees 2..N-1 alike, with the calibrated noise's
+    total stream L^2 (a starting point: its amplitude is tuned)."""
+    basis = zeitlin.shr2mat(np.eye(N * N)[4:], N)
+    total = np.sum(np.asarray(zeitlin.enstrophy(np.asarray(fit.noise.chi))))
+    return sj.salt_noise(-basis * np.sqrt(total / np.sum(np.asarray(zeitlin.enstrophy(basis)))))
 
 
-def fine_run(M, h, train, lead, starts, seed=0):
-    """Step 1: the fine deterministic run, `(train + starts * lead + 1, M, M)`."""
-    steps = train + starts * lead
-    return sj.integrate(
-        sj.EulerZeitlin(M),
-        initial(M, seed=seed),
-        np.zeros((steps, 1)),
-        h,
-        save_every=1,
-        method=sj.IsospectralMidpoint(),
+def experiment(M, N, h, train, tune, starts, lead, every, members, seed=0):
+    """The steps above. **Returns** a dict: `fine` (step 1's run), `fit`, `tuning` {name: `AmplitudeTuning`},
+    `lead_times`, `scores` {observable: {name: `ForecastScores` pooled over the held-out
+    starts}}, `crps_by_start` {observable: {name: `(starts,)`}} (the deterministic forecast's
+    is its mean absolute error), `comparisons` {observable: {pair: `PairedComparison`}},
+    `casimir_drift` {name: the largest drift of tr W^2 ... tr W^N over every member and time,
+    relative to sum |lambda|^k}, `seconds` per step."""
+    seconds, clock = {}, time.perf_counter()
+    fine = np.asarray(
+        sj.integrate(
+            sj.EulerZeitlin(M),
+            initial(M, seed=seed),
+            np.zeros((train + starts * lead, 1)),
+            h,
+            save_every=1,
+        )
     )
-
-
-def experiment(
-    M, N, h, train, window, lead, every, starts, members, seed=0, fine=None, n_modes=None
-):
-    """The four steps above (`fine`: step 1's run, if already made; `n_modes`: as many EOFs,
-    instead of those that explain 90 % of the variance). **Returns** a dict:
-    `fine`, `fit`, `truth` `(starts, T + 1, N, N)` at the start and every `every` steps
-    (`T = lead / every`), `deterministic` (same shape), `ensembles` {name:
-    `(starts, members, T + 1, N, N)`}; at the `T` lead times `lead_times` after the start,
-    `scores` {name: `ForecastScores` pooled over the starts} and `deterministic_mae`;
-    `casimir_drift` {name: the largest relative drift of tr W^2 ... tr W^N over every
-    member and time}; `seconds` per part."""
-    seconds = {}
-    start = time.perf_counter()
-    if fine is None:
-        fine = fine_run(M, h, train, lead, starts, seed)
-        seconds["fine run"] = time.perf_counter() - start
-    start = time.perf_counter()
-    fit = sj.fit_transport_noise(fine[: train + 1], dt=h, N=N, window=window, n_modes=n_modes)
-    seconds["fit"] = time.perf_counter() - start
-    idx = train + lead * np.arange(starts)[:, None] + every * np.arange(lead // every + 1)
-    truth = zeitlin.truncate(fine[idx.ravel()], N).reshape(starts, -1, N, N)
-    x0 = truth[:, 0]
-    start = time.perf_counter()
-    deterministic = jax.vmap(
+    seconds["fine run"], clock = time.perf_counter() - clock, time.perf_counter()
+    fit = sj.fit_transport_noise(fine[: train + 1], dt=h, N=N)
+    seconds["fit"], clock = time.perf_counter() - clock, time.perf_counter()
+    coarse = lambda idx: np.asarray(zeitlin.truncate(fine[idx.ravel()], N)).reshape(
+        *idx.shape, N, N
+    )
+    times = every * np.arange(1, lead // every + 1)
+    tune_at = np.linspace(0, train - lead, tune).astype(int)  # starts inside the training
+    test_at = train + lead * np.arange(starts)  # held out, after it
+    main = observables(N)["degrees 2..N-1"]
+    noises = {"calibrated": fit.noise, "isotropic": isotropic_noise(fit, N)}
+    forecast = dict(lead=lead, dt=h, every=every)
+    tuning = {
+        name: sj.tune_amplitude(
+            noise,
+            coarse(tune_at),
+            coarse(tune_at[:, None] + times),
+            N=N,
+            observe=main,
+            members=members // 2,
+            key=jax.random.key(seed + 1),
+            **forecast,
+        )
+        for name, noise in noises.items()
+    }
+    seconds["tuning"], clock = time.perf_counter() - clock, time.perf_counter()
+    x0, truth = coarse(test_at), coarse(test_at[:, None] + times)
+    det = jax.vmap(
         lambda w: sj.integrate(sj.EulerZeitlin(N), w, jnp.zeros((lead, 1)), h, save_every=every)
-    )(x0)
-    seconds["deterministic"] = time.perf_counter() - start
-    ensembles, drift = {}, {}
-    for name, noise in (("calibrated", fit.noise), ("isotropic", isotropic_noise(fit, N))):
-        start = time.perf_counter()
-        system = sj.EulerZeitlin(N, noise=noise)
-        runs = []
-        for s in range(starts):
-            sol = sj.simulate(
-                system,
-                x0[s],
-                t1=lead * h,
-                dt=h,
-                n_samples=members,
-                key=jax.random.key(100 + s),
-                method=sj.IsospectralMidpoint(),
-                save_every=every,
-            )
-            if int(sol.stats["n_failed"]):
-                raise RuntimeError(f"{name}: {int(sol.stats['n_failed'])} members failed.")
-            runs.append(np.asarray(sol.ys))
-        ensembles[name] = np.stack(runs)
-        c = np.asarray(system.algebra.casimirs(ensembles[name]))
-        drift[name] = float(np.max(np.abs(c / c[..., :1, :] - 1)))
-        seconds[name] = time.perf_counter() - start
-    # the lead times after the start, the starts pooled as observables:
-    # (starts, ..., T, 15) -> (..., T - 1, starts * 15)
-    pooled = lambda a: np.moveaxis(a[..., 1:, :], 0, -2).reshape(*a.shape[1:-2], -1, 15 * starts)
-    y = pooled(observe(truth))
-    scores = {name: sj.forecast_scores(pooled(observe(e)), y) for name, e in ensembles.items()}
-    mae = np.mean(np.abs(pooled(observe(deterministic)) - y), axis=-1)
+    )(jnp.asarray(x0))
+    ensembles = {
+        name: sj.forecast_ensembles(
+            sj.EulerZeitlin(N, noise=sj.scaled_noise(noise, tuning[name].factor)),
+            x0,
+            members=members,
+            key=jax.random.key(seed + 2),
+            **forecast,
+        )
+        for name, noise in noises.items()
+    }
+    seconds["held-out forecasts"] = time.perf_counter() - clock
+    scale = np.sum(np.abs(np.linalg.eigvals(x0))[..., None] ** np.arange(2, N + 1), axis=-2)
+    drift = {}
+    for name, ens in ensembles.items():
+        c = np.asarray(sj.EulerZeitlin(N).algebra.casimirs(ens))  # (starts, m, T, k)
+        c0 = np.asarray(sj.EulerZeitlin(N).algebra.casimirs(x0))[:, None, None]
+        drift[name] = float(np.max(np.abs(c - c0) / scale[:, None, None]))
+    scores, by_start, comparisons = {}, {}, {}
+    for label, observe in observables(N).items():
+        y = np.asarray(observe(truth))  # (starts, T, k)
+        # the starts pooled as observables: (starts, [m,] T, k) -> ([m,] T, starts * k)
+        pooled = lambda a: np.moveaxis(a, 0, -2).reshape(*a.shape[1:-1], -1)
+        scores[label] = {
+            name: sj.forecast_scores(pooled(np.asarray(observe(e))), pooled(y))
+            for name, e in ensembles.items()
+        }
+        crps = {"deterministic": np.mean(np.abs(np.asarray(observe(det))[:, 1:] - y), axis=(1, 2))}
+        for name, e in ensembles.items():
+            x = np.moveaxis(np.asarray(observe(e)), 1, 0)  # members first
+            crps[name] = np.mean(sj.crps_ensemble(x, y), axis=(1, 2))
+        by_start[label] = crps
+        comparisons[label] = {
+            "calibrated vs isotropic": sj.paired_comparison(crps["calibrated"], crps["isotropic"])
+        }
+        if label == "degree 1":  # (kept by the deterministic forecast: no ratio to it)
+            continue
+        comparisons[label] |= {
+            "calibrated vs deterministic": sj.paired_comparison(
+                crps["calibrated"], crps["deterministic"]
+            ),
+            "isotropic vs deterministic": sj.paired_comparison(
+                crps["isotropic"], crps["deterministic"]
+            ),
+        }
     return dict(
         fine=fine,
         fit=fit,
-        lead_times=h * every * np.arange(1, lead // every + 1),
-        truth=np.asarray(truth),
-        deterministic=np.asarray(deterministic),
-        ensembles=ensembles,
+        tuning=tuning,
+        lead_times=h * times,
         scores=scores,
-        deterministic_mae=mae,
+        crps_by_start=by_start,
+        comparisons=comparisons,
         casimir_drift=drift,
         seconds=seconds,
+        size=dict(M=M, N=N, starts=starts, members=members, seed=seed),
     )
 
 
 def summary(result):
-    """One line per ensemble: spread / RMSE at each lead time, the time-mean CRPS against
-    the deterministic forecast's MAE, the Casimirs' drift."""
-    mae = float(np.mean(result["deterministic_mae"]))
-    lines = [f"deterministic forecast: time-mean MAE {mae:.3g}"]
-    for name, s in result["scores"].items():
+    """The tuned factors, the paired comparisons, spread / RMSE by lead, the Casimirs."""
+    lines = [f"{name}: tuned factor {t.factor:.3g}" for name, t in result["tuning"].items()]
+    for label, pairs in result["comparisons"].items():
+        means = ", ".join(
+            f"{k} {np.mean(v):.3g}" for k, v in result["crps_by_start"][label].items()
+        )
+        lines.append(f"{label}: mean CRPS (deterministic: MAE) {means}")
+        lines += [f"  {k}: {v}" for k, v in pairs.items()]
+    for name, s in result["scores"]["degrees 2..N-1"].items():
         lines.append(
-            f"{name}: spread/RMSE {np.array2string(s.ratio, precision=2)} (mean "
-            f"{np.mean(s.ratio):.2f}), time-mean CRPS {np.mean(s.crps):.3g}, "
-            f"Casimir drift {result['casimir_drift'][name]:.1e}"
+            f"{name}: spread/RMSE at {np.round(result['lead_times'], 2)} s: "
+            f"{np.array2string(s.ratio, precision=2)}; Casimir drift "
+            f"{result['casimir_drift'][name]:.1e}"
         )
     return "\n".join(lines)
 
 
 def figure(result):
-    """EOFs on the sphere, explained variance, spread and RMSE, CRPS, rank histograms and
-    the traces' autocorrelation; **returns** the matplotlib figure."""
+    """EOFs on the sphere, the traces' autocorrelation, the tuning curves, spread and RMSE,
+    CRPS by lead, rank histograms; **returns** the matplotlib figure."""
     import matplotlib.pyplot as plt
 
     fit, t = result["fit"], result["lead_times"]
-    fig = plt.figure(figsize=(13, 7.5))
+    scores = result["scores"]["degrees 2..N-1"]
+    fig = plt.figure(figsize=(14, 8))
     grid = fig.add_gridspec(6, 4)
     top, bottom = (lambda c: fig.add_subplot(grid[:3, c])), (lambda c: fig.add_subplot(grid[3:, c]))
     theta, phi = zeitlin.grid(48)
+    lon = np.degrees(np.asarray(phi))
     for j in range(min(3, fit.modes.shape[0])):
         ax = fig.add_subplot(grid[2 * j : 2 * j + 2, 0])
-        f = zeitlin.field(zeitlin.mat2shr(fit.modes[j]), theta, phi)
-        ax.imshow(np.asarray(f), extent=(0, 360, 180, 0), cmap="RdBu_r", aspect="auto")
-        ax.set_title(f"EOF {j + 1}: {100 * fit.explained[j]:.0f} %", fontsize=9)
-        ax.set_yticks([0, 90, 180])
-        ax.set_xticks([0, 180, 360])
+        f = np.asarray(zeitlin.field(zeitlin.mat2shr(fit.modes[j]), theta, phi))
+        im = ax.imshow(
+            f, extent=(lon.min(), lon.max(), -90, 90), cmap="RdBu_r", aspect="auto", origin="upper"
+        )
+        fig.colorbar(im, ax=ax, label="stream (normalised)")
+        ax.set(
+            title=f"EOF {j + 1}: {100 * fit.explained[j]:.0f} % of the variance",
+            ylabel="latitude (°)",
+            xlabel="longitude (°)" if j == 2 else None,
+        )
     ax = top(1)
-    cumulative, acf = fit.diagnostics(max_lag=5)
-    ax.plot(np.arange(1, len(cumulative) + 1), cumulative, ".-")
-    ax.axvline(fit.modes.shape[0], color="k", lw=0.8, ls=":")
-    ax.set(xlabel="EOFs kept", ylabel="variance explained", title="explained variance")
+    acf = fit.diagnostics(max_lag=int(2.0 / fit.window_time))[1]
+    lags = fit.window_time * np.arange(acf.shape[0])
+    for j in range(min(4, acf.shape[1])):
+        ax.plot(lags, acf[:, j], label=f"EOF {j + 1}: T = {fit.correlation_time[j]:.2f} s")
+    ax.axhline(0, color="k", lw=0.5)
+    ax.set(xlabel="lag (s)", ylabel="autocorrelation", title="the traces in time")
+    ax.legend(fontsize=7)
     ax = top(2)
-    for name, s in result["scores"].items():
-        (line,) = ax.plot(t, s.rmse, label=f"{name} RMSE")
-        ax.plot(t, s.spread, ls="--", color=line.get_color(), label=f"{name} spread")
-    ax.plot(t, result["deterministic_mae"], "k:", label="deterministic MAE")
-    ax.set(xlabel="lead time (s)", title="spread and error")
+    for name, tun in result["tuning"].items():
+        ax.semilogx(tun.factors, tun.crps, ".-", label=f"{name} (best {tun.factor:.2g})", base=2)
+    ax.set(
+        xlabel="amplitude factor",
+        ylabel="mean fair CRPS (training starts)",
+        title="tuning one amplitude factor",
+    )
     ax.legend(fontsize=7)
     ax = top(3)
-    for name, s in result["scores"].items():
-        ax.plot(t, s.crps.mean(axis=-1), label=name)
-    ax.plot(t, result["deterministic_mae"], "k:", label="deterministic (MAE)")
-    ax.set(xlabel="lead time (s)", title="CRPS, degrees 1..3")
+    for name, s in scores.items():
+        (line,) = ax.plot(t, s.rmse, label=f"{name}: RMSE of the mean")
+        ax.plot(t, s.spread, ls="--", color=line.get_color(), label=f"{name}: spread")
+    ax.set(
+        xlabel="lead time (s)",
+        ylabel="RMS over degrees 2..N-1",
+        title="spread and error (held-out starts)",
+    )
     ax.legend(fontsize=7)
-    for k, (name, s) in enumerate(result["scores"].items()):
-        ax = bottom(1 + k)
+    ax = bottom(1)
+    for name, s in scores.items():
+        ax.plot(t, s.crps.mean(axis=-1), label=name)
+    y = result["crps_by_start"]["degrees 2..N-1"]
+    ax.set(xlabel="lead time (s)", ylabel="fair CRPS", title="CRPS, degrees 2..N-1")
+    ax.legend(fontsize=7)
+    for k, (name, s) in enumerate(scores.items()):
+        ax = bottom(2 + k)
         ax.bar(np.arange(len(s.rank_histogram)), s.rank_histogram, width=1.0)
-        ax.set(xlabel="rank of the truth", title=f"rank histogram, {name}")
-    ax = bottom(3)
-    ax.plot(acf[:, : min(5, acf.shape[1])], ".-")
-    ax.set(xlabel="lag (windows)", title="traces' autocorrelation")
+        ax.set(
+            xlabel="rank of the truth among the members",
+            ylabel="count",
+            title=f"rank histogram, {name}",
+        )
+    del y
+    fig.suptitle(
+        f"Data-driven transport noise, su({result['size']['M']}) → su({result['size']['N']}): "
+        f"{result['size']['starts']} held-out starts, {result['size']['members']} members"
+    )
     fig.tight_layout()
     return fig
 
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--small", action="store_true", help="M = 24, N = 8: a few seconds")
-    p.add_argument(
-        "--windows", type=int, nargs="+", help="steps per window of the fit: one run each"
-    )
-    p.add_argument("--n-modes", type=int, help="keep this many EOFs (default: 90 %% variance)")
+    p.add_argument("--small", action="store_true", help="M = 12, N = 6: seconds")
+    p.add_argument("--seed", type=int, default=0, help="the fine run's initial state")
     p.add_argument("--out", default=".", help="folder for data_driven_noise.png")
     args = p.parse_args(argv)
     size = dict(SMALL if args.small else FULL)
-    print("size:", size, flush=True)
-    result = fine = None
-    for window in args.windows or [size["window"]]:
-        out = experiment(**dict(size, window=window), fine=fine, n_modes=args.n_modes)
-        fine, result = out["fine"], result or out
-        seconds = {k: round(v, 1) for k, v in out["seconds"].items()}
-        print(f"window {window}: {out['fit'].modes.shape[0]} EOFs; seconds {seconds}")
-        print(summary(out), flush=True)
+    print("size:", size, "seed:", args.seed, flush=True)
+    result = experiment(**size, seed=args.seed)
+    print({k: round(v, 1) for k, v in result["seconds"].items()}, "seconds")
+    print(summary(result), flush=True)
     os.makedirs(args.out, exist_ok=True)
     import matplotlib
 

@@ -74,6 +74,10 @@ from ._studies.scores import forecast_scores as forecast_scores
 from ._studies.scores import paired_comparison as paired_comparison
 from ._studies.transport_fit import TransportNoiseFit as TransportNoiseFit
 from ._studies.transport_fit import fit_transport_noise as fit_transport_noise
+from ._studies.verification import AmplitudeTuning as AmplitudeTuning
+from ._studies.verification import forecast_ensembles as forecast_ensembles
+from ._studies.verification import scaled_noise as scaled_noise
+from ._studies.verification import tune_amplitude as tune_amplitude
 
 # Results: the failure codes, a run's Solution
 from ._support.solution import RESULTS as RESULTS

@@ -1,56 +1,200 @@
 """Data-driven transport noise for Euler–Zeitlin: the empirical orthogonal functions of the
-transport a coarse system misses (Cotter, Crisan, Holm, Pan & Shevchenko 2019; Ephrati,
-Cifani, Luesink & Geurts 2023). `docs/data-driven-noise.md` derives the estimator."""
+transport that explains the tendency a coarse system misses (after Cotter, Crisan, Holm, Pan &
+Shevchenko 2019), white or Ornstein–Uhlenbeck in time. `docs/data-driven-noise.md` derives
+the estimator."""
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
+import warnings
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .. import zeitlin
-from .._driver.integrate import integrate
-from .._methods.base import AbstractMethod
-from .._methods.isospectral import IsospectralMidpoint
-from .._support.checks import check_count, check_positive
+from .._support.checks import check_count, check_positive, user_stacklevel
 from .._systems.euler_zeitlin import EulerZeitlin
 from .._systems.noise import salt_noise
+
+TIME_MODELS = ("white", "ou")
+_CHUNK = 128  # samples per compiled solve (one program for every data set of a given N)
 
 
 @dataclasses.dataclass(frozen=True)
 class TransportNoiseFit:
     r"""What `fit_transport_noise` found.
 
-    - `noise`: `salt_noise(X)` for `EulerZeitlin(N, noise=fit.noise)`, $X_r = -\xi_r$,
-      $\xi_r$ the mode $r$ times `std[r]` $/\sqrt{\tau}$ ($\tau$ = `window_time`): its
-      transport's variance over a window is the data's.
-    - `modes`: `(r, N, N)`, the kept EOFs as stream matrices, orthonormal for
+    - `noise`: `salt_noise(X)` for `EulerZeitlin(N, noise=fit.noise)`, $X_r = -\xi_r$:
+      - `time_model="white"`: $\xi_r = e_r\,\sigma_r\sqrt{2T_r}$, driven by Brownian motions
+        (`simulate`, `integrate`): its transport has the data's diffusivity
+        $2\sigma_r^2T_r$ (`variance_rate`);
+      - `time_model="ou"`: $\xi_r = e_r\,\sigma_r$, driven by unit-variance
+        Ornstein–Uhlenbeck traces of correlation times `correlation_time`
+        (`ou_increments`).
+    - `modes`: `(r, N, N)`, the kept EOFs $e_r$ as stream matrices, orthonormal for
       `zeitlin.inner`.
-    - `std`: `(r,)`, each kept EOF's standard deviation over the windows.
+    - `std`: `(r,)`, $\sigma_r$: each trace's standard deviation, a transport stream per
+      second (the stream whose bracket $[\sigma_r e_r, W]$ is a vorticity tendency).
+    - `correlation_time`: `(r,)`, $T_r$: each trace's integral time scale
+      $\int_0^\infty\rho_r(s)\,ds$ (seconds).
     - `explained`: the share of the variance of every EOF (all of them, descending).
-    - `traces`: `(K, r)`, each window's coordinate on each kept EOF.
-    - `window_time`: $\tau$ = `window * dt`.
+    - `traces`: `(K, r)`, each sample's coordinate on each kept EOF (per second).
+    - `window_time`: the samples' spacing, `window * dt` (seconds).
+    - `time_model`: `"white"` or `"ou"`.
+    - `regularization`: the Tikhonov parameter $\alpha$ of the transport solve (`None`
+      with `streams=`: no solve).
+    - `unexplained`: the share of the missed tendency's mean square that no transport of
+      the coarse state can produce (it changes the coarse Casimirs); `None` with `streams=`.
     """
 
     noise: object
     modes: np.ndarray
     std: np.ndarray
+    correlation_time: np.ndarray
     explained: np.ndarray
     traces: np.ndarray
     window_time: float
+    time_model: str
+    regularization: float | None
+    unexplained: float | None
+
+    @property
+    def variance_rate(self):
+        r"""`(r,)`: $2\sigma_r^2T_r$, each mode's transport diffusivity (the white-noise
+        intensity whose long-time spread matches the traces'): a property of the data, not
+        of `window`."""
+        return 2.0 * self.std**2 * self.correlation_time
 
     def diagnostics(self, max_lag=10):
         """`(cumulative, autocorrelation)`: the variance explained by the first `r` EOFs for
         `r = 1, 2, ...`, and each kept trace's autocorrelation at lags `0 ... max_lag`
-        (`(max_lag + 1, r)`; white-noise traces give 1 then about 0)."""
-        t = self.traces - self.traces.mean(axis=0)
-        lags = min(max_lag, t.shape[0] - 1)
-        var = np.sum(t * t, axis=0)
-        acf = np.stack([np.sum(t[: t.shape[0] - k] * t[k:], axis=0) / var for k in range(lags + 1)])
-        return np.cumsum(self.explained), acf
+        (`(max_lag + 1, r)`, lags in samples of `window_time`)."""
+        lags = min(max_lag, self.traces.shape[0] - 1)
+        return np.cumsum(self.explained), _autocorrelation(self.traces)[: lags + 1]
+
+
+def _autocorrelation(traces):
+    """`(K, r)` traces' autocorrelations at lags `0 ... K - 1` (biased estimator: FFT)."""
+    t = traces - traces.mean(axis=0)
+    K = t.shape[0]
+    f = np.fft.rfft(t, 2 * K, axis=0)
+    acov = np.fft.irfft(f * np.conj(f), axis=0)[:K]
+    return acov / np.where(acov[:1] > 0, acov[:1], 1.0)
+
+
+def _integral_time(traces, spacing):
+    r"""Each trace's integral time scale $\int_0^\infty\rho$: the trapezoidal sum of its
+    autocorrelation up to the first lag where it is not positive (the sum of a white trace's
+    is half a spacing: the trace is then an interval's mean, and $2\sigma^2T$ its
+    diffusivity)."""
+    rho = _autocorrelation(traces)
+    out = []
+    for j in range(rho.shape[1]):
+        stop = np.flatnonzero(rho[:, j] <= 0)
+        k = stop[0] if stop.size else rho.shape[0]
+        out.append(spacing * (np.sum(rho[:k, j]) - 0.5))
+    return np.asarray(out)
+
+
+@functools.cache
+def _harmonics(N):
+    r"""`(N^2 - 1, N, N)`: the quantised harmonics $T_{\ell m}$ of degrees $\ell \ge 1$."""
+    return zeitlin.shr2mat(jnp.eye(N * N)[1:], N)
+
+
+@jax.jit
+def _transport_normal_equations(wbar, r, basis):
+    r"""For each sample, the eigen-decomposition of $G = A^{\mathsf T}A$ and $c =
+    V^{\mathsf T}A^{\mathsf T}r$, $A$ the matrix of $\xi \mapsto [\xi, \bar W]$ in the
+    $\ell m$ coefficients ($\ell \ge 1$, orthonormal in $L^2$)."""
+
+    def one(w, rr):
+        a = zeitlin.mat2shr(basis @ w - w @ basis)[:, 1:].T  # column j: [T_j, w]
+        lam, v = jnp.linalg.eigh(a.T @ a)
+        return lam, v, v.T @ (a.T @ rr)
+
+    return jax.vmap(one)(wbar, r)
+
+
+def _in_chunks(f, *arrays):
+    """`f` over the leading axis of `arrays`, `_CHUNK` samples a call (the last one padded
+    with copies of the last sample): one compiled program for every length."""
+    n = arrays[0].shape[0]
+    outs = []
+    for start in range(0, n, _CHUNK):
+        idx = np.minimum(np.arange(start, start + _CHUNK), n - 1)
+        out, count = f(*(a[idx] for a in arrays)), min(_CHUNK, n - start)
+        outs.append(jax.tree_util.tree_map(lambda x, count=count: np.asarray(x)[:count], out))
+    return jax.tree_util.tree_map(lambda *xs: np.concatenate(xs), *outs)
+
+
+def _kept(lam):
+    r"""The eigenvalues of $A^{\mathsf T}A$ off its kernel (the functions of $\bar W$)."""
+    return lam > 1e-10 * lam[..., -1:]
+
+
+def _tikhonov_terms(lam, c, alpha):
+    """`(residual, norm)`: the summed squared residual reduction and solution norm of the
+    Tikhonov solutions at `alpha` (`residual` is what is subtracted from |r|^2)."""
+    keep = _kept(lam)
+    d = np.where(keep, lam + alpha, 1.0)
+    c2 = np.where(keep, c * c, 0.0)
+    reduction = np.sum(c2 * (2.0 / d - np.where(keep, lam, 0.0) / d**2))
+    return reduction, np.sum(c2 / d**2)
+
+
+def _l_curve(lam, c, r2):
+    r"""The Tikhonov parameter at the L-curve's corner (Hansen): the point of largest
+    curvature of $(\log\|A\xi_\alpha - r\|^2, \log\|\xi_\alpha\|^2)$, pooled over the
+    samples, on a grid of 61 values over twelve decades below and above the typical
+    $\|A\|^2$."""
+    ref = float(np.median(lam[:, -1]))
+    alphas = ref * np.logspace(-10, 2, 61)
+    terms = np.array([_tikhonov_terms(lam, c, a) for a in alphas])
+    residual = np.maximum(r2 - terms[:, 0], 1e-300 * r2)
+    x, y, t = np.log(residual), np.log(np.maximum(terms[:, 1], 1e-300)), np.log(alphas)
+    dx, dy = np.gradient(x, t), np.gradient(y, t)
+    ddx, ddy = np.gradient(dx, t), np.gradient(dy, t)
+    curvature = (dx * ddy - ddx * dy) / np.maximum((dx * dx + dy * dy) ** 1.5, 1e-300)
+    return float(alphas[1 + int(np.argmax(curvature[1:-1]))])
+
+
+def _missed_transport(states, N, regularization):
+    r"""`(xi, alpha, unexplained)`: for each snapshot, the su(N) transport stream
+    $\xi_n$ (coefficients $\ell \ge 1$) with $[\xi_n, \bar W_n] \approx R_n$, the tendency
+    the coarse system misses, by Tikhonov-regularised least squares."""
+    M = states.shape[-1]
+    fine, coarse = EulerZeitlin(M), EulerZeitlin(N)
+
+    @jax.jit
+    def deficit(w):
+        wbar = zeitlin.truncate(w, N)
+        fine_tendency = zeitlin.truncate(jax.vmap(fine.vector_field)(w), N)
+        return wbar, zeitlin.mat2shr(fine_tendency - jax.vmap(coarse.vector_field)(wbar))[:, 1:]
+
+    wbar, r = _in_chunks(deficit, jnp.asarray(states))
+    basis = _harmonics(N)
+    solve = lambda w, rr: _transport_normal_equations(w, rr, basis)
+    r2 = float(np.sum(r * r))
+    if regularization == "l-curve":  # (chosen on at most 512 samples spread over the data)
+        pick = np.unique(np.linspace(0, len(r) - 1, min(len(r), 512)).astype(int))
+        lam, _, c = _in_chunks(solve, wbar[pick], r[pick])
+        alpha = _l_curve(lam, c, float(np.sum(r[pick] ** 2)))
+    else:
+        alpha = float(regularization)
+
+    def solution(w, rr):
+        lam, v, c = _transport_normal_equations(w, rr, basis)
+        keep = _kept(lam)
+        coef = jnp.where(keep, c / jnp.where(keep, lam + alpha, 1.0), 0.0)
+        return jnp.einsum("kij,kj->ki", v, coef), lam, c
+
+    xi, lam, c = _in_chunks(solution, wbar, r)
+    floor = float(np.sum(r * r) - _tikhonov_terms(lam, c, 0.0)[0])  # no transport does better
+    return xi, alpha, (floor / r2 if r2 > 0 else 0.0)
 
 
 def fit_transport_noise(
@@ -62,112 +206,173 @@ def fit_transport_noise(
     streams=None,
     variance=0.9,
     n_modes=None,
-    method: AbstractMethod | None = None,
+    time_model="white",
+    regularization="l-curve",
+    method=None,
 ):
     r"""Transport noise for the coarse system su(N) from snapshots of a finer run.
 
-    For each window $k$ of `window` intervals, the coarse deterministic system restarts from the
-    coarse-grained snapshot (`zeitlin.truncate`); the difference between the data's transport
-    stream and the coarse system's, integrated over the window (each interval's streams
-    averaged over its ends), is $\Delta\Psi_k \approx \sum_r \xi_r\Delta B_{r,k}$: the
-    unresolved transport. The EOFs of the $\Delta\Psi_k$ (an SVD of their anomalies in the
-    $\ell m$ coefficients, orthonormal in $L^2$) keep the leading modes, each scaled by its
-    standard deviation over $\sqrt\tau$, $\tau$ = `window * dt` (`TransportNoiseFit`).
+    At each snapshot $W_n$ the coarse system misses the tendency
+    $R_n = \mathrm{truncate}(F_M(W_n)) - F_N(\bar W_n)$, $\bar W_n$ = `zeitlin.truncate(W_n,
+    N)`, $F$ the Euler vector fields. The transport stream $\xi_n$ of su(N) that explains
+    it, $[\xi_n, \bar W_n] \approx R_n$, is found by Tikhonov-regularised least squares
+    (`regularization`); the samples are averaged over windows of `window` snapshots; the
+    EOFs of their anomalies (an SVD in the $\ell m$ coefficients, orthonormal in $L^2$) are
+    the noise's modes, each trace's standard deviation $\sigma_r$ and integral time scale
+    $T_r$ its amplitude and correlation time (`TransportNoiseFit`). No coarse run is made,
+    and the fitted diffusivity $2\sigma_r^2T_r$ is a property of the data, not of `window`.
 
     **Arguments:**
 
-    - `states`: `(K * window + 1, M, M)` vorticity snapshots of su(M), spaced `dt` in time
-      (physical seconds, as `EulerZeitlin`), $M \ge N$, $K \ge 2$.
+    - `states`: `(S + 1, M, M)` vorticity snapshots of su(M), spaced `dt` in time
+      (physical seconds, as `EulerZeitlin`), $M > N$ (or $M \ge N$ with `streams`).
     - `dt`: the snapshots' spacing; `N`: the coarse system's size.
-    - `window`: intervals per window (default 1): the time scale at which the white noise's
-      variance matches the data's. The missed transport of a smooth flow is correlated in
-      time, so a noise fitted over one step is too weak at longer leads: choose a window of
-      the order of the forecasts' lead (`docs/data-driven-noise.md`, "Choosing the window").
-    - `streams`: `(K * window, M', M')` transport streams $\psi$ over each interval
-      ($dW = [\psi, W]\,dt$, so $-\nabla H_0$: $\Delta_{M'}^{-1}W/\hbar$ for Euler–Zeitlin),
-      $M' \ge N$; default: the fine system's own, $-\nabla H_0$ of the snapshots averaged over
-      each interval's ends. Data whose transport is known (a system driven by known noise)
-      passes it here: vorticity alone cannot reveal a noise's stream.
+    - `window`: snapshots (intervals, with `streams`) averaged into one sample (default 1);
+      at least 4 windows are needed. Larger windows cost less of the SVD and estimate the
+      correlation times more coarsely; the diffusivity stays the same.
+    - `streams`: `(S, M', M')` transport streams $\psi$ over each interval
+      ($dW = [\psi, W]\,dt$), $M' \ge N$, for data whose transport is known (a system driven
+      by known noise: vorticity alone cannot reveal a noise's stream). The samples are then
+      $\xi_n = \psi_n\hbar_{M'}/\hbar_N$ (truncated) minus the coarse drift's stream averaged
+      over the interval's ends, with no solve.
     - `variance`: keep the fewest modes that explain this share (default 0.9); or
     - `n_modes`: keep this many.
-    - `method`: the coarse system's integrator (default `IsospectralMidpoint()`).
+    - `time_model`: `"white"` (default: Brownian drivers, $\xi_r = e_r\sigma_r\sqrt{2T_r}$)
+      or `"ou"` ($\xi_r = e_r\sigma_r$ for unit Ornstein–Uhlenbeck drivers, `ou_increments`).
+    - `regularization`: `"l-curve"` (default: the Tikhonov parameter at the L-curve's
+      corner, pooled over the samples) or a number $\alpha \ge 0$ ($0$: the minimum-norm
+      least-squares solution).
+    - `method`: deprecated, unused (the fit makes no coarse run).
 
-    Left out: the time correlation of the traces (Ephrati et al. fit Ornstein–Uhlenbeck or
-    pdf-matched processes); the noise here is white in time.
+    Left out: the mean missed transport (a bias, not noise), the part of $R_n$ that no
+    transport can produce (`unexplained`), and the non-Gaussian statistics of the traces.
     """
+    if method is not None:
+        from .._support.deprecated import warn
+
+        warn("fit_transport_noise(method=...)", "nothing (the fit makes no coarse run)")
     states = np.asarray(states)
     if states.ndim != 3 or states.shape[1] != states.shape[2] or not np.iscomplexobj(states):
         raise ValueError(
-            f"fit_transport_noise: states must be complex (K * window + 1, M, M) matrices, got "
+            f"fit_transport_noise: states must be complex (S + 1, M, M) matrices, got "
             f"shape {states.shape}, dtype {states.dtype}."
         )
     if not np.all(np.isfinite(states)):
-        raise ValueError("fit_transport_noise: states must be finite.")
+        bad = np.flatnonzero(~np.all(np.isfinite(states), axis=(1, 2)))
+        raise ValueError(
+            f"fit_transport_noise: states must be finite; snapshots {bad[:5].tolist()} are not."
+        )
     M = states.shape[-1]
     N = check_count("N", N, 2)
     window = check_count("window", window)
+    dt = float(np.asarray(check_positive("dt", dt)))
+    if time_model not in TIME_MODELS:
+        raise ValueError(
+            f"fit_transport_noise: time_model must be one of {TIME_MODELS}, got {time_model!r}."
+        )
+    if isinstance(regularization, str):
+        if regularization != "l-curve":
+            raise ValueError(
+                f"fit_transport_noise: regularization must be 'l-curve' or a number >= 0, got "
+                f"{regularization!r}."
+            )
+    elif isinstance(regularization, bool) or not (
+        np.ndim(regularization) == 0 and np.isfinite(regularization) and regularization >= 0
+    ):
+        raise ValueError(
+            f"fit_transport_noise: regularization must be 'l-curve' or a number >= 0, got "
+            f"{regularization!r}."
+        )
     if N > M:
         raise ValueError(f"fit_transport_noise: N = {N} must not exceed the data's M = {M}.")
-    intervals = states.shape[0] - 1
-    if intervals % window or intervals // window < 2:
+    if N == M and streams is None:
         raise ValueError(
-            f"fit_transport_noise: {states.shape[0]} snapshots are not K * window + 1 with "
-            f"K >= 2 windows of window = {window}."
+            f"fit_transport_noise: N = M = {M}: the coarse system resolves everything the data "
+            f"do, so nothing is missed; give a finer run, or the transport as streams."
         )
-    K = intervals // window
-    dt = float(np.asarray(check_positive("dt", dt)))
+    samples = states.shape[0] - 1 if streams is not None else states.shape[0]
+    K = samples // window
+    if K < 4:
+        raise ValueError(
+            f"fit_transport_noise: {states.shape[0]} snapshots give {K} windows of "
+            f"window = {window}; the fit needs at least 4 (a correlation time needs several)."
+        )
     if n_modes is not None:
         n_modes = check_count("n_modes", n_modes)
-        if n_modes > min(K, N * N - 1):
+        if n_modes > min(K - 1, N * N - 1):
             raise ValueError(
-                f"fit_transport_noise: n_modes = {n_modes} exceeds the {min(K, N * N - 1)} "
+                f"fit_transport_noise: n_modes = {n_modes} exceeds the {min(K - 1, N * N - 1)} "
                 f"EOFs that K = {K} windows of su({N}) give."
             )
-    elif not 0 < variance <= 1:
+    elif isinstance(variance, bool) or not (np.ndim(variance) == 0 and 0 < variance <= 1):
         raise ValueError(f"fit_transport_noise: variance must be in (0, 1], got {variance!r}.")
-    if streams is None:  # the fine system's own stream, averaged over each interval's ends
-        g = -np.asarray(jax.vmap(EulerZeitlin(M).gradient)(jnp.asarray(states)))
-        psi = 0.5 * (g[:-1] + g[1:])
+    if streams is None:
+        xi, alpha, unexplained = _missed_transport(states, N, regularization)
     else:
-        psi = np.asarray(streams)
-        if psi.shape[0] != intervals or psi.ndim != 3 or psi.shape[1] != psi.shape[2]:
-            raise ValueError(
-                f"fit_transport_noise: streams must have shape ({intervals}, M', M'), one per "
-                f"interval, got {psi.shape}."
-            )
-        if psi.shape[-1] < N or not np.all(np.isfinite(psi)):
-            raise ValueError("fit_transport_noise: streams must be finite, of size M' >= N.")
-    # A stream matrix of su(M') transports as [psi, W]: the same physical stream in su(N) is
-    # its field truncated, times hbar(M') / hbar(N) (the bracket scales with hbar).
-    scale = zeitlin.hbar(psi.shape[-1]) / zeitlin.hbar(N)
-    psi = scale * np.asarray(zeitlin.truncate(jnp.asarray(psi), N))
-    coarse = zeitlin.truncate(jnp.asarray(states[::window]), N)  # (K + 1, N, N)
-    system = EulerZeitlin(N)
-    method = IsospectralMidpoint() if method is None else method
-    zero = jnp.zeros((window, 1), jnp.real(coarse).dtype)
-    # (K, window + 1, N, N): each window's coarse deterministic run; a failed step raises
-    paths = jax.vmap(lambda w: integrate(system, w, zero, dt, method=method, save_every=1))(
-        coarse[:-1]
-    )
-    g = -np.asarray(jax.vmap(jax.vmap(system.gradient))(paths))
-    model_psi = 0.5 * (g[:, :-1] + g[:, 1:])  # (K, window, N, N)
-    delta = dt * np.sum(psi.reshape(K, window, N, N) - model_psi, axis=1)
-    c = np.asarray(zeitlin.mat2shr(jnp.asarray(delta)))[:, 1:]  # (the l = 0 part is zero)
-    c = c - c.mean(axis=0)
-    u, s, vt = np.linalg.svd(c, full_matrices=False)
-    explained = s**2 / np.sum(s**2)
+        xi, alpha, unexplained = _known_transport(states, streams, N), None, None
+    xi = xi[: K * window].reshape(K, window, -1).mean(axis=1)
+    anomalies = xi - xi.mean(axis=0)
+    u, s, vt = np.linalg.svd(anomalies, full_matrices=False)
+    total = np.sum(s**2)
+    if not total > 0:
+        raise ValueError(
+            "fit_transport_noise: the data miss no transport at su(N) (every sample is the "
+            "same): there is no noise to fit."
+        )
+    explained = s**2 / total
     if n_modes is None:
         n_modes = int(np.searchsorted(np.cumsum(explained), variance - 1e-12) + 1)
+    traces = u[:, :n_modes] * s[:n_modes]
     std = s[:n_modes] / math.sqrt(K - 1)
-    tau = window * dt
+    spacing = window * dt
+    correlation = _integral_time(traces, spacing)
+    if np.any(correlation > 0.25 * K * spacing):
+        warnings.warn(
+            f"fit_transport_noise: a correlation time ({correlation.max():.3g} s) is more than "
+            f"a quarter of the data's span ({K * spacing:.3g} s): it is poorly determined; "
+            f"give a longer run.",
+            RuntimeWarning,
+            stacklevel=user_stacklevel(),
+        )
     coefficients = np.concatenate([np.zeros((n_modes, 1)), vt[:n_modes]], axis=1)
     modes = np.asarray(zeitlin.shr2mat(jnp.asarray(coefficients), N))
-    xi = modes * (std / math.sqrt(tau))[:, None, None]
+    amplitude = std * (np.sqrt(2.0 * correlation) if time_model == "white" else 1.0)
     return TransportNoiseFit(
-        noise=salt_noise(-xi),
+        noise=salt_noise(-(modes * amplitude[:, None, None])),
         modes=modes,
         std=std,
+        correlation_time=correlation,
         explained=explained,
-        traces=u[:, :n_modes] * s[:n_modes],
-        window_time=tau,
+        traces=traces,
+        window_time=spacing,
+        time_model=time_model,
+        regularization=alpha,
+        unexplained=unexplained,
     )
+
+
+def _known_transport(states, streams, N):
+    r"""The samples of data whose transport streams are given: per interval, the truncated
+    stream (times $\hbar_{M'}/\hbar_N$: the bracket scales with $\hbar$) minus the coarse
+    drift's stream averaged over the interval's ends; coefficients $\ell \ge 1$."""
+    psi = np.asarray(streams)
+    intervals = states.shape[0] - 1
+    if psi.ndim != 3 or psi.shape[0] != intervals or psi.shape[1] != psi.shape[2]:
+        raise ValueError(
+            f"fit_transport_noise: streams must have shape ({intervals}, M', M'), one per "
+            f"interval, got {psi.shape}."
+        )
+    if psi.shape[-1] < N or not np.all(np.isfinite(psi)):
+        raise ValueError("fit_transport_noise: streams must be finite, of size M' >= N.")
+    scale = zeitlin.hbar(psi.shape[-1]) / zeitlin.hbar(N)
+    coarse = EulerZeitlin(N)
+
+    @jax.jit
+    def sample(p, w0, w1):
+        drift = -0.5 * (
+            jax.vmap(coarse.gradient)(zeitlin.truncate(w0, N))
+            + jax.vmap(coarse.gradient)(zeitlin.truncate(w1, N))
+        )
+        return zeitlin.mat2shr(scale * zeitlin.truncate(p, N) - drift)[:, 1:]
+
+    return _in_chunks(sample, jnp.asarray(psi), jnp.asarray(states[:-1]), jnp.asarray(states[1:]))
