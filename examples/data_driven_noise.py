@@ -72,10 +72,11 @@ def isotropic_noise(fit, N):
 
 
 def experiment(M, N, h, train, tune, starts, lead, every, members, seed=0):
-    """The steps above. **Returns** a dict: `fine` (step 1's run), `fit`, `tuning` {name: `AmplitudeTuning`},
-    `lead_times`, `scores` {observable: {name: `ForecastScores` pooled over the held-out
-    starts}}, `crps_by_start` {observable: {name: `(starts,)`}} (the deterministic forecast's
-    is its mean absolute error), `comparisons` {observable: {pair: `PairedComparison`}},
+    """The steps above. **Returns** a dict: `fine` (step 1's run), `fit`, `tuning` {name:
+    `AmplitudeTuning`}, `lead_times`, `scores` {observable: {name: `ForecastScores` pooled
+    over the held-out starts}}, `crps_by_start` {observable: {name: `(starts,)`}} (the
+    deterministic forecast's is its mean absolute error), `deterministic_mae` {observable:
+    `(T,)`} by lead time, `comparisons` {observable: {pair: `PairedComparison`}},
     `casimir_drift` {name: the largest drift of tr W^2 ... tr W^N over every member and time,
     relative to sum |lambda|^k}, `seconds` per step."""
     seconds, clock = {}, time.perf_counter()
@@ -135,7 +136,7 @@ def experiment(M, N, h, train, tune, starts, lead, every, members, seed=0):
         c = np.asarray(sj.EulerZeitlin(N).algebra.casimirs(ens))  # (starts, m, T, k)
         c0 = np.asarray(sj.EulerZeitlin(N).algebra.casimirs(x0))[:, None, None]
         drift[name] = float(np.max(np.abs(c - c0) / scale[:, None, None]))
-    scores, by_start, comparisons = {}, {}, {}
+    scores, by_start, comparisons, mae_by_lead = {}, {}, {}, {}
     for label, observe in observables(N).items():
         y = np.asarray(observe(truth))  # (starts, T, k)
         # the starts pooled as observables: (starts, [m,] T, k) -> ([m,] T, starts * k)
@@ -144,10 +145,10 @@ def experiment(M, N, h, train, tune, starts, lead, every, members, seed=0):
             name: sj.forecast_scores(pooled(np.asarray(observe(e))), pooled(y))
             for name, e in ensembles.items()
         }
-        crps = {"deterministic": np.mean(np.abs(np.asarray(observe(det))[:, 1:] - y), axis=(1, 2))}
-        for name, e in ensembles.items():
-            x = np.moveaxis(np.asarray(observe(e)), 1, 0)  # members first
-            crps[name] = np.mean(sj.crps_ensemble(x, y), axis=(1, 2))
+        error = np.abs(np.asarray(observe(det))[:, 1:] - y)  # (starts, T, k)
+        mae_by_lead[label] = np.mean(error, axis=(0, 2))
+        crps = {"deterministic": np.mean(error, axis=(1, 2))}
+        crps |= {name: sj.start_crps(e, truth, observe) for name, e in ensembles.items()}
         by_start[label] = crps
         comparisons[label] = {
             "calibrated vs isotropic": sj.paired_comparison(crps["calibrated"], crps["isotropic"])
@@ -169,6 +170,7 @@ def experiment(M, N, h, train, tune, starts, lead, every, members, seed=0):
         lead_times=h * times,
         scores=scores,
         crps_by_start=by_start,
+        deterministic_mae=mae_by_lead,
         comparisons=comparisons,
         casimir_drift=drift,
         seconds=seconds,
@@ -205,14 +207,14 @@ def figure(result):
     grid = fig.add_gridspec(6, 4)
     top, bottom = (lambda c: fig.add_subplot(grid[:3, c])), (lambda c: fig.add_subplot(grid[3:, c]))
     theta, phi = zeitlin.grid(48)
-    lon = np.degrees(np.asarray(phi))
+    lat, lon = 90 - np.degrees(theta), np.degrees(phi)
     for j in range(min(3, fit.modes.shape[0])):
         ax = fig.add_subplot(grid[2 * j : 2 * j + 2, 0])
         f = np.asarray(zeitlin.field(zeitlin.mat2shr(fit.modes[j]), theta, phi))
-        im = ax.imshow(
-            f, extent=(lon.min(), lon.max(), -90, 90), cmap="RdBu_r", aspect="auto", origin="upper"
-        )
-        fig.colorbar(im, ax=ax, label="stream (normalised)")
+        v = np.abs(f).max()
+        im = ax.pcolormesh(lon, lat, f, cmap="RdBu_r", vmin=-v, vmax=v, shading="auto")
+        fig.colorbar(im, ax=ax, label="stream (unit L²)", pad=0.02)
+        ax.set_yticks([-90, 0, 90])
         ax.set(
             title=f"EOF {j + 1}: {100 * fit.explained[j]:.0f} % of the variance",
             ylabel="latitude (°)",
@@ -248,7 +250,7 @@ def figure(result):
     ax = bottom(1)
     for name, s in scores.items():
         ax.plot(t, s.crps.mean(axis=-1), label=name)
-    y = result["crps_by_start"]["degrees 2..N-1"]
+    ax.plot(t, result["deterministic_mae"]["degrees 2..N-1"], "k:", label="deterministic (MAE)")
     ax.set(xlabel="lead time (s)", ylabel="fair CRPS", title="CRPS, degrees 2..N-1")
     ax.legend(fontsize=7)
     for k, (name, s) in enumerate(scores.items()):
@@ -259,7 +261,6 @@ def figure(result):
             ylabel="count",
             title=f"rank histogram, {name}",
         )
-    del y
     fig.suptitle(
         f"Data-driven transport noise, su({result['size']['M']}) → su({result['size']['N']}): "
         f"{result['size']['starts']} held-out starts, {result['size']['members']} members"

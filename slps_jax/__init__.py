@@ -77,6 +77,7 @@ from ._studies.transport_fit import fit_transport_noise as fit_transport_noise
 from ._studies.verification import AmplitudeTuning as AmplitudeTuning
 from ._studies.verification import forecast_ensembles as forecast_ensembles
 from ._studies.verification import scaled_noise as scaled_noise
+from ._studies.verification import start_crps as start_crps
 from ._studies.verification import tune_amplitude as tune_amplitude
 
 # Results: the failure codes, a run's Solution

@@ -281,3 +281,16 @@ def test_transport_fit(tmp_path):
     assert [(r["M"], r["N"]) for r in rows] == [(12, 6)]
     for k in ("fine_ms_per_step", "fit_s", "ensemble_ms_per_member_step"):
         assert rows[0][k] > 0, k
+
+
+def test_transport_skill(tmp_path):
+    """`transport_skill.py --fast` (M = 12, N = 6, one seed): the study's table is written,
+    with tuned factors, CIs that contain their estimates, and the Casimirs kept."""
+    run_script("transport_skill.py", tmp_path)
+    rows = json.loads((tmp_path / "transport_skill.json").read_text())["rows"]
+    assert [r["seed"] for r in rows] == [0]
+    r = rows[0]
+    for k in ("calibrated_vs_deterministic", "calibrated_vs_isotropic"):
+        assert r[k][1] <= r[k][0] <= r[k][2], (k, r[k])
+    assert r["factor_calibrated"] > 0 and r["casimir_drift"] < 1e-12
+    assert "| 0 |" in (tmp_path / "transport_skill.md").read_text()

@@ -105,18 +105,53 @@ def _harmonics(N):
     return zeitlin.shr2mat(jnp.eye(N * N)[1:], N)
 
 
-@jax.jit
-def _transport_normal_equations(wbar, r, basis):
-    r"""For each sample, the eigen-decomposition of $G = A^{\mathsf T}A$ and $c =
+def _normal_equations(w, r, basis):
+    r"""For one sample, the eigen-decomposition $(\lambda, V)$ of $A^{\mathsf T}A$ and $c =
     V^{\mathsf T}A^{\mathsf T}r$, $A$ the matrix of $\xi \mapsto [\xi, \bar W]$ in the
     $\ell m$ coefficients ($\ell \ge 1$, orthonormal in $L^2$)."""
+    a = zeitlin.mat2shr(basis @ w - w @ basis)[:, 1:].T  # column j: [T_j, w]
+    lam, v = jnp.linalg.eigh(a.T @ a)
+    return lam, v, v.T @ (a.T @ r)
 
-    def one(w, rr):
-        a = zeitlin.mat2shr(basis @ w - w @ basis)[:, 1:].T  # column j: [T_j, w]
-        lam, v = jnp.linalg.eigh(a.T @ a)
-        return lam, v, v.T @ (a.T @ rr)
 
-    return jax.vmap(one)(wbar, r)
+@jax.jit
+def _spectra(wbar, r, basis):
+    """`(lambda, c)` of each sample (`_normal_equations`), for the L-curve."""
+    lam, _, c = jax.vmap(_normal_equations, in_axes=(0, 0, None))(wbar, r, basis)
+    return lam, c
+
+
+@jax.jit
+def _transport_solution(wbar, r, basis, alpha):
+    r"""`(xi, lambda, c)`: each sample's Tikhonov solution $\xi = V(\Lambda + \alpha)^{-1}c$
+    (zero on the kernel of $A$), with its `_normal_equations` spectra."""
+    lam, v, c = jax.vmap(_normal_equations, in_axes=(0, 0, None))(wbar, r, basis)
+    keep = _kept(lam)
+    coef = jnp.where(keep, c / jnp.where(keep, lam + alpha, 1.0), 0.0)
+    return jnp.einsum("kij,kj->ki", v, coef), lam, c
+
+
+@functools.partial(jax.jit, static_argnames="N")
+def _missed_tendency(w, N):
+    r"""`(W̄, R)`: the snapshots `w` `(k, M, M)` truncated to su(N), and the tendency the
+    coarse system misses, $R = \mathrm{truncate}(F_M(W)) - F_N(\bar W)$, in coefficients
+    $\ell \ge 1$."""
+    fine, coarse = EulerZeitlin(w.shape[-1]), EulerZeitlin(N)
+    wbar = zeitlin.truncate(w, N)
+    fine_tendency = zeitlin.truncate(jax.vmap(fine.vector_field)(w), N)
+    return wbar, zeitlin.mat2shr(fine_tendency - jax.vmap(coarse.vector_field)(wbar))[:, 1:]
+
+
+@functools.partial(jax.jit, static_argnames="N")
+def _known_samples(psi, w0, w1, scale, N):
+    r"""The samples of known transport streams `psi` over intervals from `w0` to `w1`: the
+    truncated stream times `scale` minus the coarse drift's stream averaged over the ends."""
+    coarse = EulerZeitlin(N)
+    drift = -0.5 * (
+        jax.vmap(coarse.gradient)(zeitlin.truncate(w0, N))
+        + jax.vmap(coarse.gradient)(zeitlin.truncate(w1, N))
+    )
+    return zeitlin.mat2shr(scale * zeitlin.truncate(psi, N) - drift)[:, 1:]
 
 
 def _in_chunks(f, *arrays):
@@ -166,33 +201,16 @@ def _missed_transport(states, N, regularization):
     r"""`(xi, alpha, unexplained)`: for each snapshot, the su(N) transport stream
     $\xi_n$ (coefficients $\ell \ge 1$) with $[\xi_n, \bar W_n] \approx R_n$, the tendency
     the coarse system misses, by Tikhonov-regularised least squares."""
-    M = states.shape[-1]
-    fine, coarse = EulerZeitlin(M), EulerZeitlin(N)
-
-    @jax.jit
-    def deficit(w):
-        wbar = zeitlin.truncate(w, N)
-        fine_tendency = zeitlin.truncate(jax.vmap(fine.vector_field)(w), N)
-        return wbar, zeitlin.mat2shr(fine_tendency - jax.vmap(coarse.vector_field)(wbar))[:, 1:]
-
-    wbar, r = _in_chunks(deficit, jnp.asarray(states))
+    wbar, r = _in_chunks(lambda w: _missed_tendency(w, N), jnp.asarray(states))
     basis = _harmonics(N)
-    solve = lambda w, rr: _transport_normal_equations(w, rr, basis)
     r2 = float(np.sum(r * r))
     if regularization == "l-curve":  # (chosen on at most 512 samples spread over the data)
         pick = np.unique(np.linspace(0, len(r) - 1, min(len(r), 512)).astype(int))
-        lam, _, c = _in_chunks(solve, wbar[pick], r[pick])
+        lam, c = _in_chunks(lambda w, rr: _spectra(w, rr, basis), wbar[pick], r[pick])
         alpha = _l_curve(lam, c, float(np.sum(r[pick] ** 2)))
     else:
         alpha = float(regularization)
-
-    def solution(w, rr):
-        lam, v, c = _transport_normal_equations(w, rr, basis)
-        keep = _kept(lam)
-        coef = jnp.where(keep, c / jnp.where(keep, lam + alpha, 1.0), 0.0)
-        return jnp.einsum("kij,kj->ki", v, coef), lam, c
-
-    xi, lam, c = _in_chunks(solution, wbar, r)
+    xi, lam, c = _in_chunks(lambda w, rr: _transport_solution(w, rr, basis, alpha), wbar, r)
     floor = float(np.sum(r * r) - _tikhonov_terms(lam, c, 0.0)[0])  # no transport does better
     return xi, alpha, (floor / r2 if r2 > 0 else 0.0)
 
@@ -365,14 +383,9 @@ def _known_transport(states, streams, N):
     if psi.shape[-1] < N or not np.all(np.isfinite(psi)):
         raise ValueError("fit_transport_noise: streams must be finite, of size M' >= N.")
     scale = zeitlin.hbar(psi.shape[-1]) / zeitlin.hbar(N)
-    coarse = EulerZeitlin(N)
-
-    @jax.jit
-    def sample(p, w0, w1):
-        drift = -0.5 * (
-            jax.vmap(coarse.gradient)(zeitlin.truncate(w0, N))
-            + jax.vmap(coarse.gradient)(zeitlin.truncate(w1, N))
-        )
-        return zeitlin.mat2shr(scale * zeitlin.truncate(p, N) - drift)[:, 1:]
-
-    return _in_chunks(sample, jnp.asarray(psi), jnp.asarray(states[:-1]), jnp.asarray(states[1:]))
+    return _in_chunks(
+        lambda p, w0, w1: _known_samples(p, w0, w1, scale, N),
+        jnp.asarray(psi),
+        jnp.asarray(states[:-1]),
+        jnp.asarray(states[1:]),
+    )

@@ -77,6 +77,16 @@ def forecast_ensembles(
     return np.stack(out)
 
 
+def start_crps(ensembles, truth, observe):
+    """Each start's mean fair CRPS over its lead times and observables, `(n_starts,)`:
+    `ensembles` `(n_starts, members, T, *state)` (`forecast_ensembles`), `truth`
+    `(n_starts, T, *state)`, `observe` states to observables `(..., k)`; the per-start
+    scores that `paired_comparison` compares."""
+    y = np.asarray(observe(jnp.asarray(truth)))
+    x = np.moveaxis(np.asarray(observe(jnp.asarray(ensembles))), 1, 0)  # members first
+    return np.mean(crps_ensemble(x, y), axis=tuple(range(1, y.ndim)))
+
+
 @dataclasses.dataclass(frozen=True)
 class AmplitudeTuning:
     """What `tune_amplitude` found: the `factor` of least mean fair CRPS, the `factors`
@@ -122,7 +132,6 @@ def tune_amplitude(
         raise ValueError(
             f"tune_amplitude: factors must be 2 or more positive numbers, got {factors}."
         )
-    y = np.asarray(observe(jnp.asarray(truth)))
     factors, tried, crps = np.sort(factors), [], []
     for f in factors:
         tried.append(f)
@@ -142,8 +151,7 @@ def tune_amplitude(
         except RuntimeError:  # (a member failed: this factor and larger ones are out)
             crps.append(np.inf)
             break
-        x = np.moveaxis(np.asarray(observe(jnp.asarray(ens))), 1, 0)  # members first
-        crps.append(float(np.mean(crps_ensemble(x, y))))
+        crps.append(float(np.mean(start_crps(ens, truth, observe))))
         if len(crps) >= 3 and min(crps[-2:]) > min(crps):
             break
     crps = np.asarray(crps)
