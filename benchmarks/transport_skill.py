@@ -4,7 +4,8 @@ for several fine runs (seeds).
 
 For each seed: su(32) -> su(8), h = 0.01 s, the fit on the first 40 s (white noise), one
 amplitude factor each for the calibrated noise and an isotropic noise of degrees 2..7 tuned on
-8 forecasts inside the training period, then 16 held-out starts, 4 s leads, 32 members. On the
+8 forecasts inside the training period (and for the same EOFs with Ornstein–Uhlenbeck traces),
+then 16 held-out starts, 4 s leads, 32 members. On the
 coefficients of degrees 2..7 (and of degree 1 apart), per start the fair CRPS over the lead
 times; paired bootstrap 90 % CIs of calibrated against isotropic and of each against the
 deterministic forecast's mean absolute error; spread / RMSE at 0.4, 2 and 4 s; the Casimirs.
@@ -36,6 +37,7 @@ def row(result):
     """One seed's figures: factors, CIs, spread / RMSE, Casimir drift."""
     main, one = result["comparisons"]["degrees 2..N-1"], result["comparisons"]["degree 1"]
     ratio = result["scores"]["degrees 2..N-1"]["calibrated"].ratio
+    ratio_ou = result["scores"]["degrees 2..N-1"]["calibrated, OU"].ratio
     t = result["lead_times"]
     pick = [int(np.argmin(np.abs(t - s))) for s in (0.4, 2.0, 4.0)]
     ci = lambda c: [100 * c.relative, 100 * c.relative_ci[0], 100 * c.relative_ci[1]]
@@ -43,11 +45,17 @@ def row(result):
         seed=result["size"]["seed"],
         factor_calibrated=result["tuning"]["calibrated"].factor,
         factor_isotropic=result["tuning"]["isotropic"].factor,
+        factor_ou=result["tuning"]["calibrated, OU"].factor,
         calibrated_vs_deterministic=ci(main["calibrated vs deterministic"]),
         isotropic_vs_deterministic=ci(main["isotropic vs deterministic"]),
         calibrated_vs_isotropic=ci(main["calibrated vs isotropic"]),
+        ou_vs_white=ci(main["OU vs white"]),
+        ou_vs_deterministic=ci(main["calibrated OU vs deterministic"]),
+        ou_vs_isotropic=ci(main["calibrated OU vs isotropic"]),
         degree1_calibrated_vs_isotropic=ci(one["calibrated vs isotropic"]),
         spread_rmse=[float(ratio[i]) for i in pick],
+        spread_rmse_ou=[float(ratio_ou[i]) for i in pick],
+        spread_rmse_ou_range=[float(ratio_ou.min()), float(ratio_ou.max())],
         casimir_drift=max(result["casimir_drift"].values()),
         unexplained=result["fit"].unexplained,
         n_eofs=int(result["fit"].modes.shape[0]),
@@ -70,22 +78,38 @@ def main(argv=None):
         os.path.join(args.out, "transport_skill.json"), dict(machine=info, size=size, rows=rows)
     )
     fmt = lambda v: f"{v[0]:+.1f} % [{v[1]:+.1f}, {v[2]:+.1f}]"
-    lines = [
-        f"Measured on {_common.device_name(info)}, jax {info['jax']}, {info['date'][:10]}; "
-        f"size {size}.",
+    head = f"Measured on {_common.device_name(info)}, jax {info['jax']}, {info['date'][:10]}; size {size}."
+    white = [
+        'White noise (`time_model="white"`), degrees 2..N-1 unless stated; CRPS differences, '
+        "paired bootstrap 90 % CI over the starts:",
         "",
-        "| seed | factors (cal., iso.) | calibrated vs det. MAE | isotropic vs det. MAE "
-        "| calibrated vs isotropic | degree 1: cal. vs iso. | spread/RMSE 0.4, 2, 4 s "
+        "| seed | factors (white, OU, isotropic) | white vs det. MAE | isotropic vs det. MAE "
+        "| white vs isotropic | degree 1: white vs iso. | spread/RMSE 0.4, 2, 4 s "
         "| Casimir drift |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
-        lines.append(
-            f"| {r['seed']} | {r['factor_calibrated']:.3g}, {r['factor_isotropic']:.3g} "
-            f"| {fmt(r['calibrated_vs_deterministic'])} | {fmt(r['isotropic_vs_deterministic'])} "
-            f"| {fmt(r['calibrated_vs_isotropic'])} | {fmt(r['degree1_calibrated_vs_isotropic'])} "
+        white.append(
+            f"| {r['seed']} | {r['factor_calibrated']:.3g}, {r['factor_ou']:.3g}, "
+            f"{r['factor_isotropic']:.3g} | {fmt(r['calibrated_vs_deterministic'])} "
+            f"| {fmt(r['isotropic_vs_deterministic'])} | {fmt(r['calibrated_vs_isotropic'])} "
+            f"| {fmt(r['degree1_calibrated_vs_isotropic'])} "
             f"| {', '.join(f'{x:.2f}' for x in r['spread_rmse'])} | {r['casimir_drift']:.1e} |"
         )
+    red = [
+        'Ornstein–Uhlenbeck traces (`time_model="ou"`, the same EOFs):',
+        "",
+        "| seed | OU vs det. MAE | OU vs isotropic | OU vs white | spread/RMSE 0.4, 2, 4 s "
+        "| spread/RMSE min, max |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        red.append(
+            f"| {r['seed']} | {fmt(r['ou_vs_deterministic'])} | {fmt(r['ou_vs_isotropic'])} "
+            f"| {fmt(r['ou_vs_white'])} | {', '.join(f'{x:.2f}' for x in r['spread_rmse_ou'])} "
+            f"| {r['spread_rmse_ou_range'][0]:.2f}, {r['spread_rmse_ou_range'][1]:.2f} |"
+        )
+    lines = [head, "", *white, "", *red]
     with open(os.path.join(args.out, "transport_skill.md"), "w") as fh:
         fh.write("\n".join(lines) + "\n")
 

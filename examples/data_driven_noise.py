@@ -91,6 +91,7 @@ def experiment(M, N, h, train, tune, starts, lead, every, members, seed=0):
     )
     seconds["fine run"], clock = time.perf_counter() - clock, time.perf_counter()
     fit = sj.fit_transport_noise(fine[: train + 1], dt=h, N=N)
+    red = sj.fit_transport_noise(fine[: train + 1], dt=h, N=N, time_model="ou")
     seconds["fit"], clock = time.perf_counter() - clock, time.perf_counter()
     coarse = lambda idx: np.asarray(zeitlin.truncate(fine[idx.ravel()], N)).reshape(
         *idx.shape, N, N
@@ -99,7 +100,11 @@ def experiment(M, N, h, train, tune, starts, lead, every, members, seed=0):
     tune_at = np.linspace(0, train - lead, tune).astype(int)  # starts inside the training
     test_at = train + lead * np.arange(starts)  # held out, after it
     main = observables(N)["degrees 2..N-1"]
-    noises = {"calibrated": fit.noise, "isotropic": isotropic_noise(fit, N)}
+    noises = {  # name: (noise, driver)
+        "calibrated": (fit.noise, None),
+        "calibrated, OU": (red.noise, sj.OrnsteinUhlenbeck(red.correlation_time)),
+        "isotropic": (isotropic_noise(fit, N), None),
+    }
     forecast = dict(lead=lead, dt=h, every=every)
     tuning = {
         name: sj.tune_amplitude(
@@ -110,9 +115,10 @@ def experiment(M, N, h, train, tune, starts, lead, every, members, seed=0):
             observe=main,
             members=members // 2,
             key=jax.random.key(seed + 1),
+            driver=driver,
             **forecast,
         )
-        for name, noise in noises.items()
+        for name, (noise, driver) in noises.items()
     }
     seconds["tuning"], clock = time.perf_counter() - clock, time.perf_counter()
     x0, truth = coarse(test_at), coarse(test_at[:, None] + times)
@@ -125,9 +131,10 @@ def experiment(M, N, h, train, tune, starts, lead, every, members, seed=0):
             x0,
             members=members,
             key=jax.random.key(seed + 2),
+            driver=driver,
             **forecast,
         )
-        for name, noise in noises.items()
+        for name, (noise, driver) in noises.items()
     }
     seconds["held-out forecasts"] = time.perf_counter() - clock
     scale = np.sum(np.abs(np.linalg.eigvals(x0))[..., None] ** np.arange(2, N + 1), axis=-2)
@@ -151,13 +158,20 @@ def experiment(M, N, h, train, tune, starts, lead, every, members, seed=0):
         crps |= {name: sj.start_crps(e, truth, observe) for name, e in ensembles.items()}
         by_start[label] = crps
         comparisons[label] = {
-            "calibrated vs isotropic": sj.paired_comparison(crps["calibrated"], crps["isotropic"])
+            "calibrated vs isotropic": sj.paired_comparison(crps["calibrated"], crps["isotropic"]),
+            "calibrated OU vs isotropic": sj.paired_comparison(
+                crps["calibrated, OU"], crps["isotropic"]
+            ),
+            "OU vs white": sj.paired_comparison(crps["calibrated, OU"], crps["calibrated"]),
         }
         if label == "degree 1":  # (kept by the deterministic forecast: no ratio to it)
             continue
         comparisons[label] |= {
             "calibrated vs deterministic": sj.paired_comparison(
                 crps["calibrated"], crps["deterministic"]
+            ),
+            "calibrated OU vs deterministic": sj.paired_comparison(
+                crps["calibrated, OU"], crps["deterministic"]
             ),
             "isotropic vs deterministic": sj.paired_comparison(
                 crps["isotropic"], crps["deterministic"]
@@ -253,14 +267,21 @@ def figure(result):
     ax.plot(t, result["deterministic_mae"]["degrees 2..N-1"], "k:", label="deterministic (MAE)")
     ax.set(xlabel="lead time (s)", ylabel="fair CRPS", title="CRPS, degrees 2..N-1")
     ax.legend(fontsize=7)
-    for k, (name, s) in enumerate(scores.items()):
-        ax = bottom(2 + k)
-        ax.bar(np.arange(len(s.rank_histogram)), s.rank_histogram, width=1.0)
-        ax.set(
-            xlabel="rank of the truth among the members",
-            ylabel="count",
-            title=f"rank histogram, {name}",
-        )
+    ax = bottom(2)
+    for name, s in scores.items():
+        ranks = np.arange(len(s.rank_histogram))
+        ax.step(ranks, s.rank_histogram / s.rank_histogram.sum(), where="mid", label=name)
+    ax.axhline(1 / len(ranks), color="k", lw=0.8, ls=":", label="flat (calibrated)")
+    ax.set(
+        xlabel="rank of the truth among the members", ylabel="frequency", title="rank histograms"
+    )
+    ax.legend(fontsize=7)
+    ax = bottom(3)
+    for name, s in scores.items():
+        ax.plot(t, s.ratio, ".-", label=name)
+    ax.axhline(1, color="k", lw=0.8, ls=":")
+    ax.set(xlabel="lead time (s)", ylabel="spread / RMSE", title="spread against error")
+    ax.legend(fontsize=7)
     fig.suptitle(
         f"Data-driven transport noise, su({result['size']['M']}) → su({result['size']['N']}): "
         f"{result['size']['starts']} held-out starts, {result['size']['members']} members"

@@ -38,15 +38,37 @@ def model_world():
     return dict(N=N, h=h, lead=lead, every=every, noise=noise, starts=starts, truth=truth)
 
 
-def test_forecast_ensembles_of_a_start_do_not_depend_on_the_others(model_world):
+def test_forecast_ensembles_are_simulate_per_start(model_world):
+    """One batched program gives what `simulate` gives for each start with `fold_in(key, s)`
+    (increments and Lévy areas alike), Brownian or Ornstein–Uhlenbeck; a start's ensemble
+    does not depend on the other starts; a failing member raises."""
     w = model_world
     system = sj.EulerZeitlin(w["N"], noise=w["noise"])
     kw = dict(lead=w["lead"], dt=w["h"], every=w["every"], members=3, key=jax.random.key(2))
-    both = sj.forecast_ensembles(system, w["starts"][:2], **kw)
-    assert both.shape == (2, 3, 2, w["N"], w["N"])
-    np.testing.assert_array_equal(both[:1], sj.forecast_ensembles(system, w["starts"][:1], **kw))
+    for driver, areas in ((None, "auto"), (sj.OrnsteinUhlenbeck([0.3, 0.6]), False)):
+        both = sj.forecast_ensembles(system, w["starts"][:2], driver=driver, levy_area=areas, **kw)
+        assert both.shape == (2, 3, 2, w["N"], w["N"])
+        for s in range(2):
+            sol = sj.simulate(
+                system,
+                w["starts"][s],
+                t1=w["lead"] * w["h"],
+                dt=w["h"],
+                n_samples=3,
+                key=jax.random.fold_in(kw["key"], s),
+                save_every=w["every"],
+                driver=driver,
+            )
+            np.testing.assert_allclose(both[s], sol.ys[:, 1:], rtol=0, atol=1e-13)
+    one = sj.forecast_ensembles(
+        system, w["starts"][1:2], **(kw | dict(key=jax.random.fold_in(kw["key"], 1)))
+    )
+    assert one.shape == (1, 3, 2, w["N"], w["N"])
     with pytest.raises(ValueError, match="multiple"):
         sj.forecast_ensembles(system, w["starts"], **(kw | dict(every=3)))
+    loud = sj.EulerZeitlin(w["N"], noise=sj.scaled_noise(w["noise"], 1e3))
+    with pytest.raises(RuntimeError):
+        sj.forecast_ensembles(loud, w["starts"][:1], retry_substeps=None, **kw)
 
 
 def test_tuning_recovers_the_amplitude_of_data_from_the_model(model_world):

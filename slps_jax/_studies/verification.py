@@ -5,13 +5,16 @@ training period (fair CRPS), and the scores of held-out starts (`paired_comparis
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._driver.integrate import simulate
-from .._support.checks import check_count, check_positive
+from .._brownian import BrownianStep, brownian_increments, ou_increments
+from .._driver.integrate import _integrate_jit
+from .._driver.plan import check_levy_option, check_method, check_system
+from .._support.checks import check_count, check_positive, check_retry
 from .._systems.euler_zeitlin import EulerZeitlin
 from .scores import crps_ensemble
 
@@ -35,9 +38,12 @@ def forecast_ensembles(
     driver=None,
     method="auto",
     retry_substeps: int | None = 4,
+    levy_area=False,
 ):
     r"""Each start's ensemble forecast, `(n_starts, members, lead // every, *state)`: the
-    states at `every, 2 every, ..., lead` steps of `dt` after the start (`simulate`).
+    states at `every, 2 every, ..., lead` steps of `dt` after the start, the same as
+    `simulate(system, starts[s], ..., key=fold_in(key, s))` gives (its increments, and Lévy
+    areas where `simulate` draws them), all starts run as one batched program.
 
     - `system`: the stochastic system (for example `EulerZeitlin(N, noise=...)`).
     - `starts`: `(n_starts, *state)` initial states (the truth's, coarse-grained).
@@ -47,6 +53,9 @@ def forecast_ensembles(
       the others, and common random numbers make factors comparable (`tune_amplitude`).
     - `driver`, `method`, `retry_substeps`: as for `simulate` (`driver=OrnsteinUhlenbeck(T)`
       for a noise fitted with `time_model="ou"`).
+    - `levy_area`: `False` (default): forecasts are judged in distribution, where the
+      methods are weak order 1 without the areas (of mean zero), and drawing the areas of
+      many noises dominates the cost; `"auto"` or `True` as for `simulate`.
 
     A member that fails raises `RuntimeError`: forecasts are not scored with failed members.
     """
@@ -57,24 +66,57 @@ def forecast_ensembles(
             f"forecast_ensembles: lead = {lead} must be a multiple of every = {every}."
         )
     dt = float(np.asarray(check_positive("dt", dt)))
+    check_system(system)
+    method = check_method(method, system)
     starts = jnp.asarray(starts)
-    out = []
-    for s in range(starts.shape[0]):
-        sol = simulate(
-            system,
-            starts[s],
-            t1=lead * dt,
-            dt=dt,
-            n_samples=members,
-            key=jax.random.fold_in(key, s),
-            method=method,
-            save_every=every,
-            throw=True,
-            retry_substeps=retry_substeps,
-            driver=driver,
+    dtype, s = system.dtype, system.n_noises
+    if driver is None:
+        areas = check_levy_option(levy_area, method, system)
+    elif levy_area is True:
+        raise ValueError("forecast_ensembles: a smooth driver has no Lévy areas (levy_area=True).")
+    else:
+        areas = False
+    # each start's increments as simulate draws them (its sample i: fold_in(fold_in(key, s), i))
+    dWs, As = [], []
+    for k in range(starts.shape[0]):
+        start_key = jax.random.fold_in(key, k)
+        if driver is not None:
+            dWs.append(
+                ou_increments(
+                    start_key, lead, dt, driver.correlation_time, n_samples=members, dtype=dtype
+                )
+            )
+        else:
+            out = brownian_increments(
+                start_key, lead, dt, n_samples=members, n_noises=s, levy_area=areas, dtype=dtype
+            )
+            dWs.append(out[0] if areas else out)
+            As.append(out[1] if areas else None)
+    noise = BrownianStep(jnp.stack(dWs), jnp.stack(As) if areas else None)
+    y0 = starts.astype(system.algebra.state_dtype(dtype))
+    ys, fail_step = _forecasts(
+        method, system, y0, noise, jnp.asarray(dt, dtype), every, check_retry(retry_substeps)
+    )
+    failed = int(np.sum(np.asarray(fail_step) >= 0))
+    if failed:
+        raise RuntimeError(
+            f"forecast_ensembles: {failed} of {fail_step.size} members failed (their steps could "
+            f"not be solved{'' if retry_substeps else ', and retry_substeps=None'}): they are "
+            f"not scored."
         )
-        out.append(np.asarray(sol.ys)[:, 1:])
-    return np.stack(out)
+    return np.asarray(ys)
+
+
+@functools.partial(jax.jit, static_argnames=("method", "every", "retry"))
+def _forecasts(method, system, starts, noise, dt, every, retry):
+    """Every start's members in one program: the driver's loop under two `vmap`s, the saved
+    states after the start and each member's failed step (-1: none)."""
+
+    def member(y0, step_noise):
+        ys, fail_step, *_ = _integrate_jit(method, system, y0, step_noise, dt, every, False, retry)
+        return ys, fail_step
+
+    return jax.vmap(jax.vmap(member, in_axes=(None, 0)))(starts, noise)
 
 
 def start_crps(ensembles, truth, observe):
@@ -113,6 +155,7 @@ def tune_amplitude(
     factors=None,
     driver=None,
     method="auto",
+    refine=True,
 ):
     r"""One amplitude factor of a transport noise, tuned on forecasts: the factor among
     `factors` whose ensembles (`forecast_ensembles` of `EulerZeitlin(N, noise=f * noise)`)
@@ -125,6 +168,8 @@ def tune_amplitude(
       tried in ascending order until the CRPS has risen above its least value twice in a
       row, or a member fails (then larger factors are not tried); every factor uses the
       same `key` (common random numbers), and failing steps are not retried.
+    - `refine`: then also try the geometric midpoints between the best factor and its
+      neighbours (default `True`: a grid twice as fine near the optimum).
     - `driver`, `method`: as for `simulate`.
     """
     factors = np.asarray(FACTORS if factors is None else factors, dtype=float)
@@ -132,9 +177,8 @@ def tune_amplitude(
         raise ValueError(
             f"tune_amplitude: factors must be 2 or more positive numbers, got {factors}."
         )
-    factors, tried, crps = np.sort(factors), [], []
-    for f in factors:
-        tried.append(f)
+
+    def score(f):
         try:
             ens = forecast_ensembles(
                 EulerZeitlin(N, noise=scaled_noise(noise, f)),
@@ -148,13 +192,26 @@ def tune_amplitude(
                 method=method,
                 retry_substeps=None,
             )
-        except RuntimeError:  # (a member failed: this factor and larger ones are out)
-            crps.append(np.inf)
+        except RuntimeError:  # (a member failed)
+            return np.inf
+        return float(np.mean(start_crps(ens, truth, observe)))
+
+    tried, crps = [], []
+    for f in np.sort(factors):
+        tried.append(float(f))
+        crps.append(score(f))
+        if not np.isfinite(crps[-1]):  # (larger factors fail too)
             break
-        crps.append(float(np.mean(start_crps(ens, truth, observe))))
         if len(crps) >= 3 and min(crps[-2:]) > min(crps):
             break
-    crps = np.asarray(crps)
     if not np.any(np.isfinite(crps)):
         raise RuntimeError("tune_amplitude: every factor's forecasts had failed members.")
-    return AmplitudeTuning(float(tried[int(np.argmin(crps))]), np.asarray(tried), crps)
+    if refine:  # the geometric midpoints on either side of the best
+        b = int(np.argmin(crps))
+        for j in (b - 1, b + 1):
+            if 0 <= j < len(tried) and np.isfinite(crps[j]):
+                tried.append(float(np.sqrt(tried[b] * tried[j])))
+                crps.append(score(tried[-1]))
+    order = np.argsort(tried)
+    tried, crps = np.asarray(tried)[order], np.asarray(crps)[order]
+    return AmplitudeTuning(float(tried[int(np.argmin(crps))]), tried, crps)
