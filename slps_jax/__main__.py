@@ -112,9 +112,19 @@ def cache_dir():
 def use_compilation_cache(jax):
     """Keep every compiled program in the persistent cache (`cache_dir`): a second run of a
     command skips compilation, nearly all of a run's time. The library itself never does this;
-    the command line is an application."""
+    the command line is an application. A cache folder that cannot be made or written to (a
+    read-only home on a cluster) costs only the cache: one warning line, and the run goes on
+    without it. **Returns** the folder, or `None`."""
     path = cache_dir()
-    os.makedirs(path, exist_ok=True)
+    problem = _unwritable(path)
+    if problem:
+        print(
+            f"slps-jax: warning: no compilation cache ({path}: {problem}); set "
+            f"JAX_COMPILATION_CACHE_DIR to a writable folder, or pass --no-cache.",
+            file=sys.stderr,
+        )
+        jax.config.update("jax_enable_compilation_cache", False)  # (JAX reads the variable too)
+        return None
     jax.config.update("jax_compilation_cache_dir", path)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
@@ -133,18 +143,37 @@ slps-jax: structure-preserving integrators for stochastic Lie-Poisson systems.
 Everything runs in float64. Compiled programs are kept in JAX's persistent compilation
 cache: $JAX_COMPILATION_CACHE_DIR if set, else slps-jax/ in the user's cache folder
 ($XDG_CACHE_HOME, default ~/.cache), so a second run skips compilation; --no-cache turns
-it off. Add --help after a command for its options."""
+it off (a cache folder that cannot be written to costs a warning and the cache, not the
+run). Add --help after a command for its options."""
 
 
 def _unwritable(folder):
-    """Why `folder` cannot be made or written to, or `None` (it exists afterwards)."""
+    """Why `folder` cannot be made or written to, or `None` (it exists afterwards). Written
+    to, not only asked: permission bits do not tell (root is allowed everything, and a
+    read-only mount or /sys refuses writes all the same)."""
+    import tempfile
+
     try:
         os.makedirs(folder, exist_ok=True)
     except OSError as err:
         return f"cannot create the folder ({err.strerror or err})"
-    if not os.access(folder, os.W_OK):
-        return "the folder is not writable"
+    try:
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as err:
+        return f"cannot write into the folder ({err.strerror or err})"
     return None
+
+
+def _samples(text):
+    """`--samples`: an integer of at least 2 (the spread of an estimate needs two)."""
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer, got {text!r}") from None
+    if n < 2:
+        raise argparse.ArgumentTypeError(f"must be at least 2, got {n}")
+    return n
 
 
 def main(argv=None):
@@ -172,7 +201,7 @@ def main(argv=None):
     )
     p_sum.add_argument(
         "--samples",
-        type=int,
+        type=_samples,
         default=None,
         help="Brownian samples (default: 500, or 100 with --fast)",
     )
@@ -216,8 +245,6 @@ def main(argv=None):
         run(out_dir=out, fast=args.fast, seed=args.seed)
         return 0
     n = args.samples if args.samples is not None else (100 if args.fast else 500)
-    if n < 2:
-        parser.error("--samples must be at least 2")
     summary(n_samples=n, fast=args.fast, seed=args.seed)
     return 0
 

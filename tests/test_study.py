@@ -150,6 +150,38 @@ def test_paper_command_output_folders(monkeypatch, capsys, tmp_path):
     assert "$JAX_COMPILATION_CACHE_DIR" in text and "$XDG_CACHE_HOME" in text
 
 
+def test_an_unwritable_cache_or_output_folder_costs_one_line(monkeypatch, capsys, tmp_path):
+    """A cache folder that cannot be made (or written to: /sys refuses even root) is one
+    warning line and no cache, not a traceback; an output folder that cannot be written to is
+    a one-line error before any work; `--samples` below 2 is the subcommand's usage error."""
+    import jax
+
+    import slps_jax.__main__ as cli
+
+    (tmp_path / "a-file").write_text("")
+    folders = [str(tmp_path / "a-file" / "cache")]
+    if os.path.isdir("/sys/kernel"):
+        folders.append("/sys/kernel")
+    for folder in folders:
+        monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", folder)
+        monkeypatch.setattr(jax.config, "update", lambda name, value: updates.append((name, value)))
+        updates = []
+        assert cli.use_compilation_cache(jax) is None
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "warning: no compilation cache" in err, err
+        assert updates == [("jax_enable_compilation_cache", False)]  # (JAX reads the variable)
+        monkeypatch.undo()
+    if os.path.isdir("/sys/kernel"):
+        assert cli.main(["paper", "--fast", "--out", "/sys/kernel"]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "cannot write into the folder" in err, err
+    for bad in ("-5", "1", "x"):
+        with pytest.raises(SystemExit):
+            cli.main(["summary", "--samples", bad])
+        err = capsys.readouterr().err
+        assert "slps-jax summary: error: argument --samples" in err, err
+
+
 def test_the_command_line_keeps_compiled_programs_in_the_user_cache(tmp_path):
     """The persistent compilation cache goes to the user's cache folder ($XDG_CACHE_HOME)
     and is filled by what the command line compiles."""
