@@ -52,6 +52,11 @@ class SUnAlgebra(AbstractAlgebra):
         return self.project(2.0 * jnp.conj(g))
 
     def casimirs(self, y):
+        r"""$\operatorname{tr}W^k$, $k = 2, \dots, N$, real, over leading axes: the real part
+        for even $k$, the imaginary part for odd $k$ (the other part is zero). With the
+        eigenvalues $i\lambda_j$ of $W$, $\operatorname{tr}W^k = i^k\sum_j\lambda_j^k$: the
+        odd ones are odd moments of the vorticity, often near zero, so a drift is best
+        measured relative to $\sum_j|\lambda_j|^k$, not to the value itself."""
         y = jnp.asarray(y)
         out, p = [], y
         for k in range(2, self.n + 1):

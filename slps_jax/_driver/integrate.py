@@ -323,7 +323,9 @@ def integrate(
     throw=True,
     retry_substeps: int | None = 4,
 ):
-    r"""Integrate one path of $dy = f(y)(dt + c \circ dW)$ with the given increments.
+    r"""Integrate one path of a stochastic Lie–Poisson system,
+    $dy = [y, \nabla H_0]\,dt + \sum_r [y, \nabla H_r]\circ dW_r$ (with `c=`,
+    $dy = f(y)(dt + c\circ dW)$), with the given increments.
 
     Uses `dW` exactly as given (no truncation). Works under `jax.jit`, `jax.vmap` and
     `jax.grad` (with `throw=False`, or `throw=True`, which then raises through a callback).
@@ -332,7 +334,8 @@ def integrate(
 
     - `system`: a `RigidBody` or a `LiePoissonSystem`; its dtype is the computation's (`y0`,
       `dW` are cast to it).
-    - `y0`: initial value, shape `(3,)` (so(3)*), or a skew `(n, n)` matrix (`algebra=so(n)`).
+    - `y0`: initial value, shape `(3,)` (so(3)*), a skew `(n, n)` matrix (so(n)*), or a
+      traceless skew-Hermitian complex `(N, N)` matrix (su(N)*, `EulerZeitlin`).
     - `dW`: Brownian increments, shape `(n_steps, n_noises)` (one column per noise;
       `(n_steps,)` for a system with one noise).
     - `dt`: the step size.
@@ -410,7 +413,9 @@ def simulate(
     levy_area="auto",
     driver=None,
 ):
-    r"""Simulate an ensemble of paths of $dy = f(y)(dt + c \circ dW)$ on $[0, t_1]$.
+    r"""Simulate an ensemble of paths of a stochastic Lie–Poisson system on $[0, t_1]$,
+    $dy = [y, \nabla H_0]\,dt + \sum_r [y, \nabla H_r]\circ dW_r$ (with `c=`,
+    $dy = f(y)(dt + c\circ dW)$).
 
     Sample `i` draws its increments from `fold_in(key, i)` inside the time loop, truncated as
     $\Delta\hat W = \sqrt h\,\mathrm{clip}(\xi, \pm\sqrt{2k|\ln h|})$ (Milstein, Repin &
@@ -420,7 +425,8 @@ def simulate(
     **Arguments:**
 
     - `system`: a `RigidBody` or a `LiePoissonSystem`, whose dtype is the computation's;
-      `y0`: the initial value (`(3,)`, or `(n, n)` skew on so(n)), shared by all samples
+      `y0`: the initial value (`(3,)` on so(3)*, `(n, n)` skew on so(n)*, `(N, N)`
+      traceless skew-Hermitian complex on su(N)*), shared by all samples
       (cast to the system's dtype).
     - `t1`: final time, a multiple of `dt`; `dt`: step size.
     - `n_samples`: number of Brownian samples; `key`: a `jax.random.key` (a legacy
