@@ -66,6 +66,8 @@ def test_forecast_ensembles_are_simulate_per_start(model_world):
     assert one.shape == (1, 3, 2, w["N"], w["N"])
     with pytest.raises(ValueError, match="multiple"):
         sj.forecast_ensembles(system, w["starts"], **(kw | dict(every=3)))
+    with pytest.raises(ValueError, match="starts must be"):
+        sj.forecast_ensembles(system, w["starts"][0], **kw)
     loud = sj.EulerZeitlin(w["N"], noise=sj.scaled_noise(w["noise"], 1e3))
     with pytest.raises(RuntimeError):
         sj.forecast_ensembles(loud, w["starts"][:1], retry_substeps=None, **kw)

@@ -41,9 +41,10 @@ def forecast_ensembles(
     levy_area=False,
 ):
     r"""Each start's ensemble forecast, `(n_starts, members, lead // every, *state)`: the
-    states at `every, 2 every, ..., lead` steps of `dt` after the start, the same as
-    `simulate(system, starts[s], ..., key=fold_in(key, s))` gives (its increments, and Lévy
-    areas where `simulate` draws them), all starts run as one batched program.
+    states at `every, 2 every, ..., lead` steps of `dt` after the start, all starts run as
+    one batched program. With `levy_area="auto"` they are what
+    `simulate(system, starts[s], ..., key=fold_in(key, s))` gives (its increments and Lévy
+    areas); by default the same increments without the areas.
 
     - `system`: the stochastic system (for example `EulerZeitlin(N, noise=...)`).
     - `starts`: `(n_starts, *state)` initial states (the truth's, coarse-grained).
@@ -69,6 +70,11 @@ def forecast_ensembles(
     check_system(system)
     method = check_method(method, system)
     starts = jnp.asarray(starts)
+    if starts.ndim != len(system.algebra.shape) + 1 or starts.shape[1:] != system.algebra.shape:
+        raise ValueError(
+            f"forecast_ensembles: starts must be (n_starts, *{system.algebra.shape}), states of "
+            f"{system.algebra.name}, got shape {starts.shape}."
+        )
     dtype, s = system.dtype, system.n_noises
     if driver is None:
         areas = check_levy_option(levy_area, method, system)
