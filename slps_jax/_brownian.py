@@ -343,6 +343,15 @@ class BrownianPath:
         return cls(dt, bound, n_noises, substeps=rest[0] if rest else substeps, terms=terms)
 
 
+def _check_counts(n_steps, n_samples):
+    """`n_steps` a positive integer, `n_samples` `None` or one (the materialised paths')."""
+    for name, n in (("n_steps", n_steps), ("n_samples", n_samples)):
+        if name == "n_samples" and n is None:
+            continue
+        if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 1:
+            raise ValueError(f"{name} must be a positive integer, got {n!r}.")
+
+
 def brownian_increments(
     key, n_steps, dt, *, n_samples=None, truncate_k=4, dtype=None, n_noises=None, levy_area=False
 ):
@@ -377,11 +386,7 @@ def brownian_increments(
         raise TypeError(f"dt must be a positive number, got {dt!r}.") from None
     if not (math.isfinite(dt) and dt > 0):
         raise ValueError(f"dt must be positive and finite, got {dt}.")
-    for name, n in (("n_steps", n_steps), ("n_samples", n_samples)):
-        if name == "n_samples" and n is None:
-            continue
-        if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 1:
-            raise ValueError(f"{name} must be a positive integer, got {n!r}.")
+    _check_counts(n_steps, n_samples)
     if n_noises is not None and (
         isinstance(n_noises, (bool, np.bool_))
         or not isinstance(n_noises, (int, np.integer))
@@ -555,11 +560,7 @@ def ou_increments(key, n_steps, dt, correlation_time, *, n_samples=None, dtype=N
     **Returns:** `(n_steps, s)`, or `(n_samples, n_steps, s)`.
     """
     key = check_key(key)
-    for name, n in (("n_steps", n_steps), ("n_samples", n_samples)):
-        if name == "n_samples" and n is None:
-            continue
-        if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 1:
-            raise ValueError(f"{name} must be a positive integer, got {n!r}.")
+    _check_counts(n_steps, n_samples)
     dt = float(dt) if np.ndim(dt) == 0 and not isinstance(dt, (bool, str)) else math.nan
     if not (math.isfinite(dt) and dt > 0):
         raise ValueError(f"ou_increments: dt must be positive and finite, got {dt!r}.")
