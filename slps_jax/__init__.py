@@ -84,6 +84,12 @@ from ._studies.verification import tune_amplitude as tune_amplitude
 from ._support.solution import RESULTS as RESULTS
 from ._support.solution import Solution as Solution
 
+# Long runs on disk (needs zarr: pip install "slps-jax[store]")
+from ._support.store import Checkpoint as Checkpoint
+from ._support.store import RunStore as RunStore
+from ._support.store import StoredRun as StoredRun
+from ._support.store import open_run as open_run
+
 # Systems
 from ._systems.euler_zeitlin import EulerZeitlin as EulerZeitlin
 from ._systems.flow import deterministic_flow as deterministic_flow  # deprecated: drift_flow

@@ -525,3 +525,38 @@ def field(omega, theta, phi):
     a = jnp.einsum("...lm,lmt->...mt", wp, p)
     b = jnp.einsum("...lm,lmt->...mt", wm, p)
     return jnp.einsum("...mt,mp->...tp", a, cos) - jnp.einsum("...mt,mp->...tp", b, sin)
+
+
+# --- spectra by degree
+
+
+def _by_degree(W, weight):
+    r"""$\tfrac12\sum_m w_\ell\,\omega_{\ell m}^2$ for each degree $\ell < N$, `(..., N)`."""
+    W = jnp.asarray(W)
+    N = W.shape[-1]
+    omega = mat2shr(W).astype(jnp.finfo(W.dtype).dtype)  # (mat2shr may widen complex64)
+    degree = np.repeat(np.arange(N), 2 * np.arange(N) + 1)  # (the degree of index l^2 + l + m)
+    terms = jnp.moveaxis(0.5 * omega * omega * jnp.asarray(weight[degree], omega.dtype), -1, 0)
+    return jnp.moveaxis(jax.ops.segment_sum(terms, degree, num_segments=N), 0, -1)
+
+
+@jax.jit
+def enstrophy_spectrum(W):
+    r"""The enstrophy by degree, $Z_\ell = \tfrac12\sum_{m=-\ell}^{\ell}\omega_{\ell m}^2$,
+    $\ell = 0, \dots, N-1$, `(..., N)` for `(..., N, N)` matrices ($\omega = $ `mat2shr(W)`):
+    $\sum_\ell Z_\ell = $ `enstrophy(W)`. The tables are `mat2shr`'s ($N^3$ numbers)."""
+    N = W.shape[-1]
+    return _by_degree(W, np.ones(N))
+
+
+@jax.jit
+def energy_spectrum(W):
+    r"""The energy by degree, $E_\ell = \tfrac12\sum_{m=-\ell}^{\ell}\omega_{\ell m}^2 /
+    (\ell(\ell+1))$, $\ell = 0, \dots, N-1$ ($E_0 = 0$), `(..., N)` for `(..., N, N)`
+    matrices: $\sum_\ell E_\ell = $ `energy(W)` and $E_\ell = Z_\ell/(\ell(\ell+1))$
+    (`enstrophy_spectrum`). quflow's `analysis.energy_spectrum` is $2E_\ell$ for
+    $\ell = 1, \dots, N-1$ (no $\tfrac12$, no $\ell = 0$). The tables are `mat2shr`'s
+    ($N^3$ numbers)."""
+    N = W.shape[-1]
+    el = np.arange(N)
+    return _by_degree(W, np.divide(1.0, el * (el + 1.0), out=np.zeros(N), where=el > 0))
