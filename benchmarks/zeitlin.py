@@ -304,7 +304,7 @@ def scale(ns, dtypes, budget_s, members, member_ns, write):
                     throw=False,
                 )
                 row["updates"] = float(sol.stats["newton_iterations_mean"])
-                final = 2 if sj.IsospectralMidpoint()._cayley(dtype) else 1
+                final = 2 if sj.IsospectralMidpoint()._cayley(system, dtype) else 1
                 row["products"] = 2 * row["updates"] + final
                 unit = min(row["two_products_ms"], row["two_complex_products_ms"])
                 row["floor_ms"] = row["products"] / 2 * unit
@@ -323,6 +323,150 @@ def scale(ns, dtypes, budget_s, members, member_ns, write):
                 flush=True,
             )
     return rows
+
+
+# The fixed point's options measured by `economy`: the default and what it trades.
+ECONOMY = {
+    "default": dict(),
+    "default, cold start": dict(warm_start=0),
+    "explicit, rtol 2^-26": dict(final_update="explicit"),
+    "explicit, round-off": dict(rtol=0.0, final_update="explicit"),
+    "explicit, tol 1e-13": dict(tol=1e-13, final_update="explicit"),
+}
+
+
+def _casimir_drift(w0, w1):
+    """The largest relative change of tr W^2 ... tr W^6 (complex128 arithmetic)."""
+    w0, w1 = np.asarray(w0, np.complex128), np.asarray(w1, np.complex128)
+    powers0, powers1, out = w0, w1, 0.0
+    for _ in range(2, 7):
+        powers0, powers1 = powers0 @ w0, powers1 @ w1
+        c0, c1 = np.trace(powers0), np.trace(powers1)
+        out = max(out, abs(c1 - c0) / abs(c0))
+    return out
+
+
+def _quflow_run(w0, h, n_steps, **options):
+    """quflow's `isomp` on one state over `n_steps` steps: ms per step (median of 3 runs
+    after one that compiles Numba's kernels), its updates per step, the share of steps it
+    left at its `maxit`, and the final state."""
+    qf.isomp(np.array(w0), h, steps=1, **options)
+    times = []
+    for _ in range(3):
+        w = np.array(w0)
+        start = time.perf_counter()
+        qf.isomp(w, h, steps=n_steps, **options)
+        times.append(time.perf_counter() - start)
+    stats = {"iterations": 0}  # (quflow fills a non-empty dict only)
+    w = np.array(w0)
+    qf.isomp(w, h, steps=n_steps, stats=stats, **options)
+    return (
+        1e3 * float(np.median(times)) / n_steps,
+        stats["iterations"],
+        stats.get("number_of_maxit"),
+        w,
+    )
+
+
+def economy(ns, dtypes, n_steps, write, options=None, members=0, member_ns=()):
+    """The fixed point's economy: one state, `n_steps` steps of h = 0.64/N s from the smooth
+    state, for each of `options` (default `ECONOMY`) of `IsospectralMidpoint`: ms per step
+    (`simulate` with `newton_stats`, median of >= 3 calls after the first; compile time: the
+    first call's excess), updates per step and the share of steps at `max_iter`, and the
+    Casimirs' largest relative drift over the run. Beside them (complex128, CPU, where quflow is installed)
+    quflow's `isomp` over the same steps at its defaults (tolerance
+    `sqrt(eps) (h/hbar) |W|_inf`, at most 10 updates, warm start) and at tol 1e-13 (at most
+    100 updates), and each row's time as a ratio to both. With `members`, at each N of
+    `member_ns` also the default for an ensemble of that many states (the smooth state
+    scaled by 1 + 0.01 i), in ms per member-step, with the drift of its first member."""
+    options = ECONOMY if options is None else options
+    rows = []
+    for N in ns:
+        h = 0.64 / N
+        for dtype in dtypes:
+            w0 = initial(N).astype(dtype)
+            real = jnp.finfo(dtype).dtype
+            system = sj.EulerZeitlin(N, dtype=dtype)
+            quflow = {}
+            if qf is not None and dtype == jnp.complex128 and jax.default_backend() == "cpu":
+                for name, kw in (("default", {}), ("1e-13", dict(tol=1e-13, maxit=100))):
+                    quflow[name] = _quflow_run(w0, h, n_steps, **kw)
+                    ms, its, maxit, w = quflow[name]
+                    rows.append(
+                        dict(
+                            N=N,
+                            dtype=jnp.dtype(dtype).name,
+                            option=f"quflow isomp, {name}",
+                            ms_per_step=ms,
+                            compile_s=None,
+                            updates=its,
+                            max_iter_share=maxit,
+                            casimir_drift=_casimir_drift(w0, w),
+                        )
+                    )
+            for name, kw in options.items():
+                method = sj.IsospectralMidpoint(**kw)
+                run = lambda m=method: sj.simulate(
+                    system,
+                    w0,
+                    t1=n_steps * h,
+                    dt=h,
+                    n_samples=1,
+                    key=jax.random.key(0),
+                    method=m,
+                    newton_stats=True,
+                    throw=False,
+                )
+                start = time.perf_counter()
+                jax.block_until_ready(run())
+                first = time.perf_counter() - start
+                med, _, _, sol = _common.time_call(run, repeats=3, warmup=False)
+                row = dict(
+                    N=N,
+                    dtype=jnp.dtype(dtype).name,
+                    option=name,
+                    ms_per_step=1e3 * med / n_steps,
+                    compile_s=first - med,
+                    updates=float(sol.stats["newton_iterations_mean"]),
+                    max_iter_share=float(sol.stats["max_iter_share"]),
+                    casimir_drift=_casimir_drift(w0, sol.ys[0, -1]),
+                )
+                for q, (ms, _, _, _) in quflow.items():
+                    row[f"vs_quflow_{q}"] = row["ms_per_step"] / ms
+                rows.append(row)
+                write(rows)
+                _print(row)
+            if N in member_ns and members:
+                ws = jnp.asarray(1.0 + 0.01 * np.arange(members), real)[:, None, None] * w0
+                dWs = jnp.zeros((members, n_steps, 1), real)
+                fn = jax.vmap(
+                    lambda s, w, d: sj.integrate(
+                        s, w, d, h, method=sj.IsospectralMidpoint(), throw=False
+                    ),
+                    in_axes=(None, 0, 0),
+                )
+                compiled, compile_s = _common.compile_timed(fn, system, ws, dWs)
+                med, _, _, w = _common.time_call(compiled, system, ws, dWs, repeats=3)
+                rows.append(
+                    dict(
+                        N=N,
+                        dtype=jnp.dtype(dtype).name,
+                        option=f"default, ensemble of {members} (per member-step)",
+                        ms_per_step=1e3 * med / (n_steps * members),
+                        compile_s=compile_s,
+                        casimir_drift=_casimir_drift(ws[0], w[0]),  # (final states)
+                    )
+                )
+                write(rows)
+                _print(rows[-1])
+    return rows
+
+
+def _print(row):
+    print(
+        "  ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items()),
+        flush=True,
+    )
 
 
 def breakdown(N, members, big_N, write):
@@ -545,6 +689,17 @@ def main(argv=None):
         help="only where an ensemble step's time goes (N = 512, 64 members; one state at "
         "N = 2048; with --fast 8, 4 and 16) into zeitlin_breakdown.*",
     )
+    p.add_argument(
+        "--economy",
+        action="store_true",
+        help="only the fixed point's economy: one state, 32 steps, each option of "
+        "IsospectralMidpoint beside quflow (N = 64, 128, 256; with --gpu 256 ... 2048 in "
+        "complex128 and complex64; --sizes to choose), into zeitlin_economy.*",
+    )
+    p.add_argument(
+        "--options",
+        help="with --economy: a comma-separated subset of its options (default: all)",
+    )
     args = p.parse_args(argv)
     os.makedirs(args.out, exist_ok=True)
     info = _common.machine_info()
@@ -573,6 +728,57 @@ def main(argv=None):
 
         with jax.default_matmul_precision("highest"):
             breakdown(*((8, 4, 16) if args.fast else (512, 64, 2048)), write=write_breakdown)
+        return
+    if args.economy:
+        ns = (8,) if args.fast else (256, 512, 1024, 2048) if args.gpu else (64, 128, 256)
+        ns = tuple(args.sizes) if args.sizes else ns
+        device = _common.device_name(info)
+
+        def write_economy(rows):
+            _common.write_json(
+                os.path.join(args.out, "zeitlin_economy.json"), dict(machine=info, rows=rows)
+            )
+            cols = [
+                "N",
+                "dtype",
+                "option",
+                "ms_per_step",
+                "vs_quflow_default",
+                "vs_quflow_1e-13",
+                "updates",
+                "max_iter_share",
+                "casimir_drift",
+                "compile_s",
+            ]
+            with open(os.path.join(args.out, "zeitlin_economy.md"), "w") as fh:
+                fh.write(
+                    f"Measured on {device}, jax {info['jax']}, quflow {info['quflow']}, "
+                    f"{info['date'][:10]}; one state, 32 steps of h = 0.64/N s.\n\n"
+                )
+                fh.write(
+                    _common.markdown_table(
+                        [{k: r.get(k) for k in cols} for r in rows],
+                        cols,
+                        {k: ".3g" for k in cols[3:]},
+                    )
+                )
+
+        with jax.default_matmul_precision("highest"):
+            economy(
+                ns,
+                (jnp.complex128, jnp.complex64) if args.gpu else (jnp.complex128,),
+                8 if args.fast else 32,
+                write_economy,
+                # (on a GPU without the comparison at 1e-13, which is quflow's, on a CPU)
+                options={
+                    k: v
+                    for k, v in ECONOMY.items()
+                    if (k in args.options.split(",") if args.options else True)
+                    and not (args.gpu and "1e-13" in k)
+                },
+                members=4 if args.fast else 64 if args.gpu else 0,
+                member_ns=ns[:1] if args.fast else (512,),
+            )
         return
     if args.scale:
         ns = (8,) if args.fast else (64, 128, 256, 512, 1024, 2048) if args.gpu else (64, 128, 256)

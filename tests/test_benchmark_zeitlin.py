@@ -62,3 +62,27 @@ def test_zeitlin_breakdown(tmp_path):
     rows = json.loads((tmp_path / "zeitlin_breakdown.json").read_text())["rows"]
     assert len(rows) == 2 * (3 + 4) + 4
     assert all(r["ms"] > 0 for r in rows)
+
+
+def test_zeitlin_economy(tmp_path):
+    """`--economy` (cut to N = 8, 8 steps): every option of the fixed point is timed with its
+    updates per step, and the default for an ensemble of 4; the default and the solves to
+    round-off keep the Casimirs to 1e-13, and the warm start takes fewer updates than the
+    cold one."""
+    run_script("zeitlin.py", tmp_path, "--economy")
+    rows = json.loads((tmp_path / "zeitlin_economy.json").read_text())["rows"]
+    ours = {r["option"]: r for r in rows if r.get("updates") is not None}
+    ours = {k: r for k, r in ours.items() if not k.startswith("quflow")}
+    ensemble = [r for r in rows if "ensemble of 4" in r["option"]]
+    assert len(ensemble) == 1 and ensemble[0]["casimir_drift"] < 1e-13
+    assert set(ours) == {
+        "default",
+        "default, cold start",
+        "explicit, rtol 2^-26",
+        "explicit, round-off",
+        "explicit, tol 1e-13",
+    }
+    assert all(r["ms_per_step"] > 0 and r["updates"] >= 1 for r in ours.values())
+    for name in ("default", "default, cold start", "explicit, round-off"):
+        assert ours[name]["casimir_drift"] < 1e-13, name
+    assert ours["default"]["updates"] < ours["default, cold start"]["updates"]

@@ -406,8 +406,10 @@ def test_conversions_of_the_low_degrees_alone_agree_with_the_full_ones():
 
 def test_final_updates_agree_at_the_root_and_the_default_follows_the_precision():
     """The explicit final update W_n + 2[A, X] and the Cayley rotation Q W_n Q^H agree to the
-    solver's tolerance in complex128 (one noisy step at N = 16); the default is explicit in
-    double precision and the Cayley rotation in single; a bad value is refused."""
+    solver's tolerance in complex128 (one noisy step at N = 16: sqrt(eps) of the increment
+    by default, round-off with rtol = 0); the default is the Cayley rotation wherever the
+    solve stops short of round-off (the default rtol, and single precision), the explicit
+    update where it does not; a bad value is refused."""
     N = 16
     X = 0.2 * z.shr2mat(np.eye(N * N)[[1, 2, 3]], N)
     w0 = z.shr2mat(np.concatenate([[0.0], np.random.default_rng(3).normal(size=24)]), N)
@@ -419,10 +421,28 @@ def test_final_updates_agree_at_the_root_and_the_default_follows_the_precision()
         )
         for f in ("explicit", "cayley", "auto")
     }
-    assert 0 < float(jnp.max(jnp.abs(y["explicit"] - y["cayley"]))) < 1e-12
-    np.testing.assert_array_equal(y["auto"], y["explicit"])
+    # (the same root to rtol = sqrt(eps) of the increment: the two updates differ by about
+    # that times the increment)
+    assert 0 < float(jnp.max(jnp.abs(y["explicit"] - y["cayley"]))) < 1e-9
+    np.testing.assert_array_equal(y["auto"], y["cayley"])
+    exact = {
+        f: sj.integrate(
+            model,
+            w0,
+            dW,
+            0.01,
+            levy_area=A,
+            method=sj.IsospectralMidpoint(rtol=0.0, final_update=f),
+        )
+        for f in ("explicit", "cayley", "auto")
+    }
+    # solved to round-off, the default is the explicit update, and agrees with the rotation
+    np.testing.assert_array_equal(exact["auto"], exact["explicit"])
+    assert float(jnp.max(jnp.abs(exact["explicit"] - exact["cayley"]))) < 1e-13
     method = sj.IsospectralMidpoint()
-    assert method._cayley(jnp.complex64) and not method._cayley(jnp.complex128)
+    system = sj.EulerZeitlin(4)
+    assert method._cayley(system, jnp.complex64) and method._cayley(system, jnp.complex128)
+    assert not sj.IsospectralMidpoint(rtol=0.0)._cayley(system, jnp.complex128)
     with pytest.raises(ValueError, match="final_update"):
         sj.IsospectralMidpoint(final_update="exact")
 

@@ -26,7 +26,7 @@ from .._support.deprecated import renamed_arguments
 from .._support.solution import RESULTS, Solution
 from .failures import report
 from .plan import check_levy_area, check_method, check_system, check_y0, plan_ensemble
-from .retry import robust_step
+from .retry import robust_step, step_with_history
 from .sharding import as_given, automatic, sharded_keys
 
 
@@ -57,29 +57,46 @@ def _step(method, system, dt, carry, dW, live, *, want_stats, retry):
     jaxpr once. Tracing LiePoisson's solver takes over a second
     (thousands of scalar operations); XLA inlines the call, so the compiled loop is unchanged.
     """
-    y, result, fail_step, n, n_retried, acc = carry
+    y, result, fail_step, n, n_retried, acc, history = carry
     dtype = real_dtype(y.dtype)
     live = jnp.asarray(live)  # (a Python bool under jax.disable_jit)
     act = (result == RESULTS.successful) & live
     if retry is None or not method.can_fail:
         # A failed sample idles at its last good state: with dt = dW = 0 every method's
         # step is trivial, so it costs no Newton iterations.
-        y_new, info = method.step(
-            system, y, jnp.where(act, dt, 0.0).astype(dtype), _brownian.where(act, dW)
+        y_new, info = step_with_history(
+            method,
+            system,
+            y,
+            jnp.where(act, dt, 0.0).astype(dtype),
+            _brownian.where(act, dW),
+            history,
         )
         code = finite_result(y_new, info.result)
         it = jnp.where(act, info.iterations, 0)
         res = jnp.where(act & (code == RESULTS.successful), info.residual, 0.0)
+        first, new_history = info.result, info.history
     else:
-        y_new, code, it, res, retried = robust_step(method, system, y, dt, dW, act, retry)
+        y_new, code, it, res, retried, first, new_history = robust_step(
+            method, system, y, dt, dW, act, retry, history
+        )
         n_retried = n_retried + retried.astype(jnp.int32)
     ok = code == RESULTS.successful
     fail_step = jnp.where(act & ~ok, n, fail_step)
     result = jnp.where(act & ~ok, code, result)
-    if want_stats:
-        acc = (acc[0] + it, jnp.maximum(acc[1], it), jnp.maximum(acc[2], res))
+    if want_stats:  # (updates, most updates, largest residual, steps that used max_iter)
+        at_max = act & (first == RESULTS.max_iterations_reached)
+        acc = (
+            acc[0] + it,
+            jnp.maximum(acc[1], it),
+            jnp.maximum(acc[2], res),
+            acc[3] + at_max.astype(jnp.int32),
+        )
     y = jnp.where(act & ok, y_new, y)
-    return y, result, fail_step, n + live.astype(n.dtype), n_retried, acc
+    history = jax.tree_util.tree_map(
+        lambda new, old: jnp.where(act & ok, new, old), new_history, history
+    )
+    return y, result, fail_step, n + live.astype(n.dtype), n_retried, acc, history
 
 
 def _path(method, system, y0, dt, draw, n_blocks, block_len, want_stats, retry=None, like=()):
@@ -100,22 +117,24 @@ def _path(method, system, y0, dt, draw, n_blocks, block_len, want_stats, retry=N
     max)` or `()`.
     """
     zero = jnp.zeros((), real_dtype(y0.dtype))
-    acc0 = (zero, jnp.zeros((), jnp.int32), zero) if want_stats else ()
+    zero_i = jnp.zeros((), jnp.int32)
+    acc0 = (zero, zero_i, zero, zero_i) if want_stats else ()
     if method.flow_in_time is not None:
         return _time_change_path(method, system, y0, dt, draw, n_blocks, block_len, acc0, like)
     # (the step counter stays unbatched: every sample is at the same step)
-    y0, result0, fail0, n_retried0, acc0 = batched_like(
+    y0, result0, fail0, n_retried0, acc0, history0 = batched_like(
         (
             y0,
             jnp.array(RESULTS.successful, jnp.int32),
             jnp.array(-1, jnp.int32),
             jnp.array(0, jnp.int32),
             acc0,
+            method.initial_history(system, y0),
         ),
         like,
     )
     state0, draw_block = _draws(draw)
-    carry0 = ((y0, result0, fail0, jnp.array(0, jnp.int32), n_retried0, acc0), state0)
+    carry0 = ((y0, result0, fail0, jnp.array(0, jnp.int32), n_retried0, acc0, history0), state0)
 
     def steps(carry, length, n_live):
         # `length` (a Python int) slots from the carry's step counter, the first `n_live`
@@ -146,7 +165,7 @@ def _path(method, system, y0, dt, draw, n_blocks, block_len, want_stats, retry=N
         carry = _checkpointed_loop(steps, block_len, carry)
         return carry, carry[0][0]
 
-    ((_, result, fail_step, _, n_retried, acc), _), ys = jax.lax.scan(
+    ((_, result, fail_step, _, n_retried, acc, _), _), ys = jax.lax.scan(
         block, carry0, None, length=n_blocks
     )
     return ys, fail_step, result, n_retried, acc
@@ -530,4 +549,5 @@ def _solution(
         stats["newton_iterations_mean"] = jnp.sum(acc[0]) / (fail_step.shape[0] * n_steps)
         stats["newton_iterations_max"] = jnp.max(acc[1])
         stats["residual_max"] = jnp.max(acc[2])
+        stats["max_iter_share"] = jnp.sum(acc[3]) / (fail_step.shape[0] * n_steps)
     return Solution(ts=ts, ys=ys, result=result.astype(jnp.int8), fail_step=fail_step, stats=stats)

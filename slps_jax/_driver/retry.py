@@ -44,39 +44,60 @@ from .._systems.system import differentiable_leaves
 RETRY_LEVELS = 3
 
 
-def _attempts(method, system, y, dt, dW, act, k, m0, jacobians=False):
-    """Step `y` by `(dt, dW)` where `act`, as `m0` substeps; on failure as `k` times as many,
-    up to `k^RETRY_LEVELS`.
+def step_with_history(method, system, y, dt, dW, history):
+    """`method.step`, given the method's `history` where it keeps one
+    (`AbstractMethod.initial_history`)."""
+    if not jax.tree_util.tree_leaves(history):
+        return method.step(system, y, dt, dW)
+    return method.step(system, y, dt, dW, history=history)
 
-    **Returns:** `(y_next, code, iterations, residual, retried, J)`: `code` the `RESULTS`
-    code of the last failure if every attempt failed; the iterations of every attempt; the
-    largest residual of a successful substep; `retried`: the first attempt failed. With
-    `jacobians`, `J` is the derivative of the substeps that succeeded with respect to
-    `(y, dt, dW, the system's inexact leaves)`, as matrices with the state flattened (see
-    `_jacobian_tools`); else `()`.
+
+def _attempts(method, system, y, dt, dW, act, k, m0, history=(), jacobians=False):
+    """Step `y` by `(dt, dW)` where `act`, as `m0` substeps; on failure as `k` times as many,
+    up to `k^RETRY_LEVELS`. The method's `history` serves the first attempt of one step
+    (`m0 = 1`); substeps start without it.
+
+    **Returns:** `(y_next, code, iterations, residual, retried, first, history, J)`: `code`
+    the `RESULTS` code of the last failure if every attempt failed; the iterations of every
+    attempt; the largest residual of a successful substep; `retried`: the first attempt
+    failed; `first`: the first attempt's code; `history` the method's after the step, reset
+    (`initial_history`) where it was retried. With `jacobians`, `J` is the derivative of the
+    substeps that succeeded with respect to `(y, dt, dW, the system's inexact leaves)`, as
+    matrices with the state flattened (see `_jacobian_tools`); else `()`.
     """
     dtype = real_dtype(y.dtype)
     m_max = k**RETRY_LEVELS
     zero_i = jnp.zeros((), jnp.int32)
+    cold = method.initial_history(system, y)
     substep, j0, chain = (
         _jacobian_tools(method, system, y, dW)
         if jacobians
-        else (lambda ys, h, w: (*method.step(system, ys, h, w), ()), (), None)
+        else (
+            lambda ys, h, w, hist: (*step_with_history(method, system, ys, h, w, hist), ()),
+            (),
+            None,
+        )
     )
 
     def body(s):
-        i, m, yc, code, its, res, going, jac = s
+        i, m, yc, code, its, res, going, jac, first, hist = s
         mf = m.astype(dtype)
+        once = (m == 1) & (i == 0)  # the step itself, not a substep
         # (dt/m, dW/m, A/m): the step's noise split evenly (`_brownian.scale`)
         y2, info, d = substep(
             yc,
             jnp.where(going, dt / mf, 0.0).astype(dtype),
             _brownian.where(going, _brownian.scale(dW, 1.0 / mf)),
+            jax.tree_util.tree_map(lambda a, b: jnp.where(once, a, b), history, cold),
         )
         c2 = finite_result(y2, info.result)
         ok = going & (c2 == RESULTS.successful)
         fail = going & ~ok
         refine = fail & (m < m_max)
+        first = jnp.where(once & going, c2, first)
+        hist = jax.tree_util.tree_map(
+            lambda new, old: jnp.where(once & ok, new, old), info.history, hist
+        )
         its = its + jnp.where(going, info.iterations, 0)
         res = jnp.maximum(res, jnp.where(ok, info.residual, 0.0).astype(dtype))
         i = jnp.where(ok, i + 1, jnp.where(refine, 0, i))
@@ -92,7 +113,7 @@ def _attempts(method, system, y, dt, dW, act, k, m0, jacobians=False):
         m = jnp.where(refine, m * k, m)
         code = jnp.where(fail & ~refine, c2, code)
         going = going & ~(fail & ~refine) & (i < m)
-        return i, m, yc, code, its, res, going, jac
+        return i, m, yc, code, its, res, going, jac, first, hist
 
     init = batched_like(
         (
@@ -104,12 +125,16 @@ def _attempts(method, system, y, dt, dW, act, k, m0, jacobians=False):
             jnp.zeros((), dtype),
             jnp.asarray(act),
             j0,
+            jnp.asarray(RESULTS.successful, jnp.int32),
+            cold,
         ),
-        (y, act),
+        (y, act, history),
     )
-    _, m, y_next, code, its, res, _, jac = jax.lax.while_loop(lambda s: s[-2], body, init)
+    _, m, y_next, code, its, res, _, jac, first, hist = jax.lax.while_loop(
+        lambda s: s[6], body, init
+    )
     retried = act & ((m > m0) | (code != RESULTS.successful))
-    return y_next, code, its, res, retried, jac
+    return y_next, code, its, res, retried, first, hist, jac
 
 
 def _real(x):
@@ -147,7 +172,7 @@ def _jacobian_tools(method, system, y, dW):
         y2, info = method.step(treedef.unflatten(full), _unreal(yr, y), h, unravel(w))
         return _real(y2), (y2, info)
 
-    def substep(ys, h, w):
+    def substep(ys, h, w, history=()):  # (substeps start without the method's history)
         (a, b, c, e), (y2, info) = jax.jacfwd(step, argnums=(0, 1, 2, 3), has_aux=True)(
             _real(ys), h, ravel_pytree(w)[0], [_real(p) for p in p0]
         )
@@ -175,20 +200,22 @@ def _jacobian_tools(method, system, y, dW):
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0, 6))
-def robust_step(method, system, y, dt, dW, act, k):
+def robust_step(method, system, y, dt, dW, act, k, history=()):
     """One step of one sample where `act`, redone as `k, k^2, k^3` substeps if it fails.
-    **Returns** `(y_next, code, iterations, residual, retried)` (see `_attempts`)."""
-    return _attempts(method, system, y, dt, dW, act, k, 1)[:5]
+    **Returns** `(y_next, code, iterations, residual, retried, first, history)` (see
+    `_attempts`). The method's history is data, not a variable: no derivative flows through
+    it (it only starts an iteration whose root does not depend on the start)."""
+    return _attempts(method, system, y, dt, dW, act, k, 1, history)[:7]
 
 
 @robust_step.defjvp
 def _robust_step_jvp(method, k, primals, tangents):
-    system, y, dt, dW, act = primals
-    t_model, t_y, t_dt, t_dW, _ = tangents
+    system, y, dt, dW, act, history = primals
+    t_model, t_y, t_dt, t_dW, _, _ = tangents
     dtype = real_dtype(y.dtype)
     h, w = jnp.where(act, dt, 0.0).astype(dtype), _brownian.where(act, dW)
     (y1, info), (t_y1, _) = jax.jvp(
-        lambda mdl, ys, h, w: method.step(mdl, ys, h, w),
+        lambda mdl, ys, h, w: step_with_history(method, mdl, ys, h, w, history),
         (system, y, h, w),
         (t_model, t_y, jnp.where(act, t_dt, 0.0), _brownian.where(act, t_dW)),
     )
@@ -196,7 +223,7 @@ def _robust_step_jvp(method, k, primals, tangents):
     need = act & (code1 != RESULTS.successful)
     # Retried samples: the attempts again (a loop that runs only while some sample of the
     # batch needs it), now with the Jacobians of the substeps that succeed.
-    y2, code2, its2, res2, _, jacobians = _attempts(
+    y2, code2, its2, res2, _, _, _, jacobians = _attempts(
         method, system, y, dt, dW, need, k, k, jacobians=True
     )
     jy, jdt, jdw, jp = cast(tuple, jacobians)
@@ -205,23 +232,31 @@ def _robust_step_jvp(method, k, primals, tangents):
     for i, j in zip(idx, jp):
         t_re = t_re + j @ _real(leaves[i]).astype(dtype)
     y_next = jnp.where(need, y2, y1)
+    cold = method.initial_history(system, y)
     out = (
         y_next,
         jnp.where(need, code2, code1),
         jnp.where(act, info.iterations, 0) + its2,
         jnp.where(need, res2, jnp.where(act, info.residual, 0.0)).astype(dtype),
         need,
+        jnp.where(act, code1, RESULTS.successful).astype(jnp.int32),
+        jax.tree_util.tree_map(
+            lambda new, old, c: jnp.where(need, c, jnp.where(act, new, old)),
+            info.history,
+            history,
+            cold,
+        ),
     )
     return out, _zero_tangents(out, jnp.where(need, _unreal(t_re, y), t_y1))
 
 
 def _zero_tangents(out, t_y):
-    y_next, code, its, res, retried = out
-    f0 = jax.dtypes.float0
-    return (
-        t_y,
-        jnp.zeros(code.shape, f0),
-        jnp.zeros(its.shape, f0),
-        jnp.zeros_like(res),
-        jnp.zeros(retried.shape, f0),
-    )
+    """The tangents of `robust_step`'s outputs: `t_y` for the state, zero for the rest."""
+
+    def zero(x):
+        x = jnp.asarray(x)
+        if jnp.issubdtype(x.dtype, jnp.inexact):
+            return jnp.zeros_like(x)
+        return jnp.zeros(x.shape, jax.dtypes.float0)
+
+    return (t_y, *jax.tree_util.tree_map(zero, out[1:]))

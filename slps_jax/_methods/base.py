@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -17,11 +17,14 @@ class StepInfo(NamedTuple):
     - `result`: a `RESULTS` code: `successful`, or why the step failed.
     - `iterations`: Newton updates used (0 for explicit methods).
     - `residual`: max-norm of the final residual (0 for explicit methods).
+    - `history`: what the method keeps for the next step (`AbstractMethod.initial_history`),
+      updated by this one; `()` for methods that keep nothing.
     """
 
     result: jax.Array
     iterations: jax.Array
     residual: jax.Array
+    history: Any = ()
 
     @property
     def ok(self):
@@ -110,6 +113,15 @@ class AbstractMethod:
         """
         raise NotImplementedError
 
+    def initial_history(self, system, y0):
+        """What the method keeps from one step to the next before the first step (a pytree
+        of arrays: `IsospectralMidpoint`'s earlier increments, its fixed point's warm start),
+        or `()` (default) for a method that keeps nothing. A method that keeps something takes
+        it as `step(..., history=...)` and returns it updated in `StepInfo.history`; the
+        driver carries it per sample, over live steps only, so that paths do not depend on
+        the loop's layout."""
+        return ()
+
     def check_initial(self, system, y0):
         """Raise `ValueError` if the concrete initial value `y0` (NumPy, of the state's shape) is outside
         the method's domain."""
@@ -121,8 +133,10 @@ def explicit_info(y):
 
 
 def finite_result(y, result: jax.Array | int = RESULTS.successful):
-    """`result`, or `RESULTS.nonfinite` where `y` has a non-finite entry."""
-    return jnp.where(jnp.all(jnp.isfinite(y)), result, RESULTS.nonfinite).astype(jnp.int32)
+    """`result`, or `RESULTS.nonfinite` where it is `successful` but `y` has a non-finite
+    entry (a step that failed keeps the reason it gave)."""
+    bad = (result == RESULTS.successful) & ~jnp.all(jnp.isfinite(y))
+    return jnp.where(bad, RESULTS.nonfinite, result).astype(jnp.int32)
 
 
 def default_tol(dtype):

@@ -17,7 +17,7 @@ TRIPLE_JUMP = (GAMMA1, GAMMA0, GAMMA1)
 def combine(infos):
     """One `StepInfo` for consecutive solves: the first failure's result (successful if
     none failed), iterations summed, worst residual."""
-    result, iterations, residual = infos[0]
+    result, iterations, residual = infos[0][:3]
     for info in infos[1:]:
         result = jnp.where(result == RESULTS.successful, info.result, result)
         iterations = iterations + info.iterations

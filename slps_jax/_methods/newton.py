@@ -230,8 +230,11 @@ def implicit_root(residual, solve, safe):
             if array
             else tuple(jnp.where(ok, xi, si) for xi, si in zip(x, safe))
         )
-        # custom_root wants floating auxiliary outputs; integers and flags travel as floats
-        return unvec(x), tuple(jnp.asarray(t, dtype) for t in (ok, *aux))
+        # custom_root wants inexact auxiliary outputs; integers and flags travel as floats
+        return unvec(x), tuple(
+            t if jnp.issubdtype(jnp.result_type(t), jnp.inexact) else jnp.asarray(t, dtype)
+            for t in (ok, *aux)
+        )
 
     def tangent_solve(g, b):
         # g is f linearised at the root: its Jacobian, materialised, in a linear solve. Only

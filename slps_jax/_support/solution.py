@@ -20,6 +20,7 @@ class RESULTS:
     nonfinite = 2  # a non-finite residual or state
     off_branch = 3  # a Newton iterate left the admissible branch of roots
     outside_domain = 4  # the state left the method's domain (for example |y| >= 1)
+    stalled = 5  # a fixed-point iteration stopped converging before its tolerance
 
     _messages = {
         0: "successful",
@@ -28,6 +29,8 @@ class RESULTS:
         3: "a Newton iterate left the admissible branch of roots (theta < pi/2)",
         4: "the state is outside the method's domain (|y| >= 1 for the generating-function "
         "methods)",
+        5: "the fixed-point iteration's corrections stopped decreasing before reaching its "
+        "tolerance (the step is too large for it)",
     }
 
     @classmethod
@@ -55,8 +58,10 @@ class Solution:
       samples that did not fail, for leaving the others out (`sol.ys[sol.ok]`).
     - `fail_step`: index of the step at which each sample failed, `-1` if it did not.
     - `stats`: a dict; `n_failed` always; with `newton_stats=True` also
-      `newton_iterations_max`, `newton_iterations_mean` (per sample-step) and `residual_max`
-      (largest final Newton residual of any successful step); unless `retry_substeps=None`
+      `newton_iterations_max`, `newton_iterations_mean` (updates per sample-step),
+      `residual_max` (largest final Newton residual of any successful step) and
+      `max_iter_share` (the share of sample-steps whose solve used its `max_iter` updates
+      without converging; such a step fails, and is redone as substeps); unless `retry_substeps=None`
       also `n_retried_steps` (steps redone as substeps, over all samples).
     """
 
