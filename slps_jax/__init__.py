@@ -38,6 +38,7 @@ from ._brownian import ou_increments as ou_increments
 # Driver
 from ._driver.integrate import integrate as integrate
 from ._driver.integrate import simulate as simulate
+from ._driver.long_run import simulate_to_store as simulate_to_store
 from ._driver.plan import default_method as default_method
 from ._driver.stream import EnsembleStatistics as EnsembleStatistics
 from ._driver.stream import ensemble_statistics as ensemble_statistics

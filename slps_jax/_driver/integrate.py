@@ -116,25 +116,50 @@ def _path(method, system, y0, dt, draw, n_blocks, block_len, want_stats, retry=N
     of retried steps, and the Newton statistics `(iterations sum, iterations max, residual
     max)` or `()`.
     """
-    zero = jnp.zeros((), real_dtype(y0.dtype))
-    zero_i = jnp.zeros((), jnp.int32)
-    acc0 = (zero, zero_i, zero, zero_i) if want_stats else ()
     if method.flow_in_time is not None:
+        acc0 = _initial_stats(y0, want_stats)
         return _time_change_path(method, system, y0, dt, draw, n_blocks, block_len, acc0, like)
-    # (the step counter stays unbatched: every sample is at the same step)
+    carry0 = initial_carry(method, system, y0, draw, want_stats, like)
+    ((_, result, fail_step, _, n_retried, acc, _), _), ys = run_blocks(
+        method, system, dt, draw, carry0, n_blocks, block_len, want_stats, retry
+    )
+    return ys, fail_step, result, n_retried, acc
+
+
+def _initial_stats(y0, want_stats):
+    """The Newton statistics before any step: `(updates, most updates, largest residual,
+    steps at max_iter)`, or `()`."""
+    zero, zero_i = jnp.zeros((), real_dtype(y0.dtype)), jnp.zeros((), jnp.int32)
+    return (zero, zero_i, zero, zero_i) if want_stats else ()
+
+
+def initial_carry(method, system, y0, draw, want_stats, like=()):
+    """The time loop's carry before the first step of one sample (`run_blocks`): `((y,
+    result, fail_step, step, n_retried, stats, the method's history), the driver's state)`.
+    The step counter stays unbatched: every sample is at the same step."""
     y0, result0, fail0, n_retried0, acc0, history0 = batched_like(
         (
             y0,
             jnp.array(RESULTS.successful, jnp.int32),
             jnp.array(-1, jnp.int32),
             jnp.array(0, jnp.int32),
-            acc0,
+            _initial_stats(y0, want_stats),
             method.initial_history(system, y0),
         ),
         like,
     )
-    state0, draw_block = _draws(draw)
-    carry0 = ((y0, result0, fail0, jnp.array(0, jnp.int32), n_retried0, acc0, history0), state0)
+    return (y0, result0, fail0, jnp.array(0, jnp.int32), n_retried0, acc0, history0), _draws(draw)[
+        0
+    ]
+
+
+def run_blocks(method, system, dt, draw, carry0, n_blocks, block_len, want_stats, retry):
+    """`n_blocks` blocks of `block_len` steps of one sample from `carry0` (`initial_carry`,
+    or the carry a previous call returned: the loop goes on from its step counter, the
+    increments drawn by absolute step, so a run cut into calls is the run in one).
+
+    **Returns:** `(carry, states after each block)`."""
+    _, draw_block = _draws(draw)
 
     def steps(carry, length, n_live):
         # `length` (a Python int) slots from the carry's step counter, the first `n_live`
@@ -165,10 +190,7 @@ def _path(method, system, y0, dt, draw, n_blocks, block_len, want_stats, retry=N
         carry = _checkpointed_loop(steps, block_len, carry)
         return carry, carry[0][0]
 
-    ((_, result, fail_step, _, n_retried, acc, _), _), ys = jax.lax.scan(
-        block, carry0, None, length=n_blocks
-    )
-    return ys, fail_step, result, n_retried, acc
+    return jax.lax.scan(block, carry0, None, length=n_blocks)
 
 
 def _draws(draw):

@@ -505,6 +505,13 @@ class RunStore:
         data["step"] = steps
         data["time"] = steps * float(self.metadata["dt"])
 
+        # (zarr leaves out a chunk equal to the fill value, zero, unless told: a record of zeros
+        # would then read as missing chunks)
+        with _zarr().config.set({"array.write_empty_chunks": True}):
+            self._write(data, state, step, k)
+
+    def _write(self, data, state, step, k):
+        assert self._group is not None
         n = int(self._commit["snapshots"])
         slot = 1 - int(self._commit["slot"])
         written = []

@@ -1,0 +1,296 @@
+"""Long runs on disk: `simulate`'s ensemble written to a run store as it goes, resumable."""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .. import _brownian
+from .._support.progress import progress_bar
+from .._support.store import RunStore, open_run
+from .integrate import _highest_precision, initial_carry, run_blocks
+from .plan import plan_ensemble
+
+# Snapshots per record at most (default): a record is one compiled call and one append.
+RECORD_SNAPSHOTS = 16
+# Casimirs tr W^k, k = 2 ... CASIMIR_ORDER, in the default diagnostics of a matrix state
+CASIMIR_ORDER = 6
+# su(N) energy and enstrophy spectra by default up to this N (`mat2shr`'s tables: N^3 numbers)
+SPECTRA_MAX_N = 128
+
+
+def simulate_to_store(
+    system,
+    y0,
+    path,
+    *,
+    t1,
+    dt,
+    n_samples,
+    key,
+    save_every,
+    method="auto",
+    diagnostics="auto",
+    save_states=True,
+    record_snapshots=RECORD_SNAPSHOTS,
+    resume=False,
+    truncate_k=4,
+    retry_substeps: int | None = 4,
+    levy_area="auto",
+    driver=None,
+    progress=True,
+):
+    r"""`simulate`'s ensemble, written to a run store on disk as it goes: memory stays flat in
+    the number of steps, and a run killed at any point goes on from its last complete
+    record with `resume=True`, giving the same states, bit for bit, as a run never stopped.
+
+    The run is cut into records of `record_snapshots` snapshots (`save_every` steps apart);
+    each record is one compiled call (compiled once for the whole run) whose snapshots and
+    diagnostics, and the loop's carry after it (the states, the step, each sample's failure
+    code and retry count, the method's history, the driver's state), are appended to the
+    store and committed together (`RunStore`: Zarr, a commit that a kill cannot leave
+    half-written). Sample `i` draws its increments from `fold_in(key, i)` by absolute step,
+    as `simulate` does, so the records compose into one run.
+
+    **Arguments:** as `simulate`'s, and
+
+    - `path`: the store's directory (`RunStore`; it must not exist unless `resume=True`).
+    - `save_every`: steps between snapshots (required: a run to disk saves snapshots).
+    - `diagnostics`: computed on each snapshot, per sample: `"auto"` (default: for a matrix
+      state the Casimirs $\operatorname{tr}W^k$, $k = 2 \dots 6$ (their real part for even
+      $k$, imaginary for odd); for `EulerZeitlin` also `energy`, `enstrophy`, and up to
+      N = 128 `energy_spectrum` and `enstrophy_spectrum` by degree ($N^3$-number tables
+      above); for so(3)* the Casimir $|y|^2$), `None`, or a dict `name -> fn(state)` of
+      JAX functions of one state.
+    - `save_states`: also store the states themselves (default `True`; `False` keeps the
+      diagnostics only).
+    - `record_snapshots`: snapshots per record at most (default 16): the largest divisor of
+      the number of snapshots not above it.
+    - `resume`: `False` (default): a new store (an existing one is an error); `True`: go on
+      from the store's last complete record (a record half-written when the run was killed
+      is dropped with a warning), or start one if there is none. A store of another run
+      (system, step, key, method, initial state, ...) is refused, naming what differs. The
+      store's `t1` may be extended.
+    - `progress`: a progress bar with the time left, where someone watches.
+
+    **Returns:** the store opened for reading (`open_run(path)`: `.read(name)`, `.times`,
+    `.to_xarray()`); `"state"` is `(time, n_samples, *state)` and `"ok"` says which samples
+    had not failed at each snapshot.
+    """
+    if save_every is None:
+        raise ValueError("simulate_to_store needs save_every: the steps between snapshots.")
+    p = plan_ensemble(
+        "simulate_to_store",
+        system,
+        y0,
+        t1=t1,
+        dt=dt,
+        n_samples=n_samples,
+        key=key,
+        method=method,
+        save_every=save_every,
+        truncate_k=truncate_k,
+        retry_substeps=retry_substeps,
+        sharding=None,
+        levy_area=levy_area,
+        driver=driver,
+    )
+    if p.method.flow_in_time is not None:
+        raise ValueError(
+            f"simulate_to_store: {type(p.method).__name__} evaluates its flow only where a state "
+            "is saved; use simulate, or another method."
+        )
+    if not isinstance(resume, bool):
+        raise TypeError(f"resume must be True or False, got {resume!r}.")
+    fns = _diagnostics(p.system, diagnostics)
+    per_record = _record_size(p.n_steps // p.save_every, record_snapshots)
+    keys = _brownian.sample_keys(p.key, p.n_samples)
+    carry0 = _initial_carries(p.method, p.system, p.y0, p.path, keys)
+    leaves0, treedef = jax.tree_util.tree_flatten(carry0)
+    state_spec = {"state": ((p.n_samples, *p.y0.shape), p.y0.dtype)} if save_states else {}
+    shapes = _diagnostic_shapes(fns, p.y0)
+    snapshots = {
+        **state_spec,
+        "ok": ((p.n_samples,), np.bool_),
+        **{k: ((p.n_samples, *s.shape), s.dtype) for k, s in shapes.items()},
+    }
+    carry_spec = {f"carry_{i}": (leaf.shape, leaf.dtype) for i, leaf in enumerate(leaves0)}
+    store = RunStore(
+        path,
+        _fingerprint(p, keys, fns, save_states),
+        snapshots,
+        carry_spec,
+        mode="resume" if resume else "create",
+    )
+    with store:
+        leaves, start = leaves0, 0
+        if store.checkpoint is not None:
+            leaves = [
+                jnp.asarray(store.checkpoint.carry[f"carry_{i}"]) for i in range(len(leaves0))
+            ]
+            start = store.checkpoint.step
+            if start % (per_record * p.save_every) or start > p.n_steps:
+                raise ValueError(
+                    f"simulate_to_store: the store ends at step {start}, which is not a record "
+                    f"boundary of this run (records of {per_record * p.save_every} steps, "
+                    f"{p.n_steps} steps in all): resume with the run's record_snapshots and t1."
+                )
+        else:  # the initial state as the first snapshot
+            store.append(
+                _snapshot(
+                    p.system, fns, save_states, carry0[0][0][None], (carry0[0][1] == 0)[None]
+                ),
+                _carry_dict(leaves0),
+                0,
+                snapshot_steps=[0],
+            )
+        carry = jax.tree_util.tree_unflatten(treedef, leaves)
+        steps = per_record * p.save_every
+        bar = progress_bar((p.n_steps - start) // steps, "simulate_to_store", unit="record")
+        for first in range(start, p.n_steps, steps):
+            carry, ys = _record(
+                p.method, p.system, p.dt, p.path, keys, carry, per_record, p.save_every, p.retry
+            )
+            ok = jnp.broadcast_to(carry[0][1] == 0, (per_record, p.n_samples))
+            # (the failure codes are those at the record's end: a sample that failed within it
+            # is frozen at its last good state, so its later snapshots repeat that state)
+            store.append(
+                _snapshot(p.system, fns, save_states, jnp.swapaxes(ys, 0, 1), ok),
+                _carry_dict(jax.tree_util.tree_leaves(carry)),
+                first + steps,
+                snapshot_steps=list(range(first + p.save_every, first + steps + 1, p.save_every)),
+            )
+            bar.update(1)
+        bar.close()
+    return open_run(path)
+
+
+def _record_size(n_snapshots, at_most):
+    """The largest divisor of `n_snapshots` not above `at_most` (one compiled record)."""
+    if isinstance(at_most, bool) or not isinstance(at_most, int) or at_most < 1:
+        raise ValueError(f"record_snapshots must be a positive integer, got {at_most!r}.")
+    return max(d for d in range(1, min(at_most, n_snapshots) + 1) if n_snapshots % d == 0)
+
+
+def _initial_carries(method, system, y0, path, keys):
+    return jax.vmap(
+        lambda k: initial_carry(
+            method, system, y0, path.sampler(k), False, like=jax.random.key_data(k)
+        )
+    )(keys)
+
+
+@functools.partial(jax.jit, static_argnames=("method", "n_blocks", "block_len", "retry"))
+@_highest_precision
+def _record(method, system, dt, path, keys, carry, n_blocks, block_len, retry):
+    """One record of every sample: `n_blocks` snapshots `block_len` steps apart from `carry`."""
+
+    def one(key, c):
+        return run_blocks(
+            method, system, dt, path.sampler(key), c, n_blocks, block_len, False, retry
+        )
+
+    return jax.vmap(one)(keys, carry)
+
+
+def _diagnostics(system, diagnostics):
+    """`name -> fn(state)` of the run's diagnostics (`simulate_to_store`)."""
+    if diagnostics is None:
+        return {}
+    if isinstance(diagnostics, dict):
+        for name, fn in diagnostics.items():
+            if not isinstance(name, str) or not callable(fn):
+                raise TypeError(
+                    f"diagnostics must map names to functions of one state, got {name!r}: {fn!r}."
+                )
+            if name in ("state", "ok"):
+                raise ValueError(f"diagnostics: {name!r} is taken by the store's own field.")
+        return dict(diagnostics)
+    if diagnostics != "auto":
+        raise ValueError(f"diagnostics must be 'auto', None or a dict, got {diagnostics!r}.")
+    from .. import zeitlin
+    from .._systems.euler_zeitlin import EulerZeitlin
+
+    alg = system.algebra
+    if len(alg.shape) == 1:
+        return {"casimir": lambda y: jnp.sum(y**2)}
+    out: dict[str, Any] = {
+        "casimirs": functools.partial(_casimirs, order=min(CASIMIR_ORDER, alg.shape[-1]))
+    }
+    if isinstance(system, EulerZeitlin):
+        out["energy"] = zeitlin.energy
+        out["enstrophy"] = zeitlin.enstrophy
+        if system.N <= SPECTRA_MAX_N:
+            out["energy_spectrum"] = zeitlin.energy_spectrum
+            out["enstrophy_spectrum"] = zeitlin.enstrophy_spectrum
+    return out
+
+
+def _casimirs(w, order):
+    """$\\operatorname{tr}W^k$, $k = 2 \\dots$ `order`: the real part for even $k$, the
+    imaginary part for odd $k$ (real for real matrices)."""
+    out, power = [], w
+    for k in range(2, order + 1):
+        power = power @ w
+        t = jnp.trace(power)
+        out.append(jnp.real(t) if k % 2 == 0 or not jnp.iscomplexobj(t) else jnp.imag(t))
+    return jnp.stack(out)
+
+
+def _diagnostic_shapes(fns, y0):
+    return {name: jax.eval_shape(fn, y0) for name, fn in fns.items()}
+
+
+def _snapshot(system, fns, save_states, ys, ok):
+    """A record's fields, `(snapshots, n_samples, ...)`, as NumPy arrays."""
+    out = {"state": ys} if save_states else {}
+    out["ok"] = ok
+    out.update(_evaluate(tuple(fns.items()), ys))
+    return {k: np.asarray(v) for k, v in out.items()}
+
+
+@functools.partial(jax.jit, static_argnames="fns")
+@_highest_precision
+def _evaluate(fns, ys):
+    return {name: jax.vmap(jax.vmap(fn))(ys) for name, fn in fns}
+
+
+def _carry_dict(leaves):
+    return {f"carry_{i}": np.asarray(leaf) for i, leaf in enumerate(leaves)}
+
+
+def _fingerprint(p, keys, fns, save_states):
+    """What makes a run this run (`RunStore` compares it on `resume`): the system and its
+    numbers, the initial state, the step, the method, the noise, the key, the diagnostics."""
+    digest = hashlib.sha256()
+    for leaf in jax.tree_util.tree_leaves(p.system):
+        digest.update(np.asarray(leaf).tobytes())
+    return {
+        "dt": float(p.dt),
+        "save_every": int(p.save_every),
+        "system": repr(p.system),
+        "system_numbers": digest.hexdigest(),
+        "y0": hashlib.sha256(np.asarray(p.y0).tobytes()).hexdigest(),
+        "dtype": str(p.y0.dtype),
+        "method": repr(p.method),
+        "n_samples": int(p.n_samples),
+        "noise": _describe(p.path),
+        "key": hashlib.sha256(np.asarray(jax.random.key_data(keys)).tobytes()).hexdigest(),
+        "retry_substeps": p.retry,
+        "diagnostics": sorted(fns),
+        "save_states": bool(save_states),
+    }
+
+
+def _describe(path):
+    """The noise's description: its kind and its numbers (a hash), stable across processes."""
+    digest = hashlib.sha256()
+    leaves, treedef = jax.tree_util.tree_flatten(path)
+    for leaf in leaves:
+        digest.update(np.asarray(leaf).tobytes())
+    return f"{type(path).__name__} {treedef} {digest.hexdigest()}"
