@@ -124,7 +124,8 @@ def cost(ns):
                         repeats=reps,
                         iterations=its,
                         retried_steps=retried,
-                        tol=None if isinstance(method, sj.Heun) else TOL,
+                        # (IsospectralMidpoint: rtol 2^-26 of the increment, not absolute)
+                        tol=None if isinstance(method, (sj.Heun, sj.IsospectralMidpoint)) else TOL,
                         vs_quflow=None,
                         diff_vs_quflow=None,
                         final=np.asarray(y),
@@ -462,6 +463,40 @@ def economy(ns, dtypes, n_steps, write, options=None, members=0, member_ns=()):
     return rows
 
 
+def store_cost(N, n_steps, save_every, n_samples, directory):
+    """A run to disk against the same run in memory: `EulerZeitlin(N)` with one noise
+    proportional to the drift (c = 0.1), `n_samples` samples, `n_steps` steps of h = 0.64/N
+    and a snapshot every `save_every`; seconds per step of `simulate` (the snapshots kept in
+    memory) and of `simulate_to_store` (written record by record, fsync'd, with the
+    default diagnostics), each after a first run that compiles, and the bytes written."""
+    import shutil
+
+    h = 0.64 / N
+    system, w0 = sj.EulerZeitlin(N, c=0.1), initial(N)
+    args = dict(t1=n_steps * h, dt=h, n_samples=n_samples, key=jax.random.key(0))
+    run = lambda: sj.simulate(system, w0, save_every=save_every, **args).ys
+    path = os.path.join(directory, "store_cost.zarr")
+
+    def to_store():
+        shutil.rmtree(path, ignore_errors=True)
+        return sj.simulate_to_store(
+            system, w0, path, save_every=save_every, progress=False, **args
+        ).read("energy")
+
+    out = dict(N=N, steps=n_steps, save_every=save_every, samples=n_samples)
+    for name, fn in (("memory", run), ("store", to_store)):
+        jax.block_until_ready(fn())
+        med = _common.time_call(fn, repeats=3, warmup=False)[0]
+        out[f"s_per_step_{name}"] = med / n_steps
+    out["store_vs_memory"] = out["s_per_step_store"] / out["s_per_step_memory"]
+    out["bytes_written"] = sum(
+        os.path.getsize(os.path.join(d, f)) for d, _, files in os.walk(path) for f in files
+    )
+    shutil.rmtree(path, ignore_errors=True)
+    _print(out)
+    return out
+
+
 def _print(row):
     print(
         "  ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items()),
@@ -770,6 +805,13 @@ def main(argv=None):
                 )
 
         with jax.default_matmul_precision("highest"):
+            if not args.gpu:  # (a run to disk against the same in memory)
+                store_row = store_cost(
+                    *((8, 64, 8, 2) if args.fast else (128, 512, 8, 4)), args.out
+                )
+                _common.write_json(
+                    os.path.join(args.out, "zeitlin_store.json"), dict(machine=info, row=store_row)
+                )
             economy(
                 ns,
                 (jnp.complex128, jnp.complex64) if args.gpu else (jnp.complex128,),

@@ -89,3 +89,6 @@ def test_zeitlin_economy(tmp_path):
     for name in ("default", "default, cold start", "explicit, round-off"):
         assert ours[name]["casimir_drift"] < 1e-13, name
     assert ours["default"]["updates"] < ours["default, cold start"]["updates"]
+    store = json.loads((tmp_path / "zeitlin_store.json").read_text())["row"]
+    assert store["s_per_step_store"] > 0 < store["s_per_step_memory"]
+    assert store["bytes_written"] > 64 * 16 * 9 * 2  # (the states alone: 9 snapshots of 2)
