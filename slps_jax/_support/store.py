@@ -627,7 +627,7 @@ class StoredRun:
         """The committed snapshots as an `xarray.Dataset` (read lazily: only what is
         indexed and loaded comes off the disk). Needs xarray (`pip install xarray`)."""
         try:
-            import xarray as xr
+            import xarray as xr  # pyright: ignore[reportMissingImports]
         except ImportError as e:
             raise ImportError("StoredRun.to_xarray needs xarray: pip install xarray") from e
         ds = xr.open_zarr(self.path, consolidated=False, zarr_format=3, chunks=None)
