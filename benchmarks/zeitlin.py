@@ -698,6 +698,24 @@ def figure(path, rows):
     plt.close(fig)
 
 
+def _writer(out, name, info, caption, cols, formats, csv=False):
+    """`write(rows)` for one part of the run, called after every row so that a run cut short
+    keeps what it measured: `name.json` (with the machine), `name.md` (where and when,
+    `caption`, the table of `cols` with `formats`) and, with `csv`, `name.csv`."""
+    device = _common.device_name(info)
+
+    def write(rows):
+        if csv:
+            _common.write_csv(os.path.join(out, f"{name}.csv"), rows)
+        _common.write_json(os.path.join(out, f"{name}.json"), dict(machine=info, rows=rows))
+        with open(os.path.join(out, f"{name}.md"), "w") as fh:
+            fh.write(f"Measured on {device}, jax {info['jax']}, {info['date'][:10]}{caption}\n\n")
+            table = [{k: r.get(k) for k in cols} for r in rows]
+            fh.write(_common.markdown_table(table, cols, formats))
+
+    return write
+
+
 def main(argv=None):
     p = _common.parser(__doc__, "a smoke run: N = 8; 200 steps")
     p.add_argument(
@@ -739,7 +757,7 @@ def main(argv=None):
     )
     p.add_argument(
         "--options",
-        help="with --economy: a comma-separated subset of its options (default: all)",
+        help="with --economy: a ';'-separated subset of its options (default: all)",
     )
     args = p.parse_args(argv)
     os.makedirs(args.out, exist_ok=True)
@@ -751,21 +769,14 @@ def main(argv=None):
         flush=True,
     )
     if args.breakdown:
-        device = _common.device_name(info)
-
-        def write_breakdown(rows):
-            _common.write_json(
-                os.path.join(args.out, "zeitlin_breakdown.json"), dict(machine=info, rows=rows)
-            )
-            with open(os.path.join(args.out, "zeitlin_breakdown.md"), "w") as fh:
-                fh.write(f"Measured on {device}, jax {info['jax']}, {info['date'][:10]}.\n\n")
-                fh.write(
-                    _common.markdown_table(
-                        rows,
-                        ["case", "dtype", "ms", "compile_s"],
-                        {"ms": ".4g", "compile_s": ".1f"},
-                    )
-                )
+        write_breakdown = _writer(
+            args.out,
+            "zeitlin_breakdown",
+            info,
+            ".",
+            ["case", "dtype", "ms", "compile_s"],
+            {"ms": ".4g", "compile_s": ".1f"},
+        )
 
         with jax.default_matmul_precision("highest"):
             breakdown(*((8, 4, 16) if args.fast else (512, 64, 2048)), write=write_breakdown)
@@ -773,36 +784,26 @@ def main(argv=None):
     if args.economy:
         ns = (8,) if args.fast else (256, 512, 1024, 2048) if args.gpu else (64, 128, 256)
         ns = tuple(args.sizes) if args.sizes else ns
-        device = _common.device_name(info)
-
-        def write_economy(rows):
-            _common.write_json(
-                os.path.join(args.out, "zeitlin_economy.json"), dict(machine=info, rows=rows)
-            )
-            cols = [
-                "N",
-                "dtype",
-                "option",
-                "ms_per_step",
-                "vs_quflow_default",
-                "vs_quflow_1e-13",
-                "updates",
-                "max_iter_share",
-                "casimir_drift",
-                "compile_s",
-            ]
-            with open(os.path.join(args.out, "zeitlin_economy.md"), "w") as fh:
-                fh.write(
-                    f"Measured on {device}, jax {info['jax']}, quflow {info['quflow']}, "
-                    f"{info['date'][:10]}; one state, 32 steps of h = 0.64/N s.\n\n"
-                )
-                fh.write(
-                    _common.markdown_table(
-                        [{k: r.get(k) for k in cols} for r in rows],
-                        cols,
-                        {k: ".3g" for k in cols[3:]},
-                    )
-                )
+        cols = [
+            "N",
+            "dtype",
+            "option",
+            "ms_per_step",
+            "vs_quflow_default",
+            "vs_quflow_1e-13",
+            "updates",
+            "max_iter_share",
+            "casimir_drift",
+            "compile_s",
+        ]
+        write_economy = _writer(
+            args.out,
+            "zeitlin_economy",
+            info,
+            f", quflow {info['quflow']}; one state, 32 steps of h = 0.64/N s.",
+            cols,
+            {k: ".3g" for k in cols[3:]},
+        )
 
         with jax.default_matmul_precision("highest"):
             if not args.gpu:  # (a run to disk against the same in memory)
@@ -821,7 +822,7 @@ def main(argv=None):
                 options={
                     k: v
                     for k, v in ECONOMY.items()
-                    if (k in args.options.split(",") if args.options else True)
+                    if (k in args.options.split(";") if args.options else True)
                     and not (args.gpu and "1e-13" in k)
                 },
                 members=4 if args.fast else 64 if args.gpu else 0,
@@ -831,44 +832,34 @@ def main(argv=None):
     if args.scale:
         ns = (8,) if args.fast else (64, 128, 256, 512, 1024, 2048) if args.gpu else (64, 128, 256)
         ns = tuple(args.sizes) if args.sizes else ns
-        device = _common.device_name(info)
-
-        def write(rows):  # after every row: a run cut short keeps what it measured
-            _common.write_csv(os.path.join(args.out, "zeitlin_scale.csv"), rows)
-            _common.write_json(
-                os.path.join(args.out, "zeitlin_scale.json"), dict(machine=info, rows=rows)
-            )
-            with open(os.path.join(args.out, "zeitlin_scale.md"), "w") as fh:
-                fh.write(
-                    f"Measured on {device}, jax {info['jax']}, {info['date'][:10]}; one "
-                    f"state, ms; an ensemble, ms per member-step.\n\n"
-                )
-                cols = [
-                    "N",
-                    "dtype",
-                    "h",
-                    "poisson_sweep_ms",
-                    "poisson_scan_ms",
-                    "poisson_eigenbasis_ms",
-                    "two_products_ms",
-                    "two_complex_products_ms",
-                    "step_ms",
-                    "updates",
-                    "floor_ms",
-                    "step_vs_floor",
-                    "quflow_ms",
-                    "step_vs_quflow",
-                    "ms_per_member_step",
-                    "ms_per_member_step_eigenbasis",
-                    "areas_vs_step",
-                ]
-                fh.write(
-                    _common.markdown_table(
-                        [{k: r.get(k) for k in cols} for r in rows],
-                        cols,
-                        {k: ".3g" for k in cols[2:]},
-                    )
-                )
+        cols = [
+            "N",
+            "dtype",
+            "h",
+            "poisson_sweep_ms",
+            "poisson_scan_ms",
+            "poisson_eigenbasis_ms",
+            "two_products_ms",
+            "two_complex_products_ms",
+            "step_ms",
+            "updates",
+            "floor_ms",
+            "step_vs_floor",
+            "quflow_ms",
+            "step_vs_quflow",
+            "ms_per_member_step",
+            "ms_per_member_step_eigenbasis",
+            "areas_vs_step",
+        ]
+        write = _writer(
+            args.out,
+            "zeitlin_scale",
+            info,
+            "; one state, ms; an ensemble, ms per member-step.",
+            cols,
+            {k: ".3g" for k in cols[2:]},
+            csv=True,
+        )
 
         with jax.default_matmul_precision("highest"):
             scale(

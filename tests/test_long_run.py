@@ -37,13 +37,24 @@ def system(kind="c", c=0.2):
     return sj.EulerZeitlin(N, noise=sj.salt_noise(0.1 * z.shr2mat(np.eye(N * N)[[1, 2, 3]], N)))
 
 
-def write(path, *, t1=1.0, resume=False, kind="c", save_every=5, record_snapshots=4, **kwargs):
+def write(
+    path,
+    *,
+    t1=1.0,
+    dt=0.01,
+    resume=False,
+    kind="c",
+    c=0.2,
+    save_every=5,
+    record_snapshots=4,
+    **kwargs,
+):
     return sj.simulate_to_store(
-        system(kind),
+        system(kind, c),
         smooth(),
         path,
         t1=t1,
-        dt=0.01,
+        dt=dt,
         n_samples=3,
         key=jax.random.key(7),
         save_every=save_every,
@@ -143,37 +154,13 @@ def test_a_run_killed_and_resumed_is_the_run_never_stopped(tmp_path, uninterrupt
 
 
 def test_a_store_of_another_run_is_refused(tmp_path, uninterrupted):
-    """Resuming with another step, another system or another key is refused, naming what
+    """Resuming with another step or another system's numbers is refused, naming what
     differs; a new run into an existing store is refused; a longer t1 extends the run."""
     _, whole = uninterrupted
     with pytest.raises(ValueError, match="dt"):
-        sj.simulate_to_store(
-            system(),
-            smooth(),
-            whole,
-            t1=1.0,
-            dt=0.02,
-            n_samples=3,
-            key=jax.random.key(7),
-            save_every=5,
-            record_snapshots=4,
-            resume=True,
-            progress=False,
-        )
+        write(whole, dt=0.02, resume=True)
     with pytest.raises(ValueError, match="system_numbers"):
-        sj.simulate_to_store(
-            system(c=0.3),
-            smooth(),
-            whole,
-            t1=1.0,
-            dt=0.01,
-            n_samples=3,
-            key=jax.random.key(7),
-            save_every=5,
-            record_snapshots=4,
-            resume=True,
-            progress=False,
-        )
+        write(whole, c=0.3, resume=True)
     with pytest.raises(FileExistsError):
         write(whole)
     longer = str(tmp_path / "longer.zarr")
@@ -181,16 +168,7 @@ def test_a_store_of_another_run_is_refused(tmp_path, uninterrupted):
     run = write(longer, t1=1.0, resume=True)
     np.testing.assert_array_equal(run.read("state"), fields(sj.open_run(whole))["state"])
     with pytest.raises(ValueError, match="save_every"):
-        sj.simulate_to_store(
-            system(),
-            smooth(),
-            longer,
-            t1=1.0,
-            dt=0.01,
-            n_samples=3,
-            key=jax.random.key(7),
-            save_every=None,
-        )
+        write(longer, save_every=None)
 
 
 PEAK = textwrap.dedent(

@@ -113,7 +113,7 @@ def simulate_to_store(
     carry0 = _initial_carries(p.method, p.system, p.y0, p.path, keys)
     leaves0, treedef = jax.tree_util.tree_flatten(carry0)
     state_spec = {"state": ((p.n_samples, *p.y0.shape), p.y0.dtype)} if save_states else {}
-    shapes = _diagnostic_shapes(fns, p.y0)
+    shapes = {name: jax.eval_shape(fn, p.y0) for name, fn in fns.items()}
     snapshots = {
         **state_spec,
         "ok": ((p.n_samples,), np.bool_),
@@ -142,9 +142,7 @@ def simulate_to_store(
                 )
         else:  # the initial state as the first snapshot
             store.append(
-                _snapshot(
-                    p.system, fns, save_states, carry0[0][0][None], (carry0[0][1] == 0)[None]
-                ),
+                _snapshot(fns, save_states, carry0[0][0][None], (carry0[0][1] == 0)[None]),
                 _carry_dict(leaves0),
                 0,
                 snapshot_steps=[0],
@@ -160,7 +158,7 @@ def simulate_to_store(
             # (the failure codes are those at the record's end: a sample that failed within it
             # is frozen at its last good state, so its later snapshots repeat that state)
             store.append(
-                _snapshot(p.system, fns, save_states, jnp.swapaxes(ys, 0, 1), ok),
+                _snapshot(fns, save_states, jnp.swapaxes(ys, 0, 1), ok),
                 _carry_dict(jax.tree_util.tree_leaves(carry)),
                 first + steps,
                 snapshot_steps=list(range(first + p.save_every, first + steps + 1, p.save_every)),
@@ -198,7 +196,7 @@ def _record(method, system, dt, path, keys, carry, n_blocks, block_len, retry):
     return jax.vmap(one)(keys, carry)
 
 
-def _diagnostics(system, diagnostics):
+def _diagnostics(system, diagnostics) -> dict[str, Any]:
     """`name -> fn(state)` of the run's diagnostics (`simulate_to_store`)."""
     if diagnostics is None:
         return {}
@@ -242,11 +240,7 @@ def _casimirs(w, order):
     return jnp.stack(out)
 
 
-def _diagnostic_shapes(fns, y0):
-    return {name: jax.eval_shape(fn, y0) for name, fn in fns.items()}
-
-
-def _snapshot(system, fns, save_states, ys, ok):
+def _snapshot(fns, save_states, ys, ok):
     """A record's fields, `(snapshots, n_samples, ...)`, as NumPy arrays."""
     out = {"state": ys} if save_states else {}
     out["ok"] = ok
