@@ -103,6 +103,7 @@ def _from_lower_diagonals(D, N):
 
 
 ROUTES = ("sweep", "scan", "eigenbasis")
+"""The routes of `solve_poisson` (its `route=`, besides `"auto"`)."""
 
 
 def _route(route):
@@ -543,8 +544,8 @@ def _by_degree(W, weight):
 @jax.jit
 def enstrophy_spectrum(W):
     r"""The enstrophy by degree, $Z_\ell = \tfrac12\sum_{m=-\ell}^{\ell}\omega_{\ell m}^2$,
-    $\ell = 0, \dots, N-1$, `(..., N)` for `(..., N, N)` matrices ($\omega = $ `mat2shr(W)`):
-    $\sum_\ell Z_\ell = $ `enstrophy(W)`. The tables are `mat2shr`'s ($N^3$ numbers)."""
+    $\ell = 0, \dots, N-1$, `(..., N)` for `(..., N, N)` matrices ($\omega$ = `mat2shr(W)`):
+    $\sum_\ell Z_\ell$ = `enstrophy(W)`. The tables are `mat2shr`'s ($N^3$ numbers)."""
     N = W.shape[-1]
     return _by_degree(W, np.ones(N))
 
@@ -553,7 +554,7 @@ def enstrophy_spectrum(W):
 def energy_spectrum(W):
     r"""The energy by degree, $E_\ell = \tfrac12\sum_{m=-\ell}^{\ell}\omega_{\ell m}^2 /
     (\ell(\ell+1))$, $\ell = 0, \dots, N-1$ ($E_0 = 0$), `(..., N)` for `(..., N, N)`
-    matrices: $\sum_\ell E_\ell = $ `energy(W)` and $E_\ell = Z_\ell/(\ell(\ell+1))$
+    matrices: $\sum_\ell E_\ell$ = `energy(W)` and $E_\ell = Z_\ell/(\ell(\ell+1))$
     (`enstrophy_spectrum`). quflow's `analysis.energy_spectrum` is $2E_\ell$ for
     $\ell = 1, \dots, N-1$ (no $\tfrac12$, no $\ell = 0$). The tables are `mat2shr`'s
     ($N^3$ numbers)."""

@@ -82,6 +82,20 @@ def _upper_position(n):
 
 
 class AbstractAlgebra:
+    r"""The interface of the Lie algebra $\mathfrak g^*$ a system lives on: the state space,
+    the pairing $\langle x, y\rangle$, the Lie–Poisson field $[y, \nabla H]$ and the
+    Casimirs, and the forms of a step that methods are written on (the list in this
+    module's docstring; `docs/algebras.md`).
+
+    The algebras are `SO3` (3-vectors), `so(n)` (skew matrices) and `su(N)` (traceless
+    skew-Hermitian matrices, complex states): one instance per algebra, compared by
+    identity, static data of a system (`LiePoissonSystem(..., algebra=)`). A new algebra
+    sets `name`, `shape` (a state's), `dim` (its real dimension), `matrix_size` and
+    `is_complex`, and implements `pairing`, `coordinates`, `from_coordinates`, `gradient`,
+    `casimirs` and `project`; the other methods have defaults for matrix algebras, which
+    an algebra overrides where it has closed forms.
+    """
+
     name: str
     shape: tuple
     dim: int

@@ -401,3 +401,5 @@ class SO3Algebra(AbstractAlgebra):
 
 
 SO3 = SO3Algebra()
+"""so(3)* as 3-vectors (`SO3Algebra`): the algebra of `RigidBody` and of every so(3) system,
+one shared instance (the default `algebra=` of `LiePoissonSystem`)."""

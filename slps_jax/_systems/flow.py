@@ -138,4 +138,19 @@ def _deterministic_flow(system, y0, times, *, max_step=2.0**-10):
 
 
 exact_flow = alias(renamed_arguments(model="system")(rigid_body_flow), "exact_flow", "drift_flow")
+r"""Deprecated (removed in the next release): use `drift_flow`. `exact_flow(system, y0, t)`,
+the rigid body's flow $\varphi_t(y_0)$ in closed form (Jacobi elliptic functions) at one
+scalar time `t`; `model=` is accepted for `system=`. Warns with a `DeprecationWarning`.
+
+**Arguments:** `system` (anything with `inertia`, e.g. a `RigidBody`), `y0` (shape `(3,)`),
+`t` (a scalar). **Returns:** $\varphi_t(y_0)$, shape `(3,)`.
+"""
 deterministic_flow = alias(_deterministic_flow, "deterministic_flow", "drift_flow")
+r"""Deprecated (removed in the next release): use `drift_flow`.
+`deterministic_flow(system, y0, times, *, max_step=2**-10)`, the drift's flow
+$\varphi_t(y_0)$ of any system by classical Runge–Kutta with steps of at most `max_step`;
+`model=` is accepted for `system=`. Warns with a `DeprecationWarning`.
+
+**Arguments:** `system`, `y0` (a state), `times` (an array of times), `max_step`.
+**Returns:** $\varphi_t(y_0)$ at each time, shape `times.shape + y0.shape`.
+"""

@@ -108,6 +108,9 @@ class RigidBody(LiePoissonSystem):
 
 
 PAPER_Y0 = (0.7, 0.7, 0.0)
+r"""The paper's initial value $y_0 = (0.7, 0.7, 0)$ (Section 4.4), a tuple, for
+`RigidBody.paper()`: $|y_0| \approx 0.99$, close to the unit sphere where `LiePoisson`'s
+solve may fail."""
 
 
 def _generalised_rigid_body_hamiltonian(y, j):
