@@ -1,0 +1,89 @@
+"""The documentation site (mkdocs.yml) stays complete, without building it (`.ci/run` builds it
+with `mkdocs build --strict`, which reports broken links and anchors):
+
+- every public name has an entry `::: slps_jax.NAME` in the API reference (`docs/api/*.md`):
+  the package's public names (its `__all__` if it has one, else every public name it
+  binds that is not a module), and those of `slps_jax.so3` and `slps_jax.zeitlin` (their
+  `__all__`, else the functions and classes they define and their public constants), as
+  `::: slps_jax.so3.NAME`;
+- every page in `docs/` and every notebook in `notebooks/` is in the site's nav.
+"""
+
+import __future__
+
+import inspect
+import pathlib
+import re
+import types
+
+import pytest
+
+import slps_jax
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+DOCS = ROOT / "docs"
+
+_ENTRY = re.compile(r"^:::[ \t]+([\w.]+)[ \t]*$", re.M)
+
+
+def _public_names(module):
+    names = getattr(module, "__all__", None)
+    if names is not None:
+        return set(names)
+    found = set()
+    for name, value in vars(module).items():
+        if name.startswith("_") or isinstance(value, (types.ModuleType, __future__._Feature)):
+            continue
+        if inspect.isclass(value) or callable(value):
+            # defined in the package (a submodule's imports from jax, numpy are not its own)
+            if not getattr(value, "__module__", "").startswith("slps_jax"):
+                continue
+        found.add(name)
+    return found
+
+
+def _api_entries():
+    return {
+        m
+        for page in (DOCS / "api").glob("*.md")
+        for m in _ENTRY.findall(page.read_text(encoding="utf-8"))
+    }
+
+
+def _nav_paths():
+    text = (ROOT / "mkdocs.yml").read_text(encoding="utf-8")
+    nav = re.search(r"^nav:[ \t]*\n((?:[ \t]+.*\n?|\n)*)", text, re.M)
+    assert nav, "mkdocs.yml has no nav"
+    return set(re.findall(r"([\w./-]+\.(?:md|ipynb))[ \t]*(?:#.*)?$", nav.group(1), re.M))
+
+
+@pytest.mark.parametrize(
+    "module", [slps_jax, slps_jax.so3, slps_jax.zeitlin], ids=lambda m: m.__name__
+)
+def test_every_public_name_has_an_api_entry(module):
+    names = _public_names(module)
+    assert names, f"{module.__name__}: no public names found"
+    missing = sorted({f"{module.__name__}.{n}" for n in names} - _api_entries())
+    assert not missing, f"no `::: NAME` entry in docs/api/*.md for: {', '.join(missing)}"
+
+
+def test_api_entries_name_public_objects():
+    """An entry that names nothing public (a removed or renamed name) is caught here, not only
+    by the site build."""
+    public = {
+        f"{m.__name__}.{n}"
+        for m in (slps_jax, slps_jax.so3, slps_jax.zeitlin)
+        for n in _public_names(m)
+    } | {"slps_jax.so3", "slps_jax.zeitlin"}
+    stale = sorted(_api_entries() - public)
+    assert not stale, f"docs/api/*.md has entries for names that are not public: {stale}"
+
+
+def test_every_page_and_notebook_is_in_the_nav():
+    pages = {p.relative_to(DOCS).as_posix() for p in DOCS.rglob("*.md")}
+    notebooks = {p.relative_to(ROOT).as_posix() for p in (ROOT / "notebooks").glob("*.ipynb")}
+    nav = _nav_paths()
+    missing = sorted((pages | notebooks) - nav)
+    assert not missing, f"not in mkdocs.yml's nav: {missing}"
+    absent = sorted(p for p in nav if not ((DOCS / p).is_file() or (ROOT / p).is_file()))
+    assert not absent, f"mkdocs.yml's nav names files that do not exist: {absent}"
