@@ -147,3 +147,45 @@ def test_options_are_checked():
         sj.IsospectralMidpoint(warm_start=4)
     with pytest.raises(ValueError, match="warm_start"):
         sj.IsospectralMidpoint(warm_start=True)
+
+
+def _products(jaxpr):
+    """The matrix products (`dot_general`) of a jaxpr, counted through every sub-jaxpr (the
+    fixed point's `while_loop`, custom derivative rules) once each."""
+    n = 0
+    for eqn in jaxpr.eqns:
+        n += eqn.primitive.name == "dot_general"
+        for param in eqn.params.values():
+            for sub in param if isinstance(param, (tuple, list)) else (param,):
+                inner = getattr(sub, "jaxpr", sub)
+                if hasattr(inner, "eqns"):
+                    n += _products(inner)
+    return n
+
+
+def test_the_area_term_is_one_product_per_step_outside_the_fixed_point():
+    # With s transport noises, the Lévy-area term of a step, sum_q [X_q, sum_r A_qr X_r], is
+    # one stacked product (s products' work), constant for a linear family: computed once a
+    # step, not at every update of the fixed point nor again for the final rotation: the
+    # step's program with areas has the products of one evaluation of the area term more
+    # than without (a complex product is 3 real ones, `matmul`).
+    N, s = 6, 4
+    noise = sj.salt_noise(0.05 * z.shr2mat(np.eye(N * N)[1 : s + 1], N))
+    system = sj.EulerZeitlin(N, noise=noise)
+    y = z.shr2mat(np.eye(N * N)[z.elm2ind(1, 0)] + 0.3 * np.eye(N * N)[z.elm2ind(2, 1)], N)
+    a = np.triu(np.arange(1.0, s * s + 1).reshape(s, s), 1) * 1e-3
+    step = lambda dW, area: sj.IsospectralMidpoint().step(
+        system, y, 0.01, sj.BrownianStep(dW, area) if area is not None else dW
+    )
+    dW = 0.01 * jnp.arange(1.0, s + 1)
+    with_areas = _products(jax.make_jaxpr(step)(dW, jnp.asarray(a - a.T)).jaxpr)
+    without = _products(jax.make_jaxpr(lambda d: step(d, None))(dW).jaxpr)
+    area = jnp.asarray(a - a.T)
+    once = _products(jax.make_jaxpr(lambda ar: system.area_gradient(y, ar))(area).jaxpr)
+    assert once >= 2  # (the combination of the noises and their stacked product)
+    assert with_areas == without + once
+    # and the step is the one whose gradient is computed afresh at every evaluation
+    u = system.step_gradient_of(y, 0.01, sj.BrownianStep(dW, jnp.asarray(a - a.T)))
+    x = z.shr2mat(np.eye(N * N)[z.elm2ind(3, -2)], N) + y
+    ref = system.step_gradient(x, 0.01, sj.BrownianStep(dW, jnp.asarray(a - a.T)))
+    np.testing.assert_allclose(u(x), ref, rtol=0, atol=1e-15)

@@ -167,7 +167,7 @@ class IsospectralMidpoint(AbstractMethod):
         alg = system.algebra
         yn = alg.to_matrix(y)
         eye = jnp.eye(yn.shape[-1], dtype=yn.dtype)
-        half_w = functools.partial(_half_w, system, dt, dW)
+        half_w = functools.partial(_half_w, system, system.step_gradient_of(y, dt, dW))
 
         # The midpoint X lies in the group's Lie algebra, not always in the system's: on
         # su(N), tr Y_n = 0 gives tr X = tr((W/2)^2 X), and X is solved for in u(N).
@@ -257,15 +257,17 @@ def _remember(history, increment, tau, result):
     return tuple(jnp.where(learn, a, b).astype(b.dtype) for a, b in zip(new, history))
 
 
-def _half_w(system, dt, dW, x):
-    r"""$\tfrac12\hat W = -\tfrac12\nabla K_n(X)$ for a matrix $X$ of the group's algebra."""
+def _half_w(system, gradient, x):
+    r"""$\tfrac12\hat W = -\tfrac12\nabla K_n(X)$ for a matrix $X$ of the group's algebra
+    (`gradient`: $\nabla K_n$, `System.step_gradient_of`)."""
     alg = system.algebra
-    return -0.5 * alg.to_matrix(system.step_gradient(alg.project_group(x), dt, dW))
+    return -0.5 * alg.to_matrix(gradient(alg.project_group(x)))
 
 
 def _product(system, dt, dW, x):
-    r"""$AX$, $A = \tfrac12\hat W(X)$: the explicit final update's product."""
-    return matmul(_half_w(system, dt, dW, x), x)
+    r"""$AX$, $A = \tfrac12\hat W(X)$: the explicit final update's product (for its
+    derivatives: `_reuse`, whose function takes every differentiable input as an argument)."""
+    return matmul(_half_w(system, system.step_gradient_of(x, dt, dW), x), x)
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0,))

@@ -259,6 +259,18 @@ class LiePoissonSystem:
         g = dt * self.gradient(y) + self.noise_gradient(y, noise)
         return g + self.area_gradient(y, noise.area) if self.has_area(noise) else g
 
+    def step_gradient_of(self, y, dt, noise):
+        r"""$x \mapsto \nabla K(x)$ for one step (`step_gradient`), for the iterations of an
+        implicit step near the state `y`: the noise's part computed once where it does not
+        depend on the state (a linear family: $\sum_r \Delta W_r \nabla H_r$ and the area
+        term, $O(s)$ matrix products on so(n), su(N)), not at every evaluation."""
+        noise = as_step(noise)
+        if self.noise is None or not self.noise.linear:
+            return lambda x: self.step_gradient(x, dt, noise)
+        u = self.noise_gradient(y, noise)
+        u = u + self.area_gradient(y, noise.area) if self.has_area(noise) else u
+        return lambda x: dt * self.gradient(x) + u
+
     def noise_time(self, dW):
         r"""$c\,\Delta W$: how far one step's noise moves the random time
         $\tau = h + c\,\Delta W$ of a system whose one noise is proportional to the drift.
