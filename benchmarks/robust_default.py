@@ -1,7 +1,8 @@
 """Failures on the paper's own setup, with and without the default retry of failing steps.
 
-The README's streaming example: `RigidBody.paper()`, `y0 = PAPER_Y0`, `t1 = 1`, key 0,
-10^6 samples through `ensemble_statistics` (chunks of 1000), `LiePoisson`, float64. For each
+The streaming example's setup (`docs/scaling.md`, there with 10^5 samples):
+`RigidBody.paper()`, `y0 = PAPER_Y0`, `t1 = 1`, key 0, 10^6 samples through
+`ensemble_statistics` (chunks of 1000), `LiePoisson`, float64. For each
 step size, the samples that fail without the retry (`retry_substeps=None`) and with the
 default (`retry_substeps=4`: a failing step is redone as 4, 16, 64 substeps), and the wall
 time of each run (compilation included, one per step size and setting).

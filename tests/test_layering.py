@@ -1,11 +1,10 @@
 """The package's layering, as the package declares it (`slps_jax._LAYERS`, read from the
 source): a unit (a subpackage, or a module at the top) imports only units of its own layer
-or below, the leaves nothing of the package; every unit has a layer, and the README's
+or below, the leaves nothing of the package; every unit has a layer, and docs/design.md's
 design section names every unit. Imports inside functions count too."""
 
 import ast
 import pathlib
-import re
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "slps_jax"
@@ -68,10 +67,9 @@ def test_every_module_has_a_layer_and_imports_none_above_it():
     assert not missing, f"units missing from slps_jax._LAYERS: {sorted(missing)}"
     stale = set(layers) - units
     assert not stale, f"slps_jax._LAYERS names units that do not exist: {sorted(stale)}"
-    design = re.search(r"^## Design.*?(?=^## |\Z)", (ROOT / "README.md").read_text(), re.S | re.M)
-    assert design, "README.md has no '## Design' section"
-    unnamed = {u for u in units if f"`{u}`" not in design.group(0)} - {"__init__", "__main__"}
-    assert not unnamed, f"the README's design section does not name {sorted(unnamed)}"
+    design = (ROOT / "docs" / "design.md").read_text(encoding="utf-8")
+    unnamed = {u for u in units if f"`{u}`" not in design} - {"__init__", "__main__"}
+    assert not unnamed, f"docs/design.md does not name {sorted(unnamed)}"
     wrong = []
     for f in files:
         me = _unit(f)

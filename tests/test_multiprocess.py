@@ -1,6 +1,6 @@
-"""Two processes on JAX's multi-process runtime (localhost, gloo): the README's commands.
+"""Two processes on JAX's multi-process runtime (localhost, gloo): the commands of docs/scaling.md.
 
-`examples/multiprocess.py` is started twice, as the README says, each process with two CPU
+`examples/multiprocess.py` is started twice, as docs/scaling.md says, each process with two CPU
 devices, the mesh over all four: `jax.make_mesh`'s explicit axes, then automatic ones. With
 either, its sharded `simulate` must equal the one-process run sample for sample, and its
 `ensemble_statistics` the one-process moments, on both processes.

@@ -94,10 +94,10 @@ def test_failure_at_an_injected_increment(paper, method, step):
 
 
 def test_the_streaming_example_s_hard_sample_succeeds_with_default_arguments(paper):
-    # The streaming example of the README (paper setup, dt = 2^-5, key 0) at its full size:
+    # The streaming example of docs/scaling.md (paper setup, dt = 2^-5, key 0, 10^5 samples):
     # without the retry, sample 42821's second step has no root (a non-finite residual); by
     # default that step is split into substeps and the sample succeeds, with the error of a
-    # good sample. (The README's example itself runs, shrunk, in tests/test_readme.py; the
+    # good sample. (The example itself runs in tests/test_docs_blocks.py; the
     # failure counts with and without the retry are robust_default.py's, at h = 2^-4 in
     # tests/test_benchmarks.py.)
     model, y0 = paper

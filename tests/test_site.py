@@ -67,6 +67,21 @@ def test_every_public_name_has_an_api_entry(module):
     assert not missing, f"no `::: NAME` entry in docs/api/*.md for: {', '.join(missing)}"
 
 
+@pytest.mark.parametrize(
+    "module", [slps_jax, slps_jax.so3, slps_jax.zeitlin], ids=lambda m: m.__name__
+)
+def test_every_public_name_has_a_docstring(module):
+    """At run time too (`help`, an editor's hover), not only in the site: a summary line at
+    least."""
+    bare = sorted(
+        n
+        for n in _public_names(module)
+        if inspect.isclass(getattr(module, n)) or callable(getattr(module, n))
+        if len((inspect.getdoc(getattr(module, n)) or "").strip()) < 20
+    )
+    assert not bare, f"{module.__name__}: public names without a docstring: {bare}"
+
+
 def test_api_entries_name_public_objects():
     """An entry that names nothing public (a removed or renamed name) is caught here, not only
     by the site build."""

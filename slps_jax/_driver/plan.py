@@ -51,7 +51,7 @@ def check_pair(method, system):
 @renamed_arguments(model="system")
 def default_method(system):
     """The method `method="auto"` picks for `system`, by the measurements in
-    `benchmarks/README.md` ("Which method"): `IsospectralMidpoint` on so(n)* and su(N)*
+    `docs/methods.md` ("Which method"): `IsospectralMidpoint` on so(n)* and su(N)*
     (every Casimir kept, the cheapest Poisson method there), `Midpoint` on so(3)* (the
     smallest error at a given cost among the methods that keep the Casimir, for one noise
     and with Lévy areas for several; it never failed in the stress matrix)."""

@@ -134,6 +134,9 @@ def exact_solution(system, y0, t, W_t):
 # Runge–Kutta for any system.
 @renamed_arguments(model="system")
 def _deterministic_flow(system, y0, times, *, max_step=2.0**-10):
+    r"""Deprecated (removed in the next release): use `drift_flow`. The drift's flow
+    $\varphi_t(y_0)$ of any system at each of `times`, by classical Runge–Kutta with steps
+    of at most `max_step`."""
     return _runge_kutta_flow(system, y0, times, max_step)
 
 
