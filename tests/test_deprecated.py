@@ -95,6 +95,3 @@ def test_calibration_result_model_is_system():
     assert deprecated(lambda: res.model, ".system") is RB
 
 
-def test_structure_lists_the_capabilities():
-    names = deprecated(lambda: RB.structure, "capabilities")
-    assert any("closed forms" in n for n in names) and len(names) == 4

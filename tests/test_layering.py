@@ -93,3 +93,74 @@ def test_the_checker_sees_imports():
     assert {"_brownian", "_driver", "_support"} <= found, found
     assert "__init__" in _imports(PACKAGE / "_cli" / "paper.py")
     assert "_algebra" in _imports(PACKAGE / "_methods" / "strang.py")
+
+
+def _module(path):
+    """The dotted name of a file of the package (a package's `__init__.py`: the package)."""
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _module_graph():
+    """`{module: modules of the package it imports}`, anywhere in the file. `from P import m`
+    of a submodule `m` depends on `P.m`, not on the package `P`'s own code."""
+    modules = {_module(p): p for p in PACKAGE.rglob("*.py")}
+    graph = {}
+    for me, path in modules.items():
+        package = me.split(".") if path.name == "__init__.py" else me.split(".")[:-1]
+        edges = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                base = package[: len(package) - node.level + 1] if node.level else []
+                full = ".".join(base + [node.module] if node.module else base)
+                full = full if node.level else (node.module or "")
+                subs = [f"{full}.{a.name}" for a in node.names]
+                names = subs if all(s in modules for s in subs) else [full, *subs]
+            else:
+                continue
+            edges |= {n for n in names if n in modules and n != me}
+        graph[me] = edges
+    return graph
+
+
+def _circles(graph):
+    """The strongly connected components of more than one module (Tarjan)."""
+    index, low, stack, on, found = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in graph[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while not component or component[-1] != v:
+                component.append(stack.pop())
+                on.discard(component[-1])
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return found
+
+
+def test_no_module_imports_itself_through_others():
+    # Layers allow imports both ways within a unit; a circle of modules is refused anyway,
+    # imports inside functions included (they only defer one).
+    assert _circles(_module_graph()) == []
+
+
+def test_the_circle_check_sees_a_circle():
+    graph = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}
+    assert _circles(graph) == [["a", "b", "c"]]
+    # and the graph has the package's edges: rigid_body builds on system (`from .system import`)
+    assert "slps_jax._systems.system" in _module_graph()["slps_jax._systems.rigid_body"]

@@ -11,7 +11,6 @@ import numpy as np
 from .._algebra import SO3, AbstractAlgebra
 from .._brownian import as_step
 from .._support.checks import concrete, float_dtype, real_array, real_dtype
-from .._support.deprecated import warn
 from .noise import AbstractNoise, as_noise
 
 
@@ -149,15 +148,6 @@ class LiePoissonSystem:
     # Whether H_0 is a quadratic form (declared by the systems that know it: the rigid
     # bodies, Euler–Zeitlin); with c= then y -> y/s is a time change (`LiePoisson(scale=)`).
     quadratic_hamiltonian = False
-
-    @property
-    def structure(self):
-        """Deprecated: the descriptions of the capabilities the system has (methods now
-        declare `Capability` objects in `requires`, which test the system itself)."""
-        from .capabilities import CAPABILITIES  # (a layer above: only for the old name)
-
-        warn(f"`{type(self).__name__}.structure`", "the capabilities of slps_jax (`requires`)")
-        return frozenset(c.description for c in CAPABILITIES if c(self))
 
     @property
     def dtype(self):
