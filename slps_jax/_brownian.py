@@ -26,12 +26,16 @@ import numpy as np
 
 
 class BrownianStep(NamedTuple):
-    r"""The noise of one step: the increments `dW`, shape `(s,)`, and the Lévy areas
-    `area`, shape `(s, s)`, or `None` when the step has none (one noise, or a method that
-    does not use them).
+    r"""The noise of one step, as a method's `step(system, y, dt, dW)` receives it: the
+    increments and, when drawn, the Lévy areas. A pytree (a `NamedTuple`).
 
-    `area[q, r]` $= \tfrac12(J_{qr} - J_{rq})$ with the iterated Stratonovich integral
-    $J_{qr} = \int_{t_n}^{t_{n+1}} (W_q(t) - W_q(t_n)) \circ dW_r(t)$. A pytree.
+    **Arguments:**
+
+    - `dW`: the increments, shape `(s,)`, one per noise.
+    - `area`: the Lévy areas, shape `(s, s)`, antisymmetric:
+      `area[q, r]` $= \tfrac12(J_{qr} - J_{rq})$ with the iterated Stratonovich integral
+      $J_{qr} = \int_{t_n}^{t_{n+1}} (W_q(t) - W_q(t_n)) \circ dW_r(t)$; or `None`
+      (default) when the step has none (one noise, or a method that does not use them).
     """
 
     dW: jax.Array
@@ -446,11 +450,17 @@ class OrnsteinUhlenbeck:
     r"""A smooth driver for `simulate`: unit-variance Ornstein–Uhlenbeck traces
     $d\eta_r = -\eta_r/T_r\,dt + \sqrt{2/T_r}\,dB_r$, started from their stationary law, each
     step's increment the integral $\int\eta_r\,dt$ over the step (a random ODE: no Lévy
-    areas, no truncation). `correlation_time`: `(s,)` positive times $T_r$, one per noise of
-    the system (`TransportNoiseFit.correlation_time`), or a scalar for every noise.
+    areas, no truncation).
 
     `simulate(system, y0, ..., driver=OrnsteinUhlenbeck(T))`; `ou_increments` materialises
-    the same increments for `integrate`."""
+    the same increments for `integrate`.
+
+    **Arguments:**
+
+    - `correlation_time`: `(s,)` positive times $T_r$, one per noise of the system
+      (`TransportNoiseFit.correlation_time`), or a scalar for every noise (else
+      `ValueError`).
+    """
 
     def __init__(self, correlation_time):
         T = np.asarray(correlation_time, dtype=float)
@@ -549,6 +559,8 @@ def ou_increments(key, n_steps, dt, correlation_time, *, n_samples=None, dtype=N
     integral $\int\eta_r\,dt$ of unit-variance Ornstein–Uhlenbeck traces
     $d\eta_r = -\eta_r/T_r\,dt + \sqrt{2/T_r}\,dB_r$, started from their stationary law, each
     step's pair $(\eta_{n+1}, \int\eta)$ drawn exactly from its Gaussian law given $\eta_n$.
+
+    **Arguments:**
 
     - `key`: a `jax.random.key`; `n_steps`, `dt`: number and size of the steps.
     - `correlation_time`: `(s,)` positive times $T_r$ (`fit.correlation_time`), or a scalar

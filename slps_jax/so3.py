@@ -28,13 +28,21 @@ def vee(m):
 
 
 def skew(m):
-    """$\\mathrm{skew}(M) = (M - M^T)/2$."""
+    """The skew-symmetric part of a matrix, $\\mathrm{skew}(M) = (M - M^T)/2$.
+
+    **Arguments:** `m`, shape `(..., 3, 3)` (the formula is the same for any square
+    `(..., n, n)`). **Returns:** the skew-symmetric part, the shape of `m`.
+    """
     m = jnp.asarray(m)
     return 0.5 * (m - jnp.swapaxes(m, -1, -2))
 
 
 def sym(m):
-    """$\\mathrm{sym}(M) = (M + M^T)/2$."""
+    """The symmetric part of a matrix, $\\mathrm{sym}(M) = (M + M^T)/2$.
+
+    **Arguments:** `m`, shape `(..., 3, 3)` (the formula is the same for any square
+    `(..., n, n)`). **Returns:** the symmetric part, the shape of `m`.
+    """
     m = jnp.asarray(m)
     return 0.5 * (m + jnp.swapaxes(m, -1, -2))
 

@@ -36,12 +36,24 @@ import scipy.linalg
 
 
 def hbar(N):
-    r"""$\hbar = 2/\sqrt{N^2-1}$: physical time = quflow's qtime $\cdot\ \hbar$."""
+    r"""$\hbar = 2/\sqrt{N^2-1}$: physical time = quflow's qtime $\cdot\ \hbar$.
+
+    **Arguments:** `N`, the matrix size, an integer $\ge 2$.
+
+    **Returns:** $\hbar$, a Python float (seconds per unit of quflow's qtime).
+    """
     return 2.0 / math.sqrt(N * N - 1)
 
 
 def elm2ind(el, m):
-    r"""The index $\ell^2 + \ell + m$ of the coefficient $\omega_{\ell m}$."""
+    r"""The index $\ell^2 + \ell + m$ of the coefficient $\omega_{\ell m}$ in a vector of
+    real spherical-harmonic coefficients (`shr2mat`, `mat2shr`, `field`).
+
+    **Arguments:** `el`, the degree $\ell \ge 0$, and `m`, the order, $-\ell \le m \le \ell$:
+    integers, or integer NumPy arrays (elementwise).
+
+    **Returns:** the index (an array for arrays).
+    """
     return el * el + el + m
 
 
@@ -67,9 +79,15 @@ def _tridiagonal(N):
 
 @jax.jit
 def laplacian(P):
-    r"""$\Delta_N P = -\sum_a [S_a, [S_a, P]]$ for `(..., N, N)` matrices:
+    r"""The Laplacian $\Delta_N P = -\sum_a [S_a, [S_a, P]]$:
     $(\Delta_N P)_{ij} = (-2s(s+1) + 2\mu_i\mu_j)P_{ij} + a_{i+1}a_{j+1}P_{i+1,j+1}
-    + a_i a_j P_{i-1,j-1}$, in $O(N^2)$."""
+    + a_i a_j P_{i-1,j-1}$ ($s = (N-1)/2$, $\mu_i = s - i$, $a_k = \sqrt{k(N-k)}$), in
+    $O(N^2)$; its eigenvalues are $-\ell(\ell+1)$ on $T_{\ell m}$.
+
+    **Arguments:** `P`, `(..., N, N)` matrices.
+
+    **Returns:** $\Delta_N P$, the shape and dtype of `P`.
+    """
     P = jnp.asarray(P)
     N = P.shape[-1]
     s = (N - 1) / 2
@@ -243,14 +261,22 @@ def _eigenbasis_table(N, dtype_name):
 
 
 def poisson_eigenbasis(N, dtype=jnp.float64):
-    r"""The tables of route `"eigenbasis"` of `solve_poisson`, `(V, inv)`: `V` of shape
-    `(N, N, N)`, the eigenvectors of $\Delta_N$ on each cyclic diagonal of a matrix, and
-    `inv` `(N, N)` the inverses of their eigenvalues (0 for the identity), in the states'
-    real `dtype` (`V` takes 1.1 GB at N = 512 in float64, 8.6 GB at N = 1024); built once
-    per `N` in float64 (1.5 s at N = 512 on a CPU core), the two most recent cached.
-    Inside a `jax.jit` of your own pass them to `solve_poisson(..., eigenbasis=)` as
-    arguments: an array the function closes over is compiled into the program as a
-    constant."""
+    r"""The tables of route `"eigenbasis"` of `solve_poisson`: the eigenvectors of
+    $\Delta_N$ on each cyclic diagonal of a matrix and the inverses of their eigenvalues;
+    built once per `N` in float64 (1.5 s at N = 512 on a CPU core), the two most recent
+    cached. Inside a `jax.jit` of your own pass them to `solve_poisson(..., eigenbasis=)`
+    as arguments: an array the function closes over is compiled into the program as a
+    constant.
+
+    **Arguments:**
+
+    - `N`: the matrix size, an integer $\ge 2$ (else `ValueError`).
+    - `dtype`: the states' real dtype (default float64).
+
+    **Returns:** `(V, inv)`, JAX arrays in `dtype`: `V` of shape `(N, N, N)`, the
+    eigenvectors (`V` takes 1.1 GB at N = 512 in float64, 8.6 GB at N = 1024), and `inv`
+    `(N, N)` the inverses of their eigenvalues (0 for the identity).
+    """
     if isinstance(N, (bool, np.bool_)) or not isinstance(N, (int, np.integer)) or N < 2:
         raise ValueError(f"poisson_eigenbasis needs an integer N >= 2, got {N!r}.")
     return _eigenbasis_table(int(N), jnp.dtype(dtype).name)
@@ -281,26 +307,31 @@ def _solve_by_eigenbasis(W, V, inv):
 
 
 def solve_poisson(W, route="auto", eigenbasis=None):
-    r"""$P = \Delta_N^{-1}W$ for traceless `(..., N, N)` matrices $W$ (skew-Hermitian: the
-    stream matrix of the vorticity $W$), the traceless solution. $\Delta_N$ maps each
-    diagonal to itself tridiagonally; on the main diagonal it is singular (the identity):
-    there the first diagonal entry is lowered by $\tfrac12$, which leaves the solution
-    exact for a traceless right-hand side, and the trace is removed afterwards.
+    r"""$P = \Delta_N^{-1}W$, the traceless solution (for a skew-Hermitian $W$: the stream
+    matrix of the vorticity $W$). $\Delta_N$ maps each diagonal to itself tridiagonally;
+    on the main diagonal it is singular (the identity): there the first diagonal entry is
+    lowered by $\tfrac12$, which leaves the solution exact for a traceless right-hand
+    side, and the trace is removed afterwards.
 
-    `route`:
+    **Arguments:**
 
-    - `"auto"` (default): `"sweep"` on the CPU, `"scan"` elsewhere;
-    - `"sweep"`: the Thomas algorithm, coefficients computed once per `N` in float64, as
-      two sequential loops over the rows, every diagonal at once; $O(N^2)$;
-    - `"scan"`: the same sweeps as associative scans on the lower diagonals, elementwise
-      work in $O(\log N)$ steps;
-    - `"eigenbasis"`: each cyclic diagonal (the lower diagonal `m` and the upper diagonal
-      `N - m`) into the eigenbasis of $\Delta_N$ there and back, two batched products of
-      $O(N^3)$ work on a table of $N^3$ numbers (`poisson_eigenbasis`, or `eigenbasis=`
-      if given): for ensembles on accelerators, where a batch of states makes each a
-      matrix product per diagonal.
+    - `W`: traceless `(..., N, N)` matrices.
+    - `route`: how the systems are solved; the routes agree to round-off:
+        - `"auto"` (default): `"sweep"` on the CPU, `"scan"` elsewhere;
+        - `"sweep"`: the Thomas algorithm, coefficients computed once per `N` in float64,
+          as two sequential loops over the rows, every diagonal at once; $O(N^2)$;
+        - `"scan"`: the same sweeps as associative scans on the lower diagonals,
+          elementwise work in $O(\log N)$ steps;
+        - `"eigenbasis"`: each cyclic diagonal (the lower diagonal `m` and the upper
+          diagonal `N - m`) into the eigenbasis of $\Delta_N$ there and back, two batched
+          products of $O(N^3)$ work on a table of $N^3$ numbers: for ensembles on
+          accelerators, where a batch of states makes each a matrix product per diagonal.
+    - `eigenbasis`: route `"eigenbasis"`'s tables `(V, inv)` (`poisson_eigenbasis`), or
+      `None` (default: `poisson_eigenbasis(N)` in the real dtype of `W`); the other
+      routes ignore it.
 
-    The routes agree to round-off."""
+    **Returns:** $P$, traceless, the shape of `W`.
+    """
     W = jnp.asarray(W)
     N = W.shape[-1]
     route = _route(route)
@@ -324,20 +355,35 @@ def _traceless(P):
 @jax.jit
 def inner(P, W):
     r"""$\langle P, W\rangle = \operatorname{Re}\sum_{ij}P_{ij}\bar W_{ij}/N$ (quflow's
-    `inner_L2`: the $L^2$ inner product of the fields divided by $4\pi$)."""
+    `inner_L2`: the $L^2$ inner product of the fields divided by $4\pi$).
+
+    **Arguments:** `P`, `W`: `(..., N, N)` matrices (leading axes broadcast).
+
+    **Returns:** the real inner products, shape `(...)`.
+    """
     N = W.shape[-1]
     return jnp.sum(jnp.real(P * jnp.conj(W)), axis=(-2, -1)) / N
 
 
 @jax.jit
 def energy(W):
-    r"""$E(W) = -\tfrac12\langle W, \Delta_N^{-1}W\rangle$ (quflow's `energy_euler`)."""
+    r"""$E(W) = -\tfrac12\langle W, \Delta_N^{-1}W\rangle$ (quflow's `energy_euler`).
+
+    **Arguments:** `W`, `(..., N, N)` traceless skew-Hermitian matrices (vorticities).
+
+    **Returns:** the real energies, shape `(...)`.
+    """
     return -0.5 * inner(W, solve_poisson(W))
 
 
 @jax.jit
 def enstrophy(W):
-    r"""$\tfrac12\langle W, W\rangle$ (quflow's `enstrophy`)."""
+    r"""The enstrophy $\tfrac12\langle W, W\rangle$ (quflow's `enstrophy`).
+
+    **Arguments:** `W`, `(..., N, N)` matrices (vorticities).
+
+    **Returns:** the real enstrophies, shape `(...)`.
+    """
     return 0.5 * inner(W, W)
 
 
@@ -400,10 +446,19 @@ def _degrees(n, N):
 @functools.partial(jax.jit, static_argnames="N")
 def shr2mat(omega, N):
     r"""The matrix $W = \sum_{\ell m}\omega_{\ell m}T_{\ell m}$ of real spherical-harmonic
-    coefficients `omega` (shape `(..., n)`, $n \le N^2$, index $\ell^2 + \ell + m$), complex
-    `(..., N, N)`, skew-Hermitian; traceless when $\omega_{00} = 0$. quflow's `shr2mat`.
-    Only the degrees given are used: with $L^2 \ge n$, the tables hold $NL^2$ numbers
-    (the full $N^3$ at $n = N^2$), so a smooth state of a large system is cheap to build."""
+    coefficients. quflow's `shr2mat`. Only the degrees given are used: with $L^2 \ge n$,
+    the tables hold $NL^2$ numbers (the full $N^3$ at $n = N^2$), so a smooth state of a
+    large system is cheap to build.
+
+    **Arguments:**
+
+    - `omega`: the coefficients, shape `(..., n)`, $n \le N^2$, index $\ell^2 + \ell + m$
+      (`elm2ind`).
+    - `N`: the matrix size (a static argument under `jit`).
+
+    **Returns:** $W$, complex `(..., N, N)`, skew-Hermitian; traceless when
+    $\omega_{00} = 0$.
+    """
     omega = jnp.asarray(omega)
     L = _degrees(omega.shape[-1], N)
     if omega.shape[-1] < L * L:
@@ -430,9 +485,17 @@ def shr2mat(omega, N):
 
 @functools.partial(jax.jit, static_argnames="L")
 def mat2shr(W, L=None):
-    r"""The real spherical-harmonic coefficients `(..., L^2)` of a skew-Hermitian matrix,
-    degrees $\ell < L$ (default: all, $L = N$; `shr2mat`'s inverse). quflow's `mat2shr`.
-    The tables hold $NL^2$ numbers."""
+    r"""The real spherical-harmonic coefficients of a skew-Hermitian matrix (`shr2mat`'s
+    inverse). quflow's `mat2shr`. The tables hold $NL^2$ numbers.
+
+    **Arguments:**
+
+    - `W`: `(..., N, N)` skew-Hermitian matrices.
+    - `L`: the coefficients of degrees $\ell < L$, $1 \le L \le N$ (default: all, $L = N$;
+      a static argument under `jit`).
+
+    **Returns:** the real coefficients `(..., L^2)`, index $\ell^2 + \ell + m$ (`elm2ind`).
+    """
     W = jnp.asarray(W)
     N = W.shape[-1]
     L = N if L is None else L
@@ -455,10 +518,18 @@ def mat2shr(W, L=None):
 
 @functools.partial(jax.jit, static_argnames="N")
 def truncate(W, N):
-    r"""An su(M) state `W` (`(..., M, M)`) at another resolution: the su(N) state of its
-    degrees $\ell < \min(M, N)$, `shr2mat(mat2shr(W, L), N)` with $L = \min(M, N)$. For
-    $N < M$ it coarse-grains (the finer degrees are dropped: in the $L^2$ norm the nearest
-    su(N) field); for $N > M$ the new degrees are zero. The tables hold $(M + N)L^2$ numbers."""
+    r"""An su(M) state at another resolution: the su(N) state of its degrees
+    $\ell < \min(M, N)$, `shr2mat(mat2shr(W, L), N)` with $L = \min(M, N)$. For $N < M$ it
+    coarse-grains (the finer degrees are dropped: in the $L^2$ norm the nearest su(N)
+    field); for $N > M$ the new degrees are zero. The tables hold $(M + N)L^2$ numbers.
+
+    **Arguments:**
+
+    - `W`: the su(M) state, `(..., M, M)`.
+    - `N`: the new matrix size, an integer $\ge 2$ (a static argument under `jit`).
+
+    **Returns:** the su(N) state, complex `(..., N, N)`.
+    """
     W = jnp.asarray(W)
     if isinstance(N, (bool, np.bool_)) or not isinstance(N, (int, np.integer)) or N < 2:
         raise ValueError(f"truncate: N must be an integer >= 2, got {N!r}.")
@@ -478,8 +549,14 @@ def _coefficient_order(L):
 
 
 def grid(n_lat, n_lon=None):
-    r"""Colatitudes $\theta_k = \pi(k + \tfrac12)/n_{lat}$ and longitudes
-    $\phi_j = 2\pi j/n_{lon}$ (default `2 n_lat`), as NumPy arrays."""
+    r"""A latitude–longitude grid for `field`: colatitudes
+    $\theta_k = \pi(k + \tfrac12)/n_{lat}$ and longitudes $\phi_j = 2\pi j/n_{lon}$.
+
+    **Arguments:** `n_lat`, the number of colatitudes; `n_lon`, the number of longitudes
+    (default `2 n_lat`).
+
+    **Returns:** `(theta, phi)`, NumPy arrays of shapes `(n_lat,)` and `(n_lon,)`.
+    """
     n_lon = 2 * n_lat if n_lon is None else n_lon
     return (np.pi * (np.arange(n_lat) + 0.5) / n_lat, 2 * np.pi * np.arange(n_lon) / n_lon)
 
@@ -507,12 +584,20 @@ def _legendre(L, theta_key):
 
 def field(omega, theta, phi):
     r"""The field $\sum_{\ell m}\omega_{\ell m}Y_{\ell m}(\theta, \phi)$ of real
-    spherical-harmonic coefficients `omega` (`(..., L^2)`) on the grid `theta` × `phi`
-    (shape `(..., n_theta, n_phi)`), in quflow's real form and normalisation
+    spherical-harmonic coefficients on a grid, in quflow's real form and normalisation
     ($Y_{\ell m}$ of mean square 1 over the sphere;
     $Y_{\ell m} = \sqrt2\,\bar P_{\ell m}(\cos\theta)\cos m\phi$,
     $Y_{\ell,-m} = -\sqrt2\,\bar P_{\ell m}(\cos\theta)\sin m\phi$ for $m > 0$). quflow's
-    plots multiply the coefficients by Berezin factors first; this is the plain series."""
+    plots multiply the coefficients by Berezin factors first; this is the plain series.
+
+    **Arguments:**
+
+    - `omega`: the coefficients, `(..., L^2)` (`mat2shr`).
+    - `theta`, `phi`: the colatitudes and longitudes, 1-D arrays of lengths `n_theta` and
+      `n_phi` (`grid`); the field is evaluated on `theta` × `phi`.
+
+    **Returns:** the field, shape `(..., n_theta, n_phi)`.
+    """
     omega = jnp.asarray(omega)
     L = math.isqrt(omega.shape[-1])
     theta, phi = np.asarray(theta, float), np.asarray(phi, float)
@@ -544,8 +629,13 @@ def _by_degree(W, weight):
 @jax.jit
 def enstrophy_spectrum(W):
     r"""The enstrophy by degree, $Z_\ell = \tfrac12\sum_{m=-\ell}^{\ell}\omega_{\ell m}^2$,
-    $\ell = 0, \dots, N-1$, `(..., N)` for `(..., N, N)` matrices ($\omega$ = `mat2shr(W)`):
-    $\sum_\ell Z_\ell$ = `enstrophy(W)`. The tables are `mat2shr`'s ($N^3$ numbers)."""
+    $\ell = 0, \dots, N-1$ ($\omega$ = `mat2shr(W)`): $\sum_\ell Z_\ell$ = `enstrophy(W)`.
+    The tables are `mat2shr`'s ($N^3$ numbers).
+
+    **Arguments:** `W`, `(..., N, N)` skew-Hermitian matrices.
+
+    **Returns:** $Z_\ell$, real, `(..., N)`.
+    """
     N = W.shape[-1]
     return _by_degree(W, np.ones(N))
 
@@ -553,11 +643,15 @@ def enstrophy_spectrum(W):
 @jax.jit
 def energy_spectrum(W):
     r"""The energy by degree, $E_\ell = \tfrac12\sum_{m=-\ell}^{\ell}\omega_{\ell m}^2 /
-    (\ell(\ell+1))$, $\ell = 0, \dots, N-1$ ($E_0 = 0$), `(..., N)` for `(..., N, N)`
-    matrices: $\sum_\ell E_\ell$ = `energy(W)` and $E_\ell = Z_\ell/(\ell(\ell+1))$
-    (`enstrophy_spectrum`). quflow's `analysis.energy_spectrum` is $2E_\ell$ for
-    $\ell = 1, \dots, N-1$ (no $\tfrac12$, no $\ell = 0$). The tables are `mat2shr`'s
-    ($N^3$ numbers)."""
+    (\ell(\ell+1))$, $\ell = 0, \dots, N-1$ ($E_0 = 0$): $\sum_\ell E_\ell$ = `energy(W)`
+    and $E_\ell = Z_\ell/(\ell(\ell+1))$ (`enstrophy_spectrum`). quflow's
+    `analysis.energy_spectrum` is $2E_\ell$ for $\ell = 1, \dots, N-1$ (no $\tfrac12$, no
+    $\ell = 0$). The tables are `mat2shr`'s ($N^3$ numbers).
+
+    **Arguments:** `W`, `(..., N, N)` skew-Hermitian matrices.
+
+    **Returns:** $E_\ell$, real, `(..., N)`.
+    """
     N = W.shape[-1]
     el = np.arange(N)
     return _by_degree(W, np.divide(1.0, el * (el + 1.0), out=np.zeros(N), where=el > 0))

@@ -6,7 +6,11 @@ with `mkdocs build --strict`, which reports broken links and anchors):
   binds that is not a module), and those of `slps_jax.so3` and `slps_jax.zeitlin` (their
   `__all__`, else the functions and classes they define and their public constants), as
   `::: slps_jax.so3.NAME`;
-- every page in `docs/` and every notebook in `notebooks/` is in the site's nav.
+- every page in `docs/` and every notebook in `notebooks/` is in the site's nav;
+- every public function's docstring is in the house style, with an `**Arguments:**` section
+  (when it takes parameters) and a `**Returns:**` section, and so is every class a user
+  constructs (`**Arguments:**`), except the result containers and abstract interfaces of
+  `_HOUSE_STYLE_EXEMPT`.
 """
 
 import __future__
@@ -102,3 +106,72 @@ def test_every_page_and_notebook_is_in_the_nav():
     assert not missing, f"not in mkdocs.yml's nav: {missing}"
     absent = sorted(p for p in nav if not ((DOCS / p).is_file() or (ROOT / p).is_file()))
     assert not absent, f"mkdocs.yml's nav names files that do not exist: {absent}"
+
+
+# Public names that need not carry the `**Arguments:**` / `**Returns:**` sections:
+_HOUSE_STYLE_EXEMPT = {
+    # result containers: built by the library, not the user; their docstrings list the fields
+    **dict.fromkeys(
+        (
+            "AmplitudeTuning",
+            "CalibrationResult",
+            "Checkpoint",
+            "ConvergenceResult",
+            "EnsembleStatistics",
+            "ForecastScores",
+            "PairedComparison",
+            "Solution",
+            "StepInfo",
+            "StoredRun",
+            "StrongOrders",
+            "TransportNoiseFit",
+            "WeakConvergenceResult",
+        ),
+        "a result container: its docstring lists its fields",
+    ),
+    # interfaces to subclass: their docstrings list what a subclass writes
+    **dict.fromkeys(
+        ("AbstractAlgebra", "AbstractMethod", "AbstractNoise"),
+        "an abstract interface: its docstring lists what a subclass writes",
+    ),
+}
+
+
+def _takes_parameters(obj):
+    try:
+        parameters = inspect.signature(obj).parameters
+    except (TypeError, ValueError):  # (no signature to read: a builtin)
+        return False
+    return any(p.name != "self" for p in parameters.values())
+
+
+@pytest.mark.parametrize(
+    "module", [slps_jax, slps_jax.so3, slps_jax.zeitlin], ids=lambda m: m.__name__
+)
+def test_public_functions_follow_the_house_style(module):
+    """Every public function has `**Arguments:**` (when it takes parameters) and
+    `**Returns:**`; every public class a user constructs has `**Arguments:**` for its
+    constructor (when it takes parameters). Exempt: `_HOUSE_STYLE_EXEMPT`."""
+    stale = sorted(set(_HOUSE_STYLE_EXEMPT) - _public_names(slps_jax))
+    assert not stale, f"_HOUSE_STYLE_EXEMPT names that are not public: {stale}"
+    missing = []
+    for name in sorted(_public_names(module)):
+        obj = getattr(module, name)
+        is_class = inspect.isclass(obj)
+        if not (is_class or callable(obj)) or name in _HOUSE_STYLE_EXEMPT:
+            continue
+        doc = inspect.getdoc(obj) or ""
+        lacks = [
+            section
+            for section, needed in (
+                ("**Arguments:**", _takes_parameters(obj)),
+                ("**Returns:**", not is_class),
+            )
+            if needed and section not in doc
+        ]
+        if lacks:
+            missing.append(f"{name} ({', '.join(lacks)})")
+    assert not missing, (
+        f"{module.__name__}: public names whose docstring lacks a house-style section: "
+        + "; ".join(missing)
+    )

@@ -64,8 +64,15 @@ def _so(n):
 
 
 def so(n):
-    """The Lie algebra so(n)* of skew `(n, n)` matrices, `n >= 3` (see `SOnAlgebra`): pass it
-    as `LiePoissonSystem(..., algebra=so(n))`."""
+    """The Lie algebra so(n)* of skew `(n, n)` matrices (see `SOnAlgebra`): pass it as
+    `LiePoissonSystem(..., algebra=so(n))`.
+
+    **Arguments:**
+
+    - `n`: the matrix size, an integer `n >= 3` (else `ValueError`).
+
+    **Returns:** the algebra, an `AbstractAlgebra`: the one instance for each `n`.
+    """
     if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 3:
         raise ValueError(f"so(n) needs an integer n >= 3, got {n!r}.")
     return _so(int(n))

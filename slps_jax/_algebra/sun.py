@@ -118,8 +118,15 @@ def _su(n):
 
 
 def su(n):
-    """The Lie algebra su(N)* of traceless skew-Hermitian `(N, N)` matrices, `N >= 2` (see
-    `SUnAlgebra`): pass it as `LiePoissonSystem(..., algebra=su(N))`."""
+    """The Lie algebra su(N)* of traceless skew-Hermitian `(N, N)` matrices (see
+    `SUnAlgebra`): pass it as `LiePoissonSystem(..., algebra=su(N))`.
+
+    **Arguments:**
+
+    - `n`: the matrix size $N$, an integer `N >= 2` (else `ValueError`).
+
+    **Returns:** the algebra, an `AbstractAlgebra`: the one instance for each `N`.
+    """
     if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 2:
         raise ValueError(f"su(N) needs an integer N >= 2, got {n!r}.")
     return _su(int(n))

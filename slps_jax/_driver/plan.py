@@ -51,10 +51,19 @@ def check_pair(method, system):
 @renamed_arguments(model="system")
 def default_method(system):
     """The method `method="auto"` picks for `system`, by the measurements in
-    `docs/methods.md` ("Which method"): `IsospectralMidpoint` on so(n)* and su(N)*
-    (every Casimir kept, the cheapest Poisson method there), `Midpoint` on so(3)* (the
+    `docs/methods.md` ("Which method").
+
+    **Arguments:**
+
+    - `system`: the system the method is to run on (a `RigidBody`, a `LiePoissonSystem`,
+      an `EulerZeitlin`); only its algebra matters.
+
+    **Returns:** a method instance with its default options: `Midpoint()` on so(3)* (the
     smallest error at a given cost among the methods that keep the Casimir, for one noise
-    and with Lévy areas for several; it never failed in the stress matrix)."""
+    and with Lévy areas for several; it never failed in the stress matrix),
+    `IsospectralMidpoint()` on so(n)* and su(N)* (every Casimir kept, the cheapest Poisson
+    method there).
+    """
     return Midpoint() if SO3_VECTORS(system) else IsospectralMidpoint()
 
 

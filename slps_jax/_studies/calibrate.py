@@ -26,7 +26,14 @@ from .._systems.rigid_body import RigidBody
 
 
 def moments(ys):
-    """Default statistic: the mean of `y` and of `y**2` over the ensemble, shape `(6,)`."""
+    """Default statistic of `calibrate`: the mean of `y` and of `y**2` over the ensemble.
+
+    **Arguments:**
+
+    - `ys`: `(n_samples, 3)`, the ensemble's states at one time (the sample axis first).
+
+    **Returns:** shape `(6,)`: the three means of $y_j$, then the three means of $y_j^2$.
+    """
     return jnp.concatenate([jnp.mean(ys, axis=0), jnp.mean(ys**2, axis=0)])
 
 

@@ -264,6 +264,13 @@ def fit_transport_noise(
 
     Left out: the mean missed transport (a bias, not noise), the part of $R_n$ that no
     transport can produce (`unexplained`), and the non-Gaussian statistics of the traces.
+
+    **Returns:** a `TransportNoiseFit`: the noise (`EulerZeitlin(N, noise=fit.noise)`), its
+    modes, amplitudes and correlation times, and what the fit explained.
+
+    **References:** after Cotter, Crisan, Holm, Pan & Shevchenko (2019), SIAM MMS, doi
+    10.1137/18M1167929 (EOFs of the missed transport); Hansen (1992), SIAM Review 34 (the
+    L-curve). `docs/data-driven-noise.md` derives the estimator.
     """
     if method is not None:
         from .._support.deprecated import warn

@@ -22,7 +22,17 @@ FACTORS = 2.0 ** np.arange(-3.0, 3.25, 0.5)  # 1/8 ... 8, ratios of sqrt 2
 
 
 def scaled_noise(noise, factor):
-    """The noise family `noise` with every amplitude (its arrays' leaves) times `factor`."""
+    """The noise family `noise` with every amplitude (its arrays' leaves) times `factor`.
+
+    **Arguments:**
+
+    - `noise`: a noise family, a pytree whose array leaves are its amplitudes (for example
+      `salt_noise(X)`, or `TransportNoiseFit.noise`).
+    - `factor`: the amplitude factor, a scalar (`tune_amplitude` tunes it).
+
+    **Returns:** a noise family of the same kind, every leaf times `factor` (for
+    `salt_noise(X)`: `salt_noise(factor * X)`).
+    """
     return jax.tree_util.tree_map(lambda x: factor * x, noise)
 
 
@@ -40,25 +50,29 @@ def forecast_ensembles(
     retry_substeps: int | None = 4,
     levy_area=False,
 ):
-    r"""Each start's ensemble forecast, `(n_starts, members, lead // every, *state)`: the
-    states at `every, 2 every, ..., lead` steps of `dt` after the start, all starts run as
-    one batched program. With `levy_area="auto"` they are what
-    `simulate(system, starts[s], ..., key=fold_in(key, s))` gives (its increments and Lévy
-    areas); by default the same increments without the areas.
+    r"""Each start's ensemble forecast: the states at `every, 2 every, ..., lead` steps of
+    `dt` after the start, all starts run as one batched program. With `levy_area="auto"`
+    they are what `simulate(system, starts[s], ..., key=fold_in(key, s))` gives (its
+    increments and Lévy areas); by default the same increments without the areas.
+
+    **Arguments:**
 
     - `system`: the stochastic system (for example `EulerZeitlin(N, noise=...)`).
     - `starts`: `(n_starts, *state)` initial states (the truth's, coarse-grained).
     - `lead`, `every`: steps to the last lead time, and between saved times (`lead` a
-      multiple of `every`); `members`: members per start.
+      multiple of `every`); `dt`: the step size (positive); `members`: members per start.
     - `key`: start `s` draws from `fold_in(key, s)`: a start's ensemble does not depend on
       the others, and common random numbers make factors comparable (`tune_amplitude`).
     - `driver`, `method`, `retry_substeps`: as for `simulate` (`driver=OrnsteinUhlenbeck(T)`
       for a noise fitted with `time_model="ou"`).
     - `levy_area`: `False` (default): forecasts are judged in distribution, where the
       methods are weak order 1 without the areas (of mean zero), and drawing the areas of
-      many noises dominates the cost; `"auto"` or `True` as for `simulate`.
+      many noises dominates the cost; `"auto"` or `True` as for `simulate` (with a `driver`,
+      which has no Lévy areas, `True` is refused and `"auto"` draws none).
 
     A member that fails raises `RuntimeError`: forecasts are not scored with failed members.
+
+    **Returns:** a NumPy array `(n_starts, members, lead // every, *state)`.
     """
     lead, every = check_count("lead", lead), check_count("every", every)
     members = check_count("members", members)
@@ -126,10 +140,17 @@ def _forecasts(method, system, starts, noise, dt, every, retry):
 
 
 def start_crps(ensembles, truth, observe):
-    """Each start's mean fair CRPS over its lead times and observables, `(n_starts,)`:
-    `ensembles` `(n_starts, members, T, *state)` (`forecast_ensembles`), `truth`
-    `(n_starts, T, *state)`, `observe` states to observables `(..., k)`; the per-start
-    scores that `paired_comparison` compares."""
+    """Each start's mean fair CRPS (`crps_ensemble`, Ferro 2014) over its lead times and
+    observables: the per-start scores that `paired_comparison` compares.
+
+    **Arguments:**
+
+    - `ensembles`: `(n_starts, members, T, *state)`, the forecasts (`forecast_ensembles`).
+    - `truth`: `(n_starts, T, *state)`, the truth at the same lead times.
+    - `observe`: a function from states `(..., *state)` to observables `(..., k)`.
+
+    **Returns:** a NumPy array `(n_starts,)`.
+    """
     y = np.asarray(observe(jnp.asarray(truth)))
     x = np.moveaxis(np.asarray(observe(jnp.asarray(ensembles))), 1, 0)  # members first
     return np.mean(crps_ensemble(x, y), axis=tuple(range(1, y.ndim)))
@@ -168,7 +189,13 @@ def tune_amplitude(
     have the least mean fair CRPS of `observe` against `truth`. Use starts inside the
     training period only, and score the tuned noise on held-out starts.
 
+    **Arguments:**
+
+    - `noise`: the transport noise family to scale (`scaled_noise`), for example
+      `fit_transport_noise(...).noise`.
+    - `starts`: `(n_starts, N, N)`, the initial states, as for `forecast_ensembles`.
     - `truth`: `(n_starts, lead // every, N, N)`, the truth at the lead times.
+    - `N`: the size of the `EulerZeitlin` system forecast.
     - `observe`: states `(..., N, N)` to observables `(..., k)`, chosen before scoring.
     - `factors`: the candidates (default `FACTORS`, 1/8 ... 8 in ratios of $\sqrt 2$),
       tried in ascending order until the CRPS has risen above its least value twice in a
@@ -176,7 +203,12 @@ def tune_amplitude(
       same `key` (common random numbers), and failing steps are not retried.
     - `refine`: then also try the geometric midpoints between the best factor and its
       neighbours (default `True`: a grid twice as fine near the optimum).
+    - `lead`, `dt`, `every`, `members`, `key`: as for `forecast_ensembles`.
     - `driver`, `method`: as for `simulate`.
+
+    **Returns:** an `AmplitudeTuning`: the best `factor`, and every factor tried (ascending)
+    with its mean CRPS (`inf` where a member failed). Raises `RuntimeError` if every
+    factor's forecasts had failed members.
     """
     factors = np.asarray(FACTORS if factors is None else factors, dtype=float)
     if factors.ndim != 1 or factors.size < 2 or not np.all(np.isfinite(factors) & (factors > 0)):

@@ -640,8 +640,15 @@ class StoredRun:
 
 
 def open_run(path):
-    """Open the run store at `path` for reading: a `StoredRun` (snapshots, times, the last
-    checkpoint, `to_xarray()`). xarray also opens the folder itself,
+    """Open the run store at `path` for reading. xarray also opens the folder itself,
     `xarray.open_zarr(path, consolidated=False)`, but then sees, until the next resume,
-    the rows of a record that a kill left incomplete: `StoredRun.to_xarray` cuts them."""
+    the rows of a record that a kill left incomplete: `StoredRun.to_xarray` cuts them.
+
+    **Arguments:**
+
+    - `path`: the store's folder, as given to `RunStore` (or `simulate_to_store`); no folder
+      there is a `FileNotFoundError`.
+
+    **Returns:** a `StoredRun` (snapshots, times, the last checkpoint, `to_xarray()`).
+    """
     return StoredRun(path)

@@ -37,6 +37,8 @@ class EulerZeitlin(LiePoissonSystem):
     Transport noise $H_r(W) = \langle X_r, W\rangle$ adds $[W, X_r]\circ dB_r$; write
     `salt_noise(X)` with $X_r = -\xi_r$ for the noise $[\xi_r, W]$ of the literature.
 
+    **Arguments:**
+
     - `N`: the matrix size, an integer $\ge 2$ (the field is resolved up to degree $N - 1$).
     - `c`, `noise`: as for `LiePoissonSystem` (default: deterministic).
     - `dtype`: the states' dtype, `complex128` or `complex64` (default: that of `c` or of the
@@ -52,6 +54,10 @@ class EulerZeitlin(LiePoissonSystem):
     `system.stream(W)` ($P = \Delta_N^{-1}W$), `system.energy(W)`, `system.enstrophy(W)`
     (quflow's normalisation), `system.algebra.casimirs(W)` ($\operatorname{tr}W^k$). All
     computations are $O(N^2)$ except the methods' matrix products.
+
+    **References:** V. Zeitlin (1991, 2004), the quantisation; K. Modin & M. Viviani,
+    J. Fluid Mech. 884 (2020) A22, the conventions (quflow's); Ephrati, Jansson, Lang &
+    Luesink, arXiv:2408.16701, the stochastic version with transport noise.
     """
 
     def __init__(self, N, *, c=None, noise=None, dtype=None, poisson="auto"):

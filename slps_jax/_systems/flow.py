@@ -136,7 +136,18 @@ def exact_solution(system, y0, t, W_t):
 def _deterministic_flow(system, y0, times, *, max_step=2.0**-10):
     r"""Deprecated (removed in the next release): use `drift_flow`. The drift's flow
     $\varphi_t(y_0)$ of any system at each of `times`, by classical Runge–Kutta with steps
-    of at most `max_step`."""
+    of at most `max_step`; `model=` is accepted for `system=`. Warns with a
+    `DeprecationWarning`.
+
+    **Arguments:**
+
+    - `system`: any system.
+    - `y0`: a state.
+    - `times`: a time or an array of times, any shape, concrete (outside `jax.jit`).
+    - `max_step`: the largest Runge–Kutta step, a positive number (default 2^-10).
+
+    **Returns:** $\varphi_t(y_0)$ at each time, shape `times.shape + y0.shape`.
+    """
     return _runge_kutta_flow(system, y0, times, max_step)
 
 

@@ -179,8 +179,11 @@ def salt_noise(chi):
     $H_r(y) = \chi_r \cdot y$ on so(3), $H_r(Y) = \langle X_r, Y\rangle$ on so(n).
 
     **Arguments:** `chi`, shape `(s, 3)`: row $r$ is the axis (times the strength) of noise
-    $r$; on so(n) shape `(s, n, n)`, one skew matrix $X_r$ per noise. A pytree leaf:
-    `jax.grad` reaches it.
+    $r$; on so(n) shape `(s, n, n)`, one skew matrix $X_r$ per noise (on su(N) a
+    skew-Hermitian one, complex). A pytree leaf: `jax.grad` reaches it.
+
+    **Returns:** the noise family (an `AbstractNoise` of `s` noises) for `noise=` of
+    `RigidBody`, `LiePoissonSystem` or `EulerZeitlin`.
     """
     return SaltNoise(_parameter_matrix("chi", chi, "the axis of each noise", matrices=True))
 
@@ -210,6 +213,9 @@ def random_inertia_noise(sigma):
     moments of inertia $1/I_j$).
 
     **Arguments:** `sigma`, shape `(s, 3)`: row $r$ the strengths of noise $r$. A pytree leaf.
+
+    **Returns:** the noise family (an `AbstractNoise` of `s` noises) for `noise=` of
+    `RigidBody` or `LiePoissonSystem` on so(3)*.
     """
     return RandomInertiaNoise(_parameter_matrix("sigma", sigma, "the strengths of each noise"))
 
