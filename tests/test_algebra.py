@@ -14,7 +14,7 @@ import pytest
 
 import slps_jax as sj
 
-ALGEBRAS = [sj.SO3, sj.so(4), sj.so(5), sj.su(2), sj.su(3), sj.su(4)]
+ALGEBRAS = [sj.SO3, sj.so(3), sj.so(4), sj.so(5), sj.su(2), sj.su(3), sj.su(4)]
 IDS = [a.name + (" vectors" if a is sj.SO3 else "") for a in ALGEBRAS]
 
 
@@ -174,3 +174,12 @@ def test_group_coordinates_span_the_group_algebra(alg):
     (y,) = _states(alg, 1, seed=9)
     _close(alg.group_coordinates(alg.to_matrix(y))[: alg.dim], alg.coordinates(y))
     assert alg.group_dim - alg.dim == (1 if alg.is_complex else 0)
+
+
+def test_a_method_for_3_vectors_refuses_so3_matrices_naming_sj_so3():
+    # so(3) as matrices (sj.so(3)) is the generic form, kept distinct from the vectors of
+    # sj.SO3; a method that needs the vectors says which algebra it wants
+    system = sj.GeneralisedRigidBody([1.0, 2.0, 3.0], c=0.2)
+    y0 = np.array([[0.0, 0.3, 0.2], [-0.3, 0.0, 0.1], [-0.2, -0.1, 0.0]])
+    with pytest.raises(TypeError, match=r"LiePoissonSym2 needs .*sj\.SO3.*not the matrices"):
+        sj.integrate(system, y0, np.zeros((2, 1)), 0.01, method=sj.LiePoissonSym2())

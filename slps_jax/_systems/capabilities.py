@@ -43,6 +43,8 @@ QUADRATIC = Capability(
     lambda system: system.noise is None and system.quadratic_hamiltonian,
 )
 SO3_VECTORS = Capability(
-    "so(3)* as 3-vectors (the SO3 algebra)", lambda system: isinstance(system.algebra, SO3Algebra)
+    "so(3)* as 3-vectors (the algebra sj.SO3: a RigidBody, or "
+    "LiePoissonSystem(..., algebra=sj.SO3), not the matrices of sj.so(3))",
+    lambda system: isinstance(system.algebra, SO3Algebra),
 )
 CAPABILITIES = (RIGID_BODY, NOISE_PROPORTIONAL_TO_DRIFT, LINEAR_NOISE, QUADRATIC, SO3_VECTORS)
