@@ -93,5 +93,3 @@ def test_flow_reference_is_the_exact_reference():
 def test_calibration_result_model_is_system():
     res = sj.CalibrationResult(RB, np.zeros(1), None, np.ones(4))
     assert deprecated(lambda: res.model, ".system") is RB
-
-
