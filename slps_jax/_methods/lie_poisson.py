@@ -12,11 +12,10 @@ import numpy as np
 
 from .._algebra import adjoint
 from .._algebra import so3 as comp
-from .._algebra.so3 import SO3Algebra
 from .._brownian import scale
 from .._support.checks import check_options, real_dtype
 from .._support.solution import RESULTS
-from .._systems.capabilities import QUADRATIC
+from .._systems.capabilities import QUADRATIC, SO3_VECTORS
 from .base import AbstractMethod, StepInfo, StrongOrders, default_tol, finite_result
 from .newton import implicit_root, newton, solve_array
 
@@ -420,7 +419,9 @@ class LiePoisson(AbstractMethod):
 
     def step(self, system, y, dt, dW):
         tol = default_tol(y.dtype) if self.tol is None else self.tol
-        return _chart_step(system.algebra)(self, system, y, dt, dW, tol)
+        if SO3_VECTORS(system):  # Newton on the sine vector: the in-map in closed form
+            return self._step_sine(system, y, dt, dW, tol)
+        return self._step_group(system, y, dt, dW, tol)  # Cayley coordinates: SO(n), U(N)
 
     def _step_sine(self, system, y, dt, dW, tol):
         r"""The step on so(3)* (3-vectors): Newton on the sine vector of $A_n$, the in-map of
@@ -508,16 +509,3 @@ class LiePoisson(AbstractMethod):
         # move the Casimirs)
         y_next = alg.act(a, y).astype(y.dtype)
         return y_next, StepInfo(finite_result(y_next, result), iterations, res.astype(real))
-
-
-@functools.singledispatch
-def _chart_step(algebra):
-    """The step of scheme (42) for the algebra's type: by default Newton in Cayley coordinates
-    about the branch point (SO(n), U(N))."""
-    return LiePoisson._step_group
-
-
-@_chart_step.register
-def _(algebra: SO3Algebra):
-    """On SO(3), Newton on the sine vector of the rotation: the in-map in closed form."""
-    return LiePoisson._step_sine
