@@ -216,9 +216,11 @@ def scale(ns, dtypes, budget_s, members, member_ns, write):
     """Per N and dtype, one state: `solve_poisson` by each route, two N x N products (the
     floor's unit, by `matmul` and by XLA's complex product), and one `IsospectralMidpoint`
     step at h = 0.64/N s (a step its fixed point solves: h = 0.01 s at N = 64,
-    0.0025 s at N = 256) with its updates and matrix products (2 per update; 1 for the
-    explicit final update, the default in complex128; 2 and an LU for the Cayley rotation,
-    the default in complex64). The floor is the products alone, the faster kind.
+    0.0025 s at N = 256), cold-started, with its updates and matrix products (2 per update,
+    and 8 for the Cayley rotation, the default final update: three squarings at this step,
+    2 products each, and 2 to apply it; none for the explicit one). The floor is the
+    products alone, the faster kind. The same step with 8 transport noises and their Lévy
+    areas (`areas_vs_step`: the area term's cost, one step, both cold).
     quflow's `isomp` at the same h, solved to 1e-13, where it is installed (complex128). A
     part whose last point took longer than `budget_s` is not run at larger N. Matrix
     products at `precision="highest"` (on a GPU the default is TF32 for complex64)."""
@@ -305,7 +307,7 @@ def scale(ns, dtypes, budget_s, members, member_ns, write):
                     throw=False,
                 )
                 row["updates"] = float(sol.stats["newton_iterations_mean"])
-                final = 2 if sj.IsospectralMidpoint()._cayley(system, dtype) else 1
+                final = 8 if sj.IsospectralMidpoint()._cayley(system, dtype) else 0
                 row["products"] = 2 * row["updates"] + final
                 unit = min(row["two_products_ms"], row["two_complex_products_ms"])
                 row["floor_ms"] = row["products"] / 2 * unit

@@ -128,6 +128,12 @@ def test_readme_is_short():
     )
 
 
+def test_benchmarks_readme_is_short():
+    # one table per measurement, each on one named machine: not a log of every run
+    n = len((ROOT / "benchmarks" / "README.md").read_text(encoding="utf-8").splitlines())
+    assert n <= 400, f"benchmarks/README.md has {n} lines, at most 400"
+
+
 def test_readme_has_no_history():
     hits = [
         f"{i}: {line}"
