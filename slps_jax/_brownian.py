@@ -3,7 +3,7 @@
 A step's noise is one value, a `BrownianStep`: the increments `dW` of the `s` noises and,
 when asked for, their Lévy areas `area` (`(s, s)`, antisymmetric). Every rule for it lives
 here: drawing it from a sample's key (`draw`), joining consecutive steps into one (`join`:
-increments add, areas by Chen's relation), and scaling it (`scale`: a step split into `m`
+increments add, areas by Chen's relation), and scaling it (`scale_noise`: a step split into `m`
 equal substeps has `(dW/m, A/m)` each, consistent with Chen's relation because the
 substeps' increments are parallel).
 
@@ -50,9 +50,9 @@ def as_step(noise):
     return BrownianStep(jnp.reshape(jnp.asarray(noise), (-1,)))
 
 
-def scale(noise, factor):
+def scale_noise(noise, factor):
     """The step's noise times `factor` (increments and areas alike): a substep of a step
-    split into `m` equal parts is `scale(noise, 1/m)`, and `m` of them joined by Chen's
+    split into `m` equal parts is `scale_noise(noise, 1/m)`, and `m` of them joined by Chen's
     relation give the step back (their increments are parallel, so no cross terms)."""
     noise = as_step(noise)
     return jax.tree_util.tree_map(lambda x: factor * x, noise)

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from ._algebra import so3 as c
+from ._algebra import so3 as comp
 
 
 def hat(v):
@@ -15,7 +15,7 @@ def hat(v):
 
     **Arguments:** `v`, shape `(..., 3)`. **Returns:** shape `(..., 3, 3)`.
     """
-    return c.unmat(c.hat(c.vec(jnp.asarray(v))))
+    return comp.unmat(comp.hat(comp.vec(jnp.asarray(v))))
 
 
 def vee(m):
@@ -24,7 +24,7 @@ def vee(m):
 
     **Arguments:** `m`, shape `(..., 3, 3)`. **Returns:** shape `(..., 3)`.
     """
-    return c.unvec(c.vee_skew(c.mat(jnp.asarray(m))))
+    return comp.unvec(comp.vee_skew(comp.mat(jnp.asarray(m))))
 
 
 def skew(m):
@@ -56,7 +56,7 @@ def exp(xi):
 
     **Arguments:** `xi`, shape `(..., 3)`. **Returns:** rotation matrices `(..., 3, 3)`.
     """
-    return c.unmat(c.exp(c.vec(jnp.asarray(xi))))
+    return comp.unmat(comp.exp(comp.vec(jnp.asarray(xi))))
 
 
 def log(r):
@@ -68,15 +68,15 @@ def log(r):
 
     **Arguments:** `r`, rotation matrices `(..., 3, 3)`. **Returns:** `(..., 3)`.
     """
-    m = c.mat(jnp.asarray(r))
-    w = c.vee_skew(m)
-    s2 = c.dot(w, w)
-    small = s2 < c.small_angle_threshold(s2.dtype) ** 2
+    m = comp.mat(jnp.asarray(r))
+    w = comp.vee_skew(m)
+    s2 = comp.dot(w, w)
+    small = s2 < comp.small_angle_threshold(s2.dtype) ** 2
     s = jnp.sqrt(jnp.where(small, 1.0, s2))
-    theta = jnp.arctan2(s, 0.5 * (c.trace(m) - 1.0))
+    theta = jnp.arctan2(s, 0.5 * (comp.trace(m) - 1.0))
     # theta / sin(theta) -> 1 + theta^2/6 as theta -> 0.
     factor = jnp.where(small, 1.0 + s2 / 6.0, theta / s)
-    return c.unvec(c.scale(factor, w))
+    return comp.unvec(comp.scale(factor, w))
 
 
 def cayley(xi):
@@ -86,7 +86,7 @@ def cayley(xi):
 
     **Arguments:** `xi`, shape `(..., 3)`. **Returns:** `(..., 3, 3)`.
     """
-    return c.unmat(c.cayley(c.vec(jnp.asarray(xi))))
+    return comp.unmat(comp.cayley(comp.vec(jnp.asarray(xi))))
 
 
 def cayley_inv(r):
@@ -94,5 +94,5 @@ def cayley_inv(r):
 
     **Arguments:** `r`, rotation matrices `(..., 3, 3)`. **Returns:** `(..., 3)`.
     """
-    m = c.mat(jnp.asarray(r))
-    return c.unvec(c.scale(4.0 / (1.0 + c.trace(m)), c.vee_skew(m)))
+    m = comp.mat(jnp.asarray(r))
+    return comp.unvec(comp.scale(4.0 / (1.0 + comp.trace(m)), comp.vee_skew(m)))

@@ -113,7 +113,7 @@ def test_joined_steps_follow_chen_and_split_steps_give_the_step_back():
         np.testing.assert_allclose(got.area, want[1], rtol=0, atol=1e-15)
     # m equal substeps (dW/m, A/m) joined give the step back (parallel increments)
     step = _brownian.BrownianStep(jnp.asarray(fine_dW[0]), jnp.asarray(fine_A[0]))
-    part = _brownian.scale(step, 1 / 4)
+    part = _brownian.scale_noise(step, 1 / 4)
     joined = part
     for _ in range(3):
         joined = _brownian.join(joined, part)

@@ -3,7 +3,7 @@
 The driver calls `robust_step` for every step when `retry_substeps = k` (the default, 4) and
 the method can fail (`can_fail`; not exact flows and compositions of exact rotations).
 A step that fails is redone from its start as `k` equal substeps of `(dt/k, dW/k)` (and
-areas `A/k`: `_brownian.scale`, which joined by Chen's relation give the step's), then
+areas `A/k`: `_brownian.scale_noise`, which joined by Chen's relation give the step's), then
 `k^2`, then `k^3`, before the sample is given up. The substeps are the scheme run on a finer
 grid through the same point `W(t_{n+1})`: for a system whose noise is proportional to the
 drift, the flow of the time `tau = dt + c dW` is a group, `phi_tau = phi_{tau/m}^m`, so `m`
@@ -83,11 +83,11 @@ def _attempts(method, system, y, dt, dW, act, k, m0, history=(), jacobians=False
         i, m, yc, code, its, res, going, jac, first, hist = s
         mf = m.astype(dtype)
         once = (m == 1) & (i == 0)  # the step itself, not a substep
-        # (dt/m, dW/m, A/m): the step's noise split evenly (`_brownian.scale`)
+        # (dt/m, dW/m, A/m): the step's noise split evenly (`_brownian.scale_noise`)
         y2, info, d = substep(
             yc,
             jnp.where(going, dt / mf, 0.0).astype(dtype),
-            _brownian.where(going, _brownian.scale(dW, 1.0 / mf)),
+            _brownian.where(going, _brownian.scale_noise(dW, 1.0 / mf)),
             jax.tree_util.tree_map(lambda a, b: jnp.where(once, a, b), history, cold),
         )
         c2 = finite_result(y2, info.result)

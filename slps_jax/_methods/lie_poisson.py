@@ -12,7 +12,7 @@ import numpy as np
 
 from .._algebra import adjoint
 from .._algebra import so3 as comp
-from .._brownian import scale
+from .._brownian import scale_noise
 from .._support.checks import check_options, real_dtype
 from .._support.solution import RESULTS
 from .._systems.capabilities import QUADRATIC, SO3_VECTORS
@@ -430,7 +430,7 @@ class LiePoisson(AbstractMethod):
         # scale: z = y / lam at time scaled by lam (a time change for quadratic Hamiltonians)
         lam_s = 1.0 if self.scale is None else self.scale
         z = comp.scale(1.0 / lam_s, comp.vec(y))
-        dt_s, dW_s = lam_s * dt, scale(dW, lam_s)
+        dt_s, dW_s = lam_s * dt, scale_noise(dW, lam_s)
         alg = system.algebra
 
         def sine_fn(v, lam, jacobian=True):
@@ -462,7 +462,7 @@ class LiePoisson(AbstractMethod):
         real = real_dtype(y.dtype)
         lam = 1.0 if self.scale is None else self.scale
         z = y / lam
-        dt_s, dW_s = lam * dt, scale(dW, lam)
+        dt_s, dW_s = lam * dt, scale_noise(dW, lam)
         # (the chart's base point: constant for derivatives, which the implicit function
         # theorem gives through the residual; eigh's derivative is singular here anyway)
         a0, gap = jax.tree_util.tree_map(jax.lax.stop_gradient, branch_point(alg.to_matrix(z)))
@@ -476,7 +476,8 @@ class LiePoisson(AbstractMethod):
         def residual(x, lam_):
             a = rotation(x)
             return alg.group_coordinates(
-                group_in_map(system, a, lam_ * dt_s, scale(dW_s, lam_), second) - alg.to_matrix(z)
+                group_in_map(system, a, lam_ * dt_s, scale_noise(dW_s, lam_), second)
+                - alg.to_matrix(z)
             )
 
         zero = jnp.zeros((alg.group_dim,), real)

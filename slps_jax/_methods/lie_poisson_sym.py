@@ -8,7 +8,7 @@ import jax
 import jax.numpy as jnp
 
 from .._algebra import so3 as comp
-from .._brownian import scale
+from .._brownian import scale_noise
 from .._support.batching import batched_like
 from .._support.checks import check_options
 from .._support.solution import RESULTS
@@ -59,7 +59,7 @@ def _composition(system, y, dt, dW, weights, tol, max_iter, info):
         sign = jnp.where(k % 2 == 0, -1.0, 1.0)
         w = 0.5 * gammas[k // 2]
         r, new = _solve_rotation(
-            system, comp.scale(sign, u), w * dt, scale(dW, w), sign, tol, max_iter, info.ok
+            system, comp.scale(sign, u), w * dt, scale_noise(dW, w), sign, tol, max_iter, info.ok
         )
         return comp.mv(r, u), combine([info, new])
 
@@ -79,7 +79,7 @@ def _check_unit_ball(name, y0):
 
 class _SymmetricLiePoisson(AbstractMethod):
     requires = frozenset({SO3_VECTORS})  # (the sine chart of so(3); so(n): LiePoisson)
-    # (each substep with weight w gets the increments and areas times w: `_brownian.scale`)
+    # (each substep with weight w gets the increments and areas times w: `_brownian.scale_noise`)
     strong_orders = StrongOrders(one=1.0, increments=0.5, areas=1.0)
     poisson = True
     tol: float | None  # (the subclasses' fields)
