@@ -80,3 +80,111 @@ def test_pcn_keeps_the_increments_law_and_accepts_everything_without_likelihood(
     assert bool(jnp.all(da.pcn_accept(key2, ell - 5.0, ell, 0.0)))  # beta = 0: no likelihood
     assert not bool(jnp.any(da.pcn_accept(key2, ell - 1e3, ell, 1.0)))
     assert np.array_equal(np.asarray(da.pcn_proposal(key1, dw, 1.0, dt)), dw)  # rho = 1: no move
+
+
+def _ou_model(theta=1.0, sigma=0.5, m=8, h=0.05):
+    """A linear-Gaussian forecast over m steps of h: x' = a x + sigma sum_j c_j dW_j, the
+    Ornstein-Uhlenbeck process's discretisation (exactly Gaussian: a Kalman filter is exact)."""
+    a = float(np.exp(-theta * m * h))
+    c = np.exp(-theta * h * np.arange(m - 1, -1, -1))
+    q = sigma**2 * h * float(np.sum(c * c))
+    c = jnp.asarray(c)
+
+    def forecast(states, dw):
+        return a * states + sigma * (dw @ c)[:, None]
+
+    return forecast, a, q
+
+
+def test_a_linear_gaussian_model_gives_the_kalman_filter_within_monte_carlo_error():
+    forecast, a, q = _ou_model()
+    r, m0, p0, n, n_obs = 0.2**2, 0.5, 0.3**2, 2000, 5
+    rng = np.random.default_rng(5)
+    truth, ys = rng.normal(m0, np.sqrt(p0)), []
+    for _ in range(n_obs):
+        truth = a * truth + rng.normal(0.0, np.sqrt(q))
+        ys.append([truth + rng.normal(0.0, np.sqrt(r))])
+    ys = np.asarray(ys)
+    x0 = m0 + np.sqrt(p0) * np.asarray(jax.random.normal(jax.random.key(1), (n, 1)))
+    res = da.assimilate(
+        forecast,
+        x0,
+        ys,
+        observe=lambda s: s,
+        obs_std=np.sqrt(r),
+        increments_shape=(8,),
+        dt=0.05,
+        key=jax.random.key(2),
+        ess_threshold=0.5,
+        jitter_steps=5,
+        jitter_rho=0.8,
+    )
+    m, p, log_z = m0, p0, 0.0
+    for k in range(n_obs):
+        m, p = a * m, a * a * p + q
+        s = p + r
+        log_z += -0.5 * (np.log(2 * np.pi * s) + (ys[k, 0] - m) ** 2 / s)
+        gain = p / s
+        m, p = m + gain * (ys[k, 0] - m), (1 - gain) * p
+        xs = np.asarray(res.particles[k, :, 0])
+        # resampling and jittering correlate the particles: allow an effective size of n/4
+        assert abs(xs.mean() - m) <= 4 * np.sqrt(p / (n / 4)), (k, xs.mean(), m)
+        assert abs(xs.var(ddof=1) / p - 1) <= 4 * np.sqrt(2 / (n / 4)), (k, xs.var(), p)
+        assert float(res.ess[k]) >= 0.5 * n * (1 - 1e-9)
+        assert float(res.temperatures[k][-1]) == 1.0
+        assert 0.0 < float(jnp.mean(res.acceptance[k])) <= 1.0
+    assert abs(float(res.log_evidence[-1]) - log_z) <= 0.2, (float(res.log_evidence[-1]), log_z)
+
+
+def test_assimilate_refuses_bad_input_by_name():
+    forecast, _, _ = _ou_model()
+    kw = dict(
+        observe=lambda s: s, obs_std=0.1, increments_shape=(8,), dt=0.05, key=jax.random.key(0)
+    )
+    good, ys = np.zeros((4, 1)), np.zeros((2, 1))
+    with pytest.raises(ValueError, match="particles"):
+        da.assimilate(forecast, np.zeros((1, 1)), ys, **kw)
+    with pytest.raises(ValueError, match="observations"):
+        da.assimilate(forecast, good, np.array([[np.nan]]), **kw)
+    with pytest.raises(ValueError, match="obs_std"):
+        da.assimilate(forecast, good, ys, **{**kw, "obs_std": 0.0})
+    with pytest.raises(ValueError, match="observe"):
+        da.assimilate(forecast, good, ys, **{**kw, "observe": lambda s: jnp.concatenate([s, s])})
+
+
+def test_every_analysis_particle_stays_on_its_coadjoint_orbit():
+    # so(4) with three transport noises, IsospectralMidpoint: resampling copies states and
+    # jittering re-runs a parent's state, so every particle keeps the initial Casimirs
+    import slps_jax as sj
+
+    rng = np.random.default_rng(0)
+    b = rng.standard_normal((4, 4))
+    y0 = 0.8 * (b - b.T) / np.linalg.norm(b - b.T, 2)
+    chi = rng.standard_normal((3, 4, 4))
+    system = sj.GeneralisedRigidBody(
+        [0.6, 1.1, 1.7, 2.3], noise=sj.salt_noise(0.3 * (chi - chi.transpose(0, 2, 1)))
+    )
+    h, m, n = 2.0**-5, 8, 16
+    step = jax.vmap(
+        lambda y, d: sj.integrate(system, y, d, h, method=sj.IsospectralMidpoint(), throw=False)
+    )
+    forecast = step  # (integrate returns the final state)
+    truth = np.asarray(step(y0[None], 0.1 * np.ones((1, m, 3))))[0]
+    observe = lambda y: y[0, 1:]  # three entries of the state
+    ys = np.stack([observe(truth), observe(truth)]) + 0.01
+    x0 = np.broadcast_to(y0, (n, 4, 4))
+    res = da.assimilate(
+        forecast,
+        x0,
+        np.asarray(ys),
+        observe=observe,
+        obs_std=0.05,
+        increments_shape=(m, 3),
+        dt=h,
+        key=jax.random.key(3),
+        jitter_steps=2,
+    )
+    c0 = np.asarray(sj.so(4).casimirs(y0))
+    cs = np.asarray(sj.so(4).casimirs(res.particles))
+    assert cs.shape == (2, n, 2)
+    assert np.max(np.abs(cs / c0 - 1)) < 1e-12

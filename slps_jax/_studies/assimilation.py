@@ -5,11 +5,13 @@ particle's Brownian increments. Each acts on weights or on increments only, neve
 resampling copies states, and a pCN move re-runs a particle from its parent's state with new
 increments, so that a filter built from them moves particles only along coadjoint orbits.
 
-All functions are pure and jit-able, one filter cycle's arrays at a time; the filter that
-composes them (`particle_filter`) is not built yet.
+`assimilate` composes them for any forecast that is a function of a state and its increments;
+the public entry point for the library's systems (`particle_filter`) is not built yet.
 """
 
 from __future__ import annotations
+
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -111,3 +113,145 @@ def pcn_accept(key, log_likelihood_new, log_likelihood_old, beta):
     new, old = jnp.asarray(log_likelihood_new), jnp.asarray(log_likelihood_old)
     log_u = jnp.log(jax.random.uniform(key, new.shape, new.dtype))
     return log_u < beta * (new - old)
+
+
+class FilterResult(NamedTuple):
+    """What `assimilate` returns, for `n_obs` observations and `n` particles.
+
+    - `particles`: the analysis ensembles, shape `(n_obs, n, *state)` (equally weighted: the
+      last tempering stage resamples).
+    - `mean`: their means, shape `(n_obs, *state)`.
+    - `ess`: at each observation the smallest ESS of a tempering stage's weights before its
+      resampling, shape `(n_obs,)`: at least `ess_threshold * n` unless one stage's exponent
+      step could not be made small enough (the bisection's floor).
+    - `temperatures`: each observation's tempering exponents, a list of arrays ending in 1.
+    - `acceptance`: each observation's pCN acceptance rates, one per stage and jitter step.
+    - `log_evidence`: the estimate of $\\log p(y_{1:k})$ after each observation, shape
+      `(n_obs,)` (the product over stages of the mean incremental weight).
+    """
+
+    particles: Any
+    mean: Any
+    ess: Any
+    temperatures: list
+    acceptance: list
+    log_evidence: Any
+
+
+def assimilate(
+    forecast,
+    particles,
+    observations,
+    *,
+    observe,
+    obs_std,
+    increments_shape,
+    dt,
+    key,
+    ess_threshold=0.5,
+    jitter_steps=5,
+    jitter_rho=0.9,
+):
+    r"""A bootstrap particle filter with adaptive tempering, systematic resampling and pCN
+    jittering of each particle's Brownian increments (Cotter, Crisan, Holm, Pan & Shevchenko
+    2020), for any forecast that is a function of a state and its increments.
+
+    At each observation $y_k$: every particle runs `forecast` from its parent's state with
+    its own increments; with $\ell_i$ the Gaussian log-density of $y_k$ given
+    $\mathrm{observe}(x_i)$,
+    the likelihood is brought in by exponents $0 = \beta_0 < \beta_1 < \dots < 1$
+    (`next_temperature`); at each stage the particles are resampled (`systematic_resample`)
+    and moved by `jitter_steps` pCN steps on their increments, re-run from the parent's state
+    and accepted at the stage's exponent (`pcn_proposal`, `pcn_accept`), which leave the
+    tempered posterior invariant. States are only ever produced by `forecast` from a parent's
+    state: a structure-preserving forecast keeps every particle on its parent's orbit.
+
+    **Arguments:**
+
+    - `forecast(states, increments) -> states`: one batch, states `(n, *state)` and standard
+      Brownian increments `(n, *increments_shape)` of step `dt`, to the next observation time.
+    - `particles`: the initial ensemble, `(n, *state)`, `n >= 2`.
+    - `observations`: `(n_obs, n_y)`, finite.
+    - `observe(state) -> (n_y,)`: one state's observed quantities.
+    - `obs_std`: the Gaussian observation error, a positive scalar or `(n_y,)`.
+    - `increments_shape`: the shape of one particle's increments between observations.
+    - `dt`: the step of the increments (their variance).
+    - `key`: a JAX key.
+    - `ess_threshold`, `jitter_steps`, `jitter_rho`: the tempering's least ESS share, the
+      pCN steps per stage, and pCN's $\rho$.
+
+    **Returns:** a `FilterResult`.
+    """
+    x = jnp.asarray(particles)
+    ys = jnp.asarray(observations)
+    n = x.shape[0]
+    if n < 2:
+        raise ValueError(f"assimilate: particles must hold at least 2 particles, got {n}.")
+    if ys.ndim != 2 or not bool(jnp.all(jnp.isfinite(ys))):
+        raise ValueError("assimilate: observations must be a finite (n_obs, n_y) array.")
+    std = jnp.asarray(obs_std, x.dtype)
+    if not bool(jnp.all(std > 0)):
+        raise ValueError(f"assimilate: obs_std must be positive, got {obs_std!r}.")
+    observe_all = jax.vmap(observe)
+    if observe_all(x).shape != (n, ys.shape[1]):
+        raise ValueError(
+            f"assimilate: observe(state) must return shape ({ys.shape[1]},), the observations' "
+            f"n_y; got {observe_all(x).shape[1:]}."
+        )
+    forecast = jax.jit(forecast)
+    # the Gaussian log-density, its normalising constant included (the evidence needs it)
+    const = -jnp.sum(jnp.log(std * jnp.ones(ys.shape[1], x.dtype))) - 0.5 * ys.shape[1] * jnp.log(
+        2 * jnp.pi
+    )
+    loglik = jax.jit(
+        lambda states, y: const - 0.5 * jnp.sum(((observe_all(states) - y) / std) ** 2, axis=-1)
+    )
+    shape = (n, *increments_shape)
+    sqrt_dt = jnp.sqrt(jnp.asarray(dt, x.dtype))
+    out = FilterResult([], [], [], [], [], [])
+    log_z = 0.0
+    for k in range(ys.shape[0]):
+        key, draw = jax.random.split(key)
+        parents = x
+        dw = sqrt_dt * jax.random.normal(draw, shape, x.dtype)
+        x = forecast(parents, dw)
+        ell = loglik(x, ys[k])
+        beta, betas, rates, least = 0.0, [], [], float(n)
+        while beta < 1.0:
+            new = float(next_temperature(ell, beta, ess_threshold))
+            logw = (new - beta) * ell
+            least = min(least, float(effective_sample_size(logw)))
+            log_z += float(jax.scipy.special.logsumexp(logw) - jnp.log(n))
+            key, pick = jax.random.split(key)
+            idx = systematic_resample(pick, logw)
+            parents, dw, x, ell = parents[idx], dw[idx], x[idx], ell[idx]
+            for _ in range(jitter_steps):
+                key, propose, test = jax.random.split(key, 3)
+                dw_new = pcn_proposal(propose, dw, jitter_rho, dt)
+                x_new = forecast(parents, dw_new)
+                ell_new = loglik(x_new, ys[k])
+                ok = pcn_accept(test, ell_new, ell, new)
+                dw, x = _where_rows(ok, dw_new, dw), _where_rows(ok, x_new, x)
+                ell = jnp.where(ok, ell_new, ell)
+                rates.append(float(jnp.mean(ok)))
+            beta = new
+            betas.append(new)
+        out.particles.append(x)
+        out.mean.append(jnp.mean(x, axis=0))
+        out.ess.append(least)
+        out.temperatures.append(jnp.asarray(betas))
+        out.acceptance.append(jnp.asarray(rates))
+        out.log_evidence.append(log_z)
+    return FilterResult(
+        jnp.stack(out.particles),
+        jnp.stack(out.mean),
+        jnp.asarray(out.ess),
+        out.temperatures,
+        out.acceptance,
+        jnp.asarray(out.log_evidence),
+    )
+
+
+def _where_rows(mask, a, b):
+    """`a` where `mask` (one entry per row), else `b`."""
+    return jnp.where(mask.reshape(mask.shape + (1,) * (a.ndim - 1)), a, b)
