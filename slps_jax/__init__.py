@@ -61,6 +61,8 @@ from ._methods.strang import Strang as Strang
 from ._methods.strang import Strang4 as Strang4
 
 # Studies
+from ._studies.assimilation import FilterResult as FilterResult
+from ._studies.assimilation import particle_filter as particle_filter
 from ._studies.calibrate import CalibrationResult as CalibrationResult
 from ._studies.calibrate import calibrate as calibrate
 from ._studies.calibrate import moments as moments

@@ -152,9 +152,7 @@ def test_assimilate_refuses_bad_input_by_name():
         da.assimilate(forecast, good, ys, **{**kw, "observe": lambda s: jnp.concatenate([s, s])})
 
 
-def test_every_analysis_particle_stays_on_its_coadjoint_orbit():
-    # so(4) with three transport noises, IsospectralMidpoint: resampling copies states and
-    # jittering re-runs a parent's state, so every particle keeps the initial Casimirs
+def _so4_setup():
     import slps_jax as sj
 
     rng = np.random.default_rng(0)
@@ -164,27 +162,49 @@ def test_every_analysis_particle_stays_on_its_coadjoint_orbit():
     system = sj.GeneralisedRigidBody(
         [0.6, 1.1, 1.7, 2.3], noise=sj.salt_noise(0.3 * (chi - chi.transpose(0, 2, 1)))
     )
-    h, m, n = 2.0**-5, 8, 16
-    step = jax.vmap(
-        lambda y, d: sj.integrate(system, y, d, h, method=sj.IsospectralMidpoint(), throw=False)
-    )
-    forecast = step  # (integrate returns the final state)
-    truth = np.asarray(step(y0[None], 0.1 * np.ones((1, m, 3))))[0]
+    return sj, system, y0
+
+
+def test_every_analysis_particle_stays_on_its_coadjoint_orbit():
+    # so(4) with three transport noises, IsospectralMidpoint (the default there): resampling
+    # copies states and jittering re-runs a parent's state, so every particle keeps the
+    # initial Casimirs
+    sj, system, y0 = _so4_setup()
+    h, n = 2.0**-5, 16
+    truth = sj.integrate(system, y0, 0.1 * np.ones((16, 3)), h)
     observe = lambda y: y[0, 1:]  # three entries of the state
     ys = np.stack([observe(truth), observe(truth)]) + 0.01
-    x0 = np.broadcast_to(y0, (n, 4, 4))
-    res = da.assimilate(
-        forecast,
-        x0,
-        np.asarray(ys),
+    res = sj.particle_filter(
+        system,
+        np.broadcast_to(y0, (n, 4, 4)),
+        ys,
+        obs_times=[0.25, 0.5],
         observe=observe,
         obs_std=0.05,
-        increments_shape=(m, 3),
         dt=h,
         key=jax.random.key(3),
         jitter_steps=2,
     )
     c0 = np.asarray(sj.so(4).casimirs(y0))
     cs = np.asarray(sj.so(4).casimirs(res.particles))
-    assert cs.shape == (2, n, 2)
+    assert res.particles.shape == (2, n, 4, 4) and cs.shape == (2, n, 2)
     assert np.max(np.abs(cs / c0 - 1)) < 1e-12
+    assert np.all(np.asarray(res.ess) >= 0.5 * n * (1 - 1e-9))
+
+
+def test_particle_filter_refuses_bad_times_and_particles_by_name():
+    sj, system, y0 = _so4_setup()
+    x, ys = np.broadcast_to(y0, (4, 4, 4)), np.zeros((2, 3))
+    kw = dict(observe=lambda y: y[0, 1:], obs_std=0.1, dt=0.25, key=jax.random.key(0))
+    for times, what in [
+        ([0.5, 0.5], "increasing"),
+        ([0.5, 0.25], "increasing"),
+        ([0.3, 0.6], "grid"),
+        ([0.5, 1.25], "equally spaced"),
+    ]:
+        with pytest.raises(ValueError, match=f"obs_times must be .*{what}"):
+            sj.particle_filter(system, x, ys, obs_times=times, **kw)
+    with pytest.raises(ValueError, match="particles"):
+        sj.particle_filter(system, x[:1], ys, obs_times=[0.5, 1.0], **kw)
+    with pytest.raises(ValueError, match="y0"):  # a particle that is not a state
+        sj.particle_filter(system, np.ones((4, 4, 4)), ys, obs_times=[0.5, 1.0], **kw)

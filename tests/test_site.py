@@ -115,6 +115,7 @@ _HOUSE_STYLE_EXEMPT = {
         (
             "AmplitudeTuning",
             "CalibrationResult",
+            "FilterResult",
             "Checkpoint",
             "ConvergenceResult",
             "EnsembleStatistics",

@@ -5,8 +5,8 @@ particle's Brownian increments. Each acts on weights or on increments only, neve
 resampling copies states, and a pCN move re-runs a particle from its parent's state with new
 increments, so that a filter built from them moves particles only along coadjoint orbits.
 
-`assimilate` composes them for any forecast that is a function of a state and its increments;
-the public entry point for the library's systems (`particle_filter`) is not built yet.
+`assimilate` composes them for any forecast that is a function of a state and its increments,
+and `particle_filter` for the library's systems with its integrators as the forecast.
 """
 
 from __future__ import annotations
@@ -15,6 +15,12 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
+
+from .._brownian import BrownianStep
+from .._driver.integrate import _integrate_jit
+from .._driver.plan import check_method, check_retry, check_y0
+from .._support.solution import RESULTS
 
 
 def effective_sample_size(log_weights):
@@ -138,6 +144,9 @@ class FilterResult(NamedTuple):
     log_evidence: Any
 
 
+MAX_STAGES = 500  # tempering stages per observation before `assimilate` gives up
+
+
 def assimilate(
     forecast,
     particles,
@@ -169,7 +178,9 @@ def assimilate(
     **Arguments:**
 
     - `forecast(states, increments) -> states`: one batch, states `(n, *state)` and standard
-      Brownian increments `(n, *increments_shape)` of step `dt`, to the next observation time.
+      Brownian increments `(n, *increments_shape)` of step `dt`, to the next observation time;
+      or `-> (states, ok)`, `ok` a boolean per particle: a failed forecast gets likelihood 0
+      (it is never resampled, and a pCN move to it is rejected).
     - `particles`: the initial ensemble, `(n, *state)`, `n >= 2`.
     - `observations`: `(n_obs, n_y)`, finite.
     - `observe(state) -> (n_y,)`: one state's observed quantities.
@@ -206,6 +217,14 @@ def assimilate(
     loglik = jax.jit(
         lambda states, y: const - 0.5 * jnp.sum(((observe_all(states) - y) / std) ** 2, axis=-1)
     )
+
+    def run(states, dw, y):
+        """The forecast's states and their log-likelihoods (`-inf` where it failed)."""
+        out = forecast(states, dw)
+        states, ok = out if isinstance(out, tuple) else (out, None)
+        ell = loglik(states, y)
+        return states, ell if ok is None else jnp.where(ok, ell, -jnp.inf)
+
     shape = (n, *increments_shape)
     sqrt_dt = jnp.sqrt(jnp.asarray(dt, x.dtype))
     out = FilterResult([], [], [], [], [], [])
@@ -214,11 +233,24 @@ def assimilate(
         key, draw = jax.random.split(key)
         parents = x
         dw = sqrt_dt * jax.random.normal(draw, shape, x.dtype)
-        x = forecast(parents, dw)
-        ell = loglik(x, ys[k])
+        x, ell = run(parents, dw, ys[k])
+        if not bool(jnp.any(jnp.isfinite(ell))):
+            raise RuntimeError(
+                f"assimilate: every particle's forecast to observation {k} failed; a smaller "
+                "step (dt) or another method usually helps."
+            )
+        if not bool(jnp.all(jnp.isfinite(ell))):  # failed forecasts leave first, unweighted
+            key, pick = jax.random.split(key)
+            idx = systematic_resample(pick, jnp.where(jnp.isfinite(ell), 0.0, -jnp.inf))
+            parents, dw, x, ell = parents[idx], dw[idx], x[idx], ell[idx]
         beta, betas, rates, least = 0.0, [], [], float(n)
         while beta < 1.0:
             new = float(next_temperature(ell, beta, ess_threshold))
+            if len(betas) >= MAX_STAGES:
+                raise RuntimeError(
+                    f"assimilate: observation {k} needs more than {MAX_STAGES} tempering stages "
+                    "(a likelihood too sharp for the ensemble): raise obs_std or the particles."
+                )
             logw = (new - beta) * ell
             least = min(least, float(effective_sample_size(logw)))
             log_z += float(jax.scipy.special.logsumexp(logw) - jnp.log(n))
@@ -228,8 +260,7 @@ def assimilate(
             for _ in range(jitter_steps):
                 key, propose, test = jax.random.split(key, 3)
                 dw_new = pcn_proposal(propose, dw, jitter_rho, dt)
-                x_new = forecast(parents, dw_new)
-                ell_new = loglik(x_new, ys[k])
+                x_new, ell_new = run(parents, dw_new, ys[k])
                 ok = pcn_accept(test, ell_new, ell, new)
                 dw, x = _where_rows(ok, dw_new, dw), _where_rows(ok, x_new, x)
                 ell = jnp.where(ok, ell_new, ell)
@@ -255,3 +286,95 @@ def assimilate(
 def _where_rows(mask, a, b):
     """`a` where `mask` (one entry per row), else `b`."""
     return jnp.where(mask.reshape(mask.shape + (1,) * (a.ndim - 1)), a, b)
+
+
+def particle_filter(
+    system,
+    particles,
+    observations,
+    *,
+    obs_times,
+    observe,
+    obs_std,
+    dt,
+    key,
+    t0=0.0,
+    ess_threshold=0.5,
+    jitter_steps=5,
+    jitter_rho=0.9,
+    method: Any = "auto",
+    retry_substeps: int | None = 4,
+):
+    r"""Assimilate observations into an ensemble of a stochastic Lie–Poisson system: the
+    filter of `assimilate` (adaptive tempering, systematic resampling, pCN jittering of each
+    particle's Brownian increments; Cotter, Crisan, Holm, Pan & Shevchenko 2020) with the
+    library's integrators as the forecast. Every state a particle takes is a step of
+    `method` from its parent's state: with a Poisson method (`IsospectralMidpoint` on so(n)*
+    and su(N)*, the default there) every particle stays on its initial coadjoint orbit.
+
+    The increments are Gaussian, not truncated, and drawn without Lévy areas (the methods'
+    strong order ½ with several noises). A particle whose forecast fails (a step the method
+    cannot solve, after `retry_substeps`) gets likelihood 0.
+
+    **Arguments:**
+
+    - `system`: the model, any system of the library.
+    - `particles`: the initial ensemble, `(n, *state)`, `n >= 2`, each a state of the system.
+    - `observations`: `(n_obs, n_y)`, finite, at `obs_times`.
+    - `obs_times`: `(n_obs,)`, increasing, equally spaced, after `t0`, each on the grid of
+      `dt` from `t0`.
+    - `observe(state) -> (n_y,)`: one state's observed quantities (JAX-traceable).
+    - `obs_std`: the Gaussian observation errors' standard deviation, a positive scalar or
+      `(n_y,)`.
+    - `dt`: the integrator's step; `key`: a JAX key; `t0`: the particles' time (0).
+    - `ess_threshold`, `jitter_steps`, `jitter_rho`: as for `assimilate`.
+    - `method`, `retry_substeps`: as for `integrate`.
+
+    **Returns:** a `FilterResult`.
+    """
+    method = check_method(method, system)
+    x = jnp.asarray(particles)
+    if x.ndim < 1 or x.shape[0] < 2:
+        raise ValueError(
+            f"particle_filter: particles must be (n, *state) with n >= 2, got {x.shape}."
+        )
+    x = jnp.stack([check_y0(p, method, system) for p in np.asarray(x)])
+    times = np.asarray(obs_times, dtype=float)
+    h = float(dt)
+    if not h > 0:
+        raise ValueError(f"particle_filter: dt must be positive, got {dt!r}.")
+    gaps = np.diff(np.concatenate([[float(t0)], times]))
+    if times.ndim != 1 or times.size == 0 or np.any(gaps <= 0):
+        raise ValueError(
+            f"particle_filter: obs_times must be increasing and after t0 = {t0}, got {obs_times!r}."
+        )
+    steps = gaps / h
+    m = int(round(steps[0]))
+    if m < 1 or np.any(np.abs(steps - m) > 1e-6 * m):
+        raise ValueError(
+            "particle_filter: obs_times must be equally spaced on the grid of dt from t0 "
+            f"(dt = {h}); their gaps are {gaps.tolist()} s."
+        )
+    retry = check_retry(retry_substeps)
+    dtype = x.real.dtype
+    step = jnp.asarray(h, dtype)
+
+    def one(y, dw):
+        ys, _, result, _, _ = _integrate_jit(
+            method, system, y, BrownianStep(dw, None), step, m, False, retry
+        )
+        return ys[-1], result == RESULTS.successful
+
+    return assimilate(
+        jax.vmap(one),
+        x,
+        observations,
+        observe=observe,
+        obs_std=obs_std,
+        increments_shape=(m, system.n_noises),
+        dt=h,
+        key=key,
+        ess_threshold=ess_threshold,
+        jitter_steps=jitter_steps,
+        jitter_rho=jitter_rho,
+    )
