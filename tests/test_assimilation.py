@@ -208,3 +208,31 @@ def test_particle_filter_refuses_bad_times_and_particles_by_name():
         sj.particle_filter(system, x[:1], ys, obs_times=[0.5, 1.0], **kw)
     with pytest.raises(ValueError, match="y0"):  # a particle that is not a state
         sj.particle_filter(system, np.ones((4, 4, 4)), ys, obs_times=[0.5, 1.0], **kw)
+
+
+def test_complex_states_get_real_increments_and_keep_their_orbit():
+    # su(N) states are complex: the increments and the weights stay real
+    import slps_jax as sj
+    from slps_jax import zeitlin as z
+
+    N, n, h = 4, 8, 0.05
+    w0 = z.shr2mat(np.eye(N * N)[2] + 0.5 * np.eye(N * N)[5], N)
+    system = sj.EulerZeitlin(N, noise=sj.salt_noise(0.1 * z.shr2mat(np.eye(N * N)[[1, 2, 3]], N)))
+    observe = lambda w: jnp.real(z.mat2shr(w))[4:7]
+    ys = np.stack([np.asarray(observe(w0))] * 2) + 0.01
+    res = sj.particle_filter(
+        system,
+        np.broadcast_to(w0, (n, N, N)),
+        ys,
+        obs_times=[0.2, 0.4],
+        observe=observe,
+        obs_std=0.05,
+        dt=h,
+        key=jax.random.key(0),
+        jitter_steps=1,
+    )
+    assert res.particles.shape == (2, n, N, N) and jnp.iscomplexobj(res.particles)
+    assert not jnp.iscomplexobj(res.ess) and not jnp.iscomplexobj(res.log_evidence)
+    c0 = np.asarray(sj.su(N).casimirs(w0))
+    cs = np.asarray(sj.su(N).casimirs(res.particles))
+    assert np.max(np.abs(cs[..., ::2] / c0[::2] - 1)) < 1e-12  # tr W^2, tr W^4

@@ -200,7 +200,8 @@ def assimilate(
         raise ValueError(f"assimilate: particles must hold at least 2 particles, got {n}.")
     if ys.ndim != 2 or not bool(jnp.all(jnp.isfinite(ys))):
         raise ValueError("assimilate: observations must be a finite (n_obs, n_y) array.")
-    std = jnp.asarray(obs_std, x.dtype)
+    real = jnp.zeros((), x.dtype).real.dtype  # (complex states: real increments, weights)
+    std = jnp.asarray(obs_std, real)
     if not bool(jnp.all(std > 0)):
         raise ValueError(f"assimilate: obs_std must be positive, got {obs_std!r}.")
     observe_all = jax.vmap(observe)
@@ -211,7 +212,7 @@ def assimilate(
         )
     forecast = jax.jit(forecast)
     # the Gaussian log-density, its normalising constant included (the evidence needs it)
-    const = -jnp.sum(jnp.log(std * jnp.ones(ys.shape[1], x.dtype))) - 0.5 * ys.shape[1] * jnp.log(
+    const = -jnp.sum(jnp.log(std * jnp.ones(ys.shape[1], real))) - 0.5 * ys.shape[1] * jnp.log(
         2 * jnp.pi
     )
     loglik = jax.jit(
@@ -226,13 +227,13 @@ def assimilate(
         return states, ell if ok is None else jnp.where(ok, ell, -jnp.inf)
 
     shape = (n, *increments_shape)
-    sqrt_dt = jnp.sqrt(jnp.asarray(dt, x.dtype))
+    sqrt_dt = jnp.sqrt(jnp.asarray(dt, real))
     out = FilterResult([], [], [], [], [], [])
     log_z = 0.0
     for k in range(ys.shape[0]):
         key, draw = jax.random.split(key)
         parents = x
-        dw = sqrt_dt * jax.random.normal(draw, shape, x.dtype)
+        dw = sqrt_dt * jax.random.normal(draw, shape, real)
         x, ell = run(parents, dw, ys[k])
         if not bool(jnp.any(jnp.isfinite(ell))):
             raise RuntimeError(
