@@ -80,20 +80,27 @@ def _integrate(system, y0, method):
     return lambda d: sj.integrate(system, y0, d, H, method=method, throw=False)
 
 
-def iterations(system, w0, method, n_steps):
-    """Solver updates per step (all attempts) and the steps redone as substeps, one path."""
-    if isinstance(method, sj.Heun):
-        return 0.0, 0
-    sol = sj.simulate(
+def _one_path(system, w0, method, n_steps, h=H, **kwargs):
+    """`simulate`'s one path of `n_steps` steps of `h` from `w0`, key 0, with the solver's
+    statistics (`kwargs`: more of `simulate`'s options)."""
+    return sj.simulate(
         system,
         w0,
-        t1=n_steps * H,
-        dt=H,
+        t1=n_steps * h,
+        dt=h,
         n_samples=1,
         key=jax.random.key(0),
         method=method,
         newton_stats=True,
+        **kwargs,
     )
+
+
+def iterations(system, w0, method, n_steps):
+    """Solver updates per step (all attempts) and the steps redone as substeps, one path."""
+    if isinstance(method, sj.Heun):
+        return 0.0, 0
+    sol = _one_path(system, w0, method, n_steps)
     return float(sol.stats["newton_iterations_mean"]), int(sol.stats["n_retried_steps"])
 
 
@@ -295,17 +302,7 @@ def scale(ns, dtypes, budget_s, members, member_ns, write):
                     None if ensemble_ms is None else ensemble_ms / (4 * members)
                 )
             if row["step_ms"] is not None:
-                sol = sj.simulate(
-                    system,
-                    w0,
-                    t1=0.64 / N,
-                    dt=0.64 / N,
-                    n_samples=1,
-                    key=jax.random.key(0),
-                    method=sj.IsospectralMidpoint(),
-                    newton_stats=True,
-                    throw=False,
-                )
+                sol = _one_path(system, w0, sj.IsospectralMidpoint(), 1, 0.64 / N, throw=False)
                 row["updates"] = float(sol.stats["newton_iterations_mean"])
                 final = 8 if sj.IsospectralMidpoint()._cayley(system, dtype) else 0
                 row["products"] = 2 * row["updates"] + final
@@ -409,17 +406,7 @@ def economy(ns, dtypes, n_steps, write, options=None, members=0, member_ns=()):
                     )
             for name, kw in options.items():
                 method = sj.IsospectralMidpoint(**kw)
-                run = lambda m=method: sj.simulate(
-                    system,
-                    w0,
-                    t1=n_steps * h,
-                    dt=h,
-                    n_samples=1,
-                    key=jax.random.key(0),
-                    method=m,
-                    newton_stats=True,
-                    throw=False,
-                )
+                run = lambda m=method: _one_path(system, w0, m, n_steps, h, throw=False)
                 start = time.perf_counter()
                 jax.block_until_ready(run())
                 first = time.perf_counter() - start

@@ -205,10 +205,11 @@ def assimilate(
     if not bool(jnp.all(std > 0)):
         raise ValueError(f"assimilate: obs_std must be positive, got {obs_std!r}.")
     observe_all = jax.vmap(observe)
-    if observe_all(x).shape != (n, ys.shape[1]):
+    got = jax.eval_shape(observe_all, x).shape
+    if got != (n, ys.shape[1]):
         raise ValueError(
             f"assimilate: observe(state) must return shape ({ys.shape[1]},), the observations' "
-            f"n_y; got {observe_all(x).shape[1:]}."
+            f"n_y; got {got[1:]}."
         )
     forecast = jax.jit(forecast)
     # the Gaussian log-density, its normalising constant included (the evidence needs it)
@@ -228,7 +229,7 @@ def assimilate(
 
     shape = (n, *increments_shape)
     sqrt_dt = jnp.sqrt(jnp.asarray(dt, real))
-    out = FilterResult([], [], [], [], [], [])
+    analyses, esses, temperatures, acceptance, evidence = [], [], [], [], []
     log_z = 0.0
     for k in range(ys.shape[0]):
         key, draw = jax.random.split(key)
@@ -268,19 +269,19 @@ def assimilate(
                 rates.append(float(jnp.mean(ok)))
             beta = new
             betas.append(new)
-        out.particles.append(x)
-        out.mean.append(jnp.mean(x, axis=0))
-        out.ess.append(least)
-        out.temperatures.append(jnp.asarray(betas))
-        out.acceptance.append(jnp.asarray(rates))
-        out.log_evidence.append(log_z)
+        analyses.append(x)
+        esses.append(least)
+        temperatures.append(jnp.asarray(betas))
+        acceptance.append(jnp.asarray(rates))
+        evidence.append(log_z)
+    analyses = jnp.stack(analyses)
     return FilterResult(
-        jnp.stack(out.particles),
-        jnp.stack(out.mean),
-        jnp.asarray(out.ess),
-        out.temperatures,
-        out.acceptance,
-        jnp.asarray(out.log_evidence),
+        analyses,
+        jnp.mean(analyses, axis=1),
+        jnp.asarray(esses),
+        temperatures,
+        acceptance,
+        jnp.asarray(evidence),
     )
 
 
