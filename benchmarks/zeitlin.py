@@ -224,7 +224,7 @@ def scale(ns, dtypes, budget_s, members, member_ns, write):
     floor's unit, by `matmul` and by XLA's complex product), and one `IsospectralMidpoint`
     step at h = 0.64/N s (a step its fixed point solves: h = 0.01 s at N = 64,
     0.0025 s at N = 256), cold-started, with its updates and matrix products (2 per update,
-    and 8 for the Cayley rotation, the default final update: three squarings at this step,
+    and 10 for the Cayley rotation, the default final update: four squarings at this step,
     2 products each, and 2 to apply it; none for the explicit one). The floor is the
     products alone, the faster kind. The same step with 8 transport noises and their Lévy
     areas (`areas_vs_step`: the area term's cost, one step, both cold).
