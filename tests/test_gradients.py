@@ -79,7 +79,7 @@ def test_implicit_gradient_equals_gradient_of_unrolled_newton(paper):
 
     def unrolled(p):
         model, z = sj.RigidBody(p[:3], p[3]), comp.vec(y)
-        fields = lambda u: model.algebra.step_fields_local(model, u, dt, p[4:5])
+        fields = lambda u: model.step_fields(u, dt, p[4:5])
         v = z
         for _ in range(12):
             r, jac = sine_chart_in_map(v, z, fields)

@@ -164,3 +164,47 @@ def test_the_circle_check_sees_a_circle():
     assert _circles(graph) == [["a", "b", "c"]]
     # and the graph has the package's edges: rigid_body builds on system (`from .system import`)
     assert "slps_jax._systems.system" in _module_graph()["slps_jax._systems.rigid_body"]
+
+
+def _mentions_system(source):
+    """The lines of a module's code (not its strings) that name a system: a variable,
+    parameter or attribute called `system`, or a name from `_systems`."""
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        name = (
+            node.id
+            if isinstance(node, ast.Name)
+            else node.arg
+            if isinstance(node, ast.arg)
+            else node.attr
+            if isinstance(node, ast.Attribute)
+            else None
+        )
+        if name in ("system", "systems") or (
+            isinstance(node, ast.ImportFrom) and "_systems" in (node.module or "")
+        ):
+            found.append(node.lineno)
+    return found
+
+
+def test_no_algebra_module_refers_to_a_system():
+    # An algebra gives its forms and its bracket; a system's step in those forms is the
+    # system's (`_systems/fields.py`). A dependency upward that no import shows, such as a
+    # method taking a `system` and reading its attributes, is what this catches.
+    wrong = {
+        str(f.relative_to(ROOT)): lines
+        for f in sorted((PACKAGE / "_algebra").rglob("*.py"))
+        if (lines := _mentions_system(f.read_text()))
+    }
+    assert not wrong, f"algebra modules that refer to a system (file: lines): {wrong}"
+
+
+def test_the_system_check_sees_a_system():
+    # what the algebra had before the step's fields moved to the system
+    old = (
+        "class A:\n"
+        "    def local_field(self, system, x, dt, noise):\n"
+        "        return self.bracket(x, system.step_gradient(x, dt, noise))\n"
+    )
+    assert _mentions_system(old) == [2, 3]
+    assert _mentions_system('"""a system\'s step"""\nx = 1\n') == []

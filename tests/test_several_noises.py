@@ -79,14 +79,14 @@ def test_step_jacobians_are_the_derivatives_of_the_step_gradient(model):
     dW, steps = kernel_steps(model)
     v, unvec, unmat = comp.vec(Y0), comp.unvec, comp.unmat
     for step in steps:
-        g, jac = model.algebra.step_gradient_hessian_local(model, v, 0.1, step)
+        g, jac, _, _ = model.step_fields(v, 0.1, step, second=False)
         np.testing.assert_allclose(unvec(g), model.step_gradient(Y0, 0.1, step), atol=1e-15)
         np.testing.assert_allclose(
             unmat(comp.full(jac)),
             jax.jacrev(lambda y: model.step_gradient(y, 0.1, step))(Y0),
             atol=1e-14,
         )
-    k, hk, u, ju = model.algebra.step_fields_local(model, v, 0.1, steps[-1])
+    k, hk, u, ju = model.step_fields(v, 0.1, steps[-1])
     np.testing.assert_allclose(unmat(comp.full(hk)), unmat(comp.full(jac)), atol=1e-15)
     np.testing.assert_allclose(unvec(k), model.step_gradient(Y0, 0.1, steps[-1]), atol=1e-15)
     u_of = lambda y: model.step_gradient(y, 0.0, sj.BrownianStep(dW))
@@ -120,7 +120,7 @@ def test_the_sine_chart_in_map_is_the_generating_functions(model):
     v, y = jnp.asarray([0.5, -0.3, 0.6]), jnp.asarray([0.4, 0.2, -0.3])
     for step in steps:
         for second in (True, False):
-            fields = lambda u: model.algebra.step_fields_local(model, u, 0.1, step, second=second)
+            fields = lambda u: model.step_fields(u, 0.1, step, second=second)
             r, jac = sine_chart_in_map(comp.vec(v), comp.vec(y), fields)
             ref = lambda w: generating_function_in_map(model, w, y, 0.1, step, second)
             np.testing.assert_allclose(comp.unvec(r), ref(v), atol=1e-15)

@@ -12,10 +12,9 @@ What a method may use, and nothing else:
 - the Lie–Poisson structure: `gradient` (the gradient for the pairing from JAX's gradient of
   a real function of the state), `bracket(y, x)` (the field $[y, x]$ of a gradient `x`:
   $dy = [y, \\nabla H]$), `bracket_sum` (of stacks, for the Lévy-area term), `casimirs`;
-- a system's step, from which methods are written once: in the `local` form a method's loop
-  carries (`local`, `from_local`: the state, components on so(3)), `local_field`; on that
-  form's real coordinates (`local_coordinates`, `from_local_coordinates`),
-  `coordinate_field` and `coordinate_field_jacobian`;
+- the form a method's loop carries (`local`, `from_local`: the state, components on so(3))
+  and its real coordinates (`local_coordinates`, `from_local_coordinates`); a system's step
+  in that form is the system's (`local_field`, `coordinate_field`, ...), not the algebra's;
 - the group: `to_matrix`, `from_matrix`, `project` (the state nearest to a matrix),
   `adjoint` ($M^H$), `cayley` ($(I - X)^{-1}(I + X)$), `act(a, y)` ($a\\,y\\,a^{-1}$ for a
   unitary `a`), and real coordinates of the group's Lie algebra (`group_dim`,
@@ -143,10 +142,9 @@ class AbstractAlgebra:
         """The Casimir functions (real), shape `(..., k)`."""
         raise NotImplementedError
 
-    # -- a system's step, for the methods: the field F(y) = [y, grad K(y)] of the step's
-    # Hamiltonian K = hH_0 + sum_r dW_r H_r (+ G_A), in the `local` form the methods' loops
-    # carry (here the state itself; so(3) overrides all of it with its components), and on
-    # the real coordinates of that form, for implicit solves
+    # -- the form the methods' loops carry (here the state itself; the components on so(3)),
+    # and its real coordinates, the unknowns of implicit solves (a system's step on them:
+    # `_systems/fields.py`)
 
     def local(self, y):
         """A state in the form a method's loop carries it."""
@@ -155,26 +153,12 @@ class AbstractAlgebra:
     def from_local(self, x):
         return x
 
-    def local_field(self, system, x, dt, noise):
-        r"""$F(x) = [x, \nabla K(x)]$ of one step (`noise` its `BrownianStep`), local form."""
-        return self.bracket(x, system.step_gradient(x, dt, noise))
-
     def local_coordinates(self, x):
         """Real coordinates of a local form: the unknowns of an implicit solve."""
         return self.coordinates(x)
 
     def from_local_coordinates(self, u):
         return self.from_coordinates(u)
-
-    def coordinate_field(self, system, u, dt, noise):
-        """`local_field` on the local form's coordinates."""
-        x = self.from_local_coordinates(u)
-        return self.local_coordinates(self.local_field(system, x, dt, noise))
-
-    def coordinate_field_jacobian(self, system, u, dt, noise):
-        """`(coordinate_field(u), its Jacobian)`; here by forward-mode autodiff."""
-        f = lambda u: self.coordinate_field(system, u, dt, noise)
-        return f(u), jax.jacfwd(f)(u)
 
     # -- the group
 

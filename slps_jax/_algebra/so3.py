@@ -6,19 +6,17 @@ tuple of three rows (`vec`, `mat` and their inverses convert from and to arrays)
 element-wise arithmetic on long vectors (structure of arrays) rather than many tiny batched
 3x3 products, which XLA executes poorly on CPU; arrays of shape `(B, 3)` inside a loop
 (where batching puts the batch axis first) would be strided. The public toolkit
-`slps_jax.so3` is these formulas on arrays; `SO3Algebra` gives the methods a system's step
-on components (its `local` form), from what the system states in closed form.
+`slps_jax.so3` is these formulas on arrays; `SO3Algebra` is so(3)* with the components as
+the form a method's loop carries (`local`).
 """
 
 from __future__ import annotations
 
 import math
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._brownian import as_step
 from .base import AbstractAlgebra
 
 
@@ -241,10 +239,8 @@ class SO3Algebra(AbstractAlgebra):
     r"""so(3)* identified with $\mathbb R^3$ by `hat`: states are 3-vectors $y$, the matrix
     of a state is $\hat y$, the pairing $x\cdot y$ (that of so(3) as skew matrices,
     $\tfrac12\operatorname{tr}\hat x^T\hat y$), the bracket $[y, x] = y \times x$, the
-    Casimir $C(y) = \tfrac12|y|^2$. Its `local` form is the components, and a system's step
-    on them is written from the system's closed forms (`quadratic_drift`, a noise family's
-    `gradient` and `gradient_jacobian`). One instance, `SO3`, is shared by every so(3)
-    system.
+    Casimir $C(y) = \tfrac12|y|^2$. Its `local` form is the components (a system's step
+    on them: `_systems/fields.py`). One instance, `SO3`, is shared by every so(3) system.
     """
 
     name = "so(3)"
@@ -292,7 +288,7 @@ class SO3Algebra(AbstractAlgebra):
     def project(self, m):
         return self.from_matrix(m)  # the axial vector of the skew part
 
-    # -- a system's step on components
+    # -- the form a method's loop carries: the components
 
     def local(self, y):
         return vec(y)
@@ -300,101 +296,11 @@ class SO3Algebra(AbstractAlgebra):
     def from_local(self, x):
         return unvec(x)
 
-    def local_field(self, system, x, dt, noise):
-        return cross(x, self.step_gradient_local(system, x, dt, noise))
-
     def local_coordinates(self, x):
         return x  # (the components are the coordinates)
 
     def from_local_coordinates(self, u):
         return u
-
-    def coordinate_field(self, system, u, dt, noise):
-        return self.local_field(system, u, dt, noise)
-
-    def coordinate_field_jacobian(self, system, u, dt, noise):
-        g, hess = self.step_gradient_hessian_local(system, u, dt, noise)
-        # d(u x g(u))/du = hat(u) grad^2 K - hat(g)
-        return cross(u, g), madd(mm_any(hat(u), hess), mscale(-1.0, hat(g)))
-
-    def _drift(self, system, v):
-        r"""$\nabla H_0(v)$: written out for a diagonal quadratic $H_0$
-        (`system.quadratic_drift`), else by JAX."""
-        d = system.quadratic_drift
-        if d is not None:
-            return mul(vec(d), v)
-        return vec(jax.grad(system.hamiltonian)(unvec(v)))
-
-    def _drift_hessian(self, system, v):
-        r"""$(\nabla H_0(v), \nabla^2 H_0(v))$, the Hessian diagonal (`is_diagonal`) for a
-        diagonal quadratic $H_0$, else by JAX in one forward-mode pass."""
-        d = system.quadratic_drift
-        if d is not None:
-            d = vec(d)
-            return mul(d, v), d
-        grad = jax.grad(system.hamiltonian)
-        hess, g = jax.jacfwd(lambda u: (grad(u), grad(u)), has_aux=True)(unvec(v))
-        return vec(g), mat(hess)
-
-    def _noise(self, system, v, w):
-        r"""$u(v) = \sum_r w_r \nabla H_r(v)$ of the noise family (`AbstractNoise.gradient`)."""
-        return vec(system.noise.gradient(unvec(v), w, system.params, self))
-
-    def _noise_jacobian(self, system, v, w):
-        r"""$(u, \partial u/\partial v)$ (`AbstractNoise.gradient_jacobian`); the Jacobian is
-        `None` for linear noise (zero: no arithmetic with zeros)."""
-        if system.noise.linear:
-            return self._noise(system, v, w), None
-        u, ju = system.noise.gradient_jacobian(unvec(v), w, system.params, self)
-        return vec(u), mat(ju)
-
-    def _area(self, system, v, area):
-        r"""$\nabla G_A(v)$."""
-        return vec(system.area_gradient(unvec(v), area))
-
-    def _area_jacobian(self, system, v, area):
-        r"""$(\nabla G_A(v), \nabla^2 G_A(v))$; `None` (zero) for linear noise, whose
-        $G_A$ is linear."""
-        if system.noise.linear:
-            return self._area(system, v, area), None
-        grad = lambda u: system.area_gradient(u, area)
-        jac, g = jax.jacfwd(lambda u: (grad(u), grad(u)), has_aux=True)(unvec(v))
-        return vec(g), mat(jac)
-
-    def step_gradient_local(self, system, v, dt, noise):
-        r"""$\nabla K(v)$ of a step's Hamiltonian $K = h H_0 + \sum_r \Delta W_r H_r$ (plus
-        $G_A$ with areas), on components. With `c=`, $K = \tau H_0$, $\tau = h + c\Delta W$.
-        `noise` is the step's `BrownianStep`."""
-        noise = as_step(noise)
-        if system.noise is None:
-            return scale(dt + system.noise_time(noise.dW), self._drift(system, v))
-        g = add(scale(dt, self._drift(system, v)), self._noise(system, v, noise.dW))
-        return add(g, self._area(system, v, noise.area)) if system.has_area(noise) else g
-
-    def step_gradient_hessian_local(self, system, v, dt, noise):
-        r"""$(\nabla K(v), \nabla^2 K(v))$ on components (`step_fields_local`'s first two)."""
-        k, hk, _, _ = self.step_fields_local(system, v, dt, noise, second=False)
-        return k, hk
-
-    def step_fields_local(self, system, v, dt, noise, second=True):
-        r"""What scheme (42)'s in-map needs of a step (`sine_chart_in_map`), on components:
-        $(\nabla K, \nabla^2 K, u, \partial u/\partial v)$ at `v`, with
-        $u = \sum_r \Delta W_r \nabla H_r$ the increments' part of the noise (the areas'
-        $\nabla G_A$ is in $K$ only). Without the second-order term (`second=False`) `u`
-        and its Jacobian are `None`; a Jacobian is `None` where it is zero (linear noise), and
-        diagonal (`is_diagonal`) where the closed form is."""
-        noise = as_step(noise)
-        g, hess = self._drift_hessian(system, v)
-        if system.noise is None:
-            cdw = system.noise_time(noise.dW)
-            k, hk = scale(dt + cdw, g), scale_any(dt + cdw, hess)
-            return (k, hk, scale(cdw, g), scale_any(cdw, hess)) if second else (k, hk, None, None)
-        u, ju = self._noise_jacobian(system, v, noise.dW)
-        k, hk = add(scale(dt, g), u), add_any(scale_any(dt, hess), ju)
-        if system.has_area(noise):
-            ga, ha = self._area_jacobian(system, v, noise.area)
-            k, hk = add(k, ga), add_any(hk, ha)
-        return (k, hk, u, ju) if second else (k, hk, None, None)
 
     def __repr__(self):
         return "SO3"

@@ -26,6 +26,6 @@ class EulerMaruyama(AbstractMethod):
     def step(self, system, y, dt, dW):
         alg = system.algebra
         x = alg.local(y)  # (components on so(3))
-        x_next = jax.tree_util.tree_map(jnp.add, x, alg.local_field(system, x, dt, dW))
+        x_next = jax.tree_util.tree_map(jnp.add, x, system.local_field(x, dt, dW))
         y_next = alg.from_local(x_next).astype(y.dtype)
         return y_next, explicit_info(y_next)

@@ -33,7 +33,7 @@ class Heun(AbstractMethod):
         tmap = jax.tree_util.tree_map
 
         def f(x):
-            return alg.local_field(system, x, dt, dW)
+            return system.local_field(x, dt, dW)
 
         x = alg.local(y)  # (components on so(3))
         k1 = f(x)

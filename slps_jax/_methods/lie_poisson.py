@@ -57,7 +57,7 @@ def sine_chart_in_map(v, y, fields, jacobian=True):
     the small terms.
 
     `fields(v)` returns $(\nabla K, \nabla^2 K, u, J_u)$ on components
-    (`SO3Algebra.step_fields_local`): $u = $ `None` drops the second-order term (the
+    (`LiePoissonSystem.step_fields`): $u = $ `None` drops the second-order term (the
     first-order in-map $v + Q\nabla K - y$), $J_u = $ `None` means $J_u = 0$ (linear noise),
     and a diagonal matrix (`is_diagonal`) stays diagonal. $dR/dv$ by forward-mode autodiff
     of $R$ (three tangents, which skip whatever does not depend on $v$), so `fields` must be
@@ -431,11 +431,10 @@ class LiePoisson(AbstractMethod):
         lam_s = 1.0 if self.scale is None else self.scale
         z = comp.scale(1.0 / lam_s, comp.vec(y))
         dt_s, dW_s = lam_s * dt, scale_noise(dW, lam_s)
-        alg = system.algebra
 
         def sine_fn(v, lam, jacobian=True):
             def fields(v):
-                step = alg.step_fields_local(system, v, dt_s, dW_s, second=self.second_order)
+                step = system.step_fields(v, dt_s, dW_s, second=self.second_order)
                 return scaled(lam, step)
 
             return sine_chart_in_map(v, z, fields, jacobian)

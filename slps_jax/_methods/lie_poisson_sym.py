@@ -27,7 +27,7 @@ def _solve_rotation(system, y, dt, dW, sign, tol, max_iter, active):
     def sine_fn(v, lam, jacobian=True):
         def fields(u):  # the first-order in-map of u -> sign K(sign u)
             x = comp.scale(sign, u)
-            k, hk, _, _ = system.algebra.step_fields_local(system, x, dt, dW, False)
+            k, hk, _, _ = system.step_fields(x, dt, dW, False)
             return scaled(lam, (k, comp.scale_any(sign, hk), None, None))
 
         return sine_chart_in_map(v, y, fields, jacobian)

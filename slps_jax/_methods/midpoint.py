@@ -63,17 +63,17 @@ class Midpoint(AbstractMethod):
             return tmap(lambda a, b, c: a - b - c, u1, u0, f)
 
         def residual(u1):
-            return minus(u1, alg.coordinate_field(system, mid(u1), dt, dW))
+            return minus(u1, system.coordinate_field(mid(u1), dt, dW))
 
         def linearised(u1):
-            f, jf = alg.coordinate_field_jacobian(system, mid(u1), dt, dW)
+            f, jf = system.coordinate_field_jacobian(mid(u1), dt, dW)
             return minus(u1, f), identity_plus(-0.5, jf)
 
         def fixed_point(u1):
             return residual(u1), lambda r: r
 
         def solve():
-            start = tmap(jnp.add, u0, alg.coordinate_field(system, u0, dt, dW))
+            start = tmap(jnp.add, u0, system.coordinate_field(u0, dt, dW))
             s = newton(
                 linearised if newton_mode else fixed_point, start, tol=tol, max_iter=max_iter
             )

@@ -11,6 +11,7 @@ import numpy as np
 from .._algebra import SO3, AbstractAlgebra
 from .._brownian import as_step
 from .._support.checks import concrete, float_dtype, real_array, real_dtype
+from . import fields
 from .noise import AbstractNoise, as_noise
 
 
@@ -260,6 +261,13 @@ class LiePoissonSystem:
         u = self.noise_gradient(y, noise)
         u = u + self.area_gradient(y, noise.area) if self.has_area(noise) else u
         return lambda x: dt * self.gradient(x) + u
+
+    # The step in the form a method's loop carries (`fields`): what the methods call, so
+    # that the algebra never sees a system.
+    local_field = fields.local_field
+    coordinate_field = fields.coordinate_field
+    coordinate_field_jacobian = fields.coordinate_field_jacobian
+    step_fields = fields.step_fields
 
     def noise_time(self, dW):
         r"""$c\,\Delta W$: how far one step's noise moves the random time
