@@ -4,8 +4,9 @@ The library in four layers:
 
 - **System**: a Lie algebra (`SO3`, 3-vector states; `so(n)`, skew matrices; `su(N)`,
   skew-Hermitian complex matrices; one interface, `AbstractAlgebra`) with a
-  drift Hamiltonian and its noise (`c=`, or several noises with their own Hamiltonians:
-  `salt_noise`, `random_inertia_noise`, a function), parameters as pytree leaves:
+  drift Hamiltonian and its noise, a family (`c=`, one noise proportional to the drift,
+  `proportional_noise`; or several noises with their own Hamiltonians: `salt_noise`,
+  `random_inertia_noise`, a function), parameters as pytree leaves:
   `LiePoissonSystem` (derivatives by JAX) and its analytic special cases `RigidBody` and
   `GeneralisedRigidBody` (so(n)).
 - **Method**: a small immutable object with `step(system, y, dt, dW)` (`dW` the step's noise,
@@ -100,6 +101,7 @@ from ._systems.flow import drift_flow as drift_flow
 from ._systems.flow import exact_flow as exact_flow  # deprecated: drift_flow
 from ._systems.flow import exact_solution as exact_solution
 from ._systems.noise import AbstractNoise as AbstractNoise
+from ._systems.noise import proportional_noise as proportional_noise
 from ._systems.noise import random_inertia_noise as random_inertia_noise
 from ._systems.noise import salt_noise as salt_noise
 from ._systems.rigid_body import PAPER_Y0 as PAPER_Y0

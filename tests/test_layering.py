@@ -208,3 +208,20 @@ def test_the_system_check_sees_a_system():
     )
     assert _mentions_system(old) == [2, 3]
     assert _mentions_system('"""a system\'s step"""\nx = 1\n') == []
+
+
+def test_every_system_has_a_noise_family():
+    # The step's noise has one home, the noise family (`c=` is `ProportionalNoise`): no code
+    # outside the families' module asks whether a system has one.
+    import re
+
+    pattern = re.compile(r"\bnoise is (not )?None\b")
+    wrong = [
+        f"{f.relative_to(ROOT)}:{i}"
+        for f in sorted(PACKAGE.rglob("*.py"))
+        if f != PACKAGE / "_systems" / "noise.py"
+        for i, line in enumerate(f.read_text().splitlines(), 1)
+        if pattern.search(line.split("#")[0])
+    ]
+    assert not wrong, f"code that asks whether a system has a noise family: {wrong}"
+    assert pattern.search("if self.noise is None:") and pattern.search("x.noise is not None")

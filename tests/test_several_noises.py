@@ -190,6 +190,56 @@ def test_paper_case_through_noise_equals_rigid_body():
         assert np.abs(got - expected).max() < 1e-13
 
 
+def test_c_is_the_proportional_family():
+    """c= builds the family `proportional_noise(c)` (every system has a noise family): the
+    same system, bit for bit, on so(3) (the rigid body's closed forms); on so(4) and su(4)
+    the same paths as the noise given as a function H_1 = c H_0; and the derivative in c,
+    which now lives on the family, through `system.c` of the gradient, against a central
+    difference."""
+    paper = sj.RigidBody.paper()
+    fam = sj.RigidBody(paper.inertia, noise=sj.proportional_noise(0.2))
+    assert isinstance(paper.noise, type(fam.noise)) and fam.c == paper.c
+    assert repr(fam) == repr(paper) and "c=" in repr(paper)
+    assert fam.n_noises == 1 and salt().c is None
+    y0, dt = jnp.asarray(sj.PAPER_Y0), 2.0**-6
+    dW = sj.brownian_increments(jax.random.key(2), 64, dt, n_noises=1)
+    for method in (sj.LiePoisson(), sj.Midpoint(), sj.Exact()):
+        np.testing.assert_array_equal(
+            sj.integrate(fam, y0, dW, dt, method=method),
+            sj.integrate(paper, y0, dW, dt, method=method),
+        )
+    for alg in (sj.so(4), sj.su(4)):
+        # against the same noise given as a function, H_1 = 0.3 H_0 (JAX's derivatives, a
+        # family of its own Hamiltonians): the family's time change against a code path
+        # that knows nothing of it
+        h = lambda y, p: 0.5 * jnp.sum(jnp.abs(y) ** 2 * p)
+        j = jnp.linspace(1.0, 2.0, 4)
+        a = sj.LiePoissonSystem(h, j, c=0.3, algebra=alg)
+        b = sj.LiePoissonSystem(h, j, noise=lambda y, p: (0.3 * h(y, p))[None], algebra=alg)
+        assert b.c is None
+        ya = alg.random_state(jax.random.key(4))
+        ya = 0.5 * ya / alg.spectral_norm(ya)
+        for method in (sj.IsospectralMidpoint(), sj.LiePoisson()):
+            np.testing.assert_allclose(
+                sj.integrate(a, ya, dW[:8], dt, method=method),
+                sj.integrate(b, ya, dW[:8], dt, method=method),
+                atol=1e-13,
+            )
+    # d/dc of y_1 at the end: the gradient's c (the family's leaf) against a central difference
+    end = lambda s: sj.integrate(s, y0, dW, dt, method=sj.Midpoint())[0]
+    g = jax.grad(end)(paper).c
+    fd = (
+        end(sj.RigidBody(paper.inertia, 0.2 + 1e-6)) - end(sj.RigidBody(paper.inertia, 0.2 - 1e-6))
+    ) / 2e-6
+    assert abs(float(g) - float(fd)) < 1e-7 * max(1.0, abs(float(fd)))
+    with pytest.raises(ValueError, match="c must be a scalar"):
+        sj.proportional_noise([0.1, 0.2])
+    with pytest.raises(ValueError, match="c must be finite"):
+        sj.proportional_noise(np.inf)
+    with pytest.raises(ValueError, match="no Lévy area"):
+        paper.area_gradient(y0, jnp.zeros((1, 1)))
+
+
 def test_casimir_kept_with_three_noises():
     """|y| to 1e-13 over 10^4 steps with three SALT noises, for every Poisson method (with
     the Lévy areas for those that use them)."""

@@ -157,7 +157,7 @@ class IsospectralMidpoint(AbstractMethod):
         where the increment scales with the time $h + c\,\Delta W$ of the step. Empty
         otherwise: the increment of a step with noises of their own is mostly this step's
         noise, which no earlier step knows."""
-        if not self.warm_start or self._mode(system) != "identity" or system.noise is not None:
+        if not self.warm_start or self._mode(system) != "identity" or system.c is None:
             return ()
         ym = system.algebra.to_matrix(y0)
         return (jnp.zeros((), jnp.int32),) + (jnp.zeros_like(ym),) * self.warm_start

@@ -82,7 +82,7 @@ class _Parameters:
     @classmethod
     def of(cls, init):
         inertia = [f"I_{i + 1}" for i in range(3)]
-        if init.noise is None:
+        if init.c is not None:  # (one noise proportional to the drift)
             return cls(
                 (*inertia, "c"),
                 jnp.concatenate([jnp.log(init.inertia), jnp.log(init.c)[None]]),
@@ -268,9 +268,9 @@ def calibrate(
     """
     if not isinstance(init, RigidBody):
         raise TypeError(f"init must be a RigidBody, got {type(init).__name__}.")
-    if init.noise is None and not float(np.asarray(init.c)) > 0:
+    if init.c is not None and not float(np.asarray(init.c)) > 0:
         raise ValueError(f"init.c must be positive (c is fitted on a log scale), got {init.c}.")
-    if init.noise is not None and not isinstance(init.noise, _ParameterNoise):
+    if init.c is None and not isinstance(init.noise, _ParameterNoise):
         raise TypeError(
             "calibrate fits the parameters of a noise family (salt_noise, "
             "random_inertia_noise); a noise given as a function has none."

@@ -9,6 +9,7 @@ from collections.abc import Callable
 from typing import Any
 
 from .._algebra.so3 import SO3Algebra
+from .noise import ProportionalNoise
 from .rigid_body import RigidBody
 
 
@@ -32,15 +33,16 @@ RIGID_BODY = Capability(
     lambda system: isinstance(system, RigidBody),
 )
 NOISE_PROPORTIONAL_TO_DRIFT = Capability(
-    "one noise proportional to the drift (c=)", lambda system: system.noise is None
+    "one noise proportional to the drift (c=)",
+    lambda system: isinstance(system.noise, ProportionalNoise),
 )
 LINEAR_NOISE = Capability(
     "noise Hamiltonians linear in y (salt_noise)",
-    lambda system: system.noise is not None and system.noise.linear,
+    lambda system: system.noise.linear,
 )
 QUADRATIC = Capability(
     "quadratic Hamiltonians (a quadratic H_0 with c=): y -> y/s is a time change",
-    lambda system: system.noise is None and system.quadratic_hamiltonian,
+    lambda system: isinstance(system.noise, ProportionalNoise) and system.quadratic_hamiltonian,
 )
 SO3_VECTORS = Capability(
     "so(3)* as 3-vectors (the algebra sj.SO3: a RigidBody, or "

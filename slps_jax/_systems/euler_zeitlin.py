@@ -10,6 +10,7 @@ import numpy as np
 
 from .. import zeitlin
 from .._algebra import su
+from .noise import noise_or_c
 from .system import LiePoissonSystem, Tables
 
 
@@ -68,19 +69,19 @@ class EulerZeitlin(LiePoissonSystem):
                 raise ValueError(
                     f"EulerZeitlin: dtype must be complex64 or complex128, got {dtype!r}."
                 )
+        algebra = su(int(N))
+        noise = noise_or_c(c, noise, None, [], algebra)
+        if dtype is not None:  # (the family's leaves: c, or its matrices)
             real = jnp.finfo(dtype).dtype
-            if noise is None:
-                c = jnp.asarray(0.0 if c is None else c).astype(real)
-            else:
-                noise = jax.tree_util.tree_map(
-                    lambda x: (
-                        x.astype(dtype if jnp.iscomplexobj(x) else real)
-                        if hasattr(x, "dtype") and jnp.issubdtype(x.dtype, jnp.inexact)
-                        else x
-                    ),
-                    noise,
-                )
-        super().__init__(_euler_hamiltonian, None, c=c, noise=noise, algebra=su(int(N)))
+            noise = jax.tree_util.tree_map(
+                lambda x: (
+                    x.astype(dtype if jnp.iscomplexobj(x) else real)
+                    if hasattr(x, "dtype") and jnp.issubdtype(x.dtype, jnp.inexact)
+                    else x
+                ),
+                noise,
+            )
+        super().__init__(_euler_hamiltonian, None, noise=noise, algebra=algebra)
         zeitlin._route(poisson)  # (refuses an unknown route)
         self.poisson = poisson
         self.tables = None
@@ -112,7 +113,7 @@ class EulerZeitlin(LiePoissonSystem):
         return zeitlin.hbar(self.N)
 
     def __repr__(self):
-        if self.noise is not None:  # (the noise's matrices are N x N: their count only)
+        if self.c is None:  # (the noise's matrices are N x N: their count only)
             return f"EulerZeitlin({self.N}, noise={type(self.noise).__name__} of {self.n_noises})"
         return f"EulerZeitlin({self.N}, c={self.c!r})"
 

@@ -73,24 +73,30 @@ def step_fields(system, v, dt, noise, second=True):
         )
     noise = as_step(noise)
     g, hess = _drift_hessian(system, v)
-    if system.noise is None:
-        cdw = system.noise_time(noise.dW)
-        k, hk = scale(dt + cdw, g), scale_any(dt + cdw, hess)
-        return (k, hk, scale(cdw, g), scale_any(cdw, hess)) if second else (k, hk, None, None)
-    u, ju = _noise_jacobian(system, v, noise.dW)
-    k, hk = add(scale(dt, g), u), add_any(scale_any(dt, hess), ju)
+    tau = system.noise.drift_time(noise.dW)  # (the noise's part proportional to the drift)
+    time = dt if tau is None else dt + tau
+    k, hk = scale(time, g), scale_any(time, hess)
+    u, ju = _noise_jacobian(system, v, noise.dW)  # (the family's own Hamiltonians)
+    if u is not None:
+        k, hk = add(k, u), add_any(hk, ju)
     if system.has_area(noise):
         ga, ha = _area_jacobian(system, v, noise.area)
         k, hk = add(k, ga), add_any(hk, ha)
-    return (k, hk, u, ju) if second else (k, hk, None, None)
+    if not second:
+        return k, hk, None, None
+    if tau is not None:  # u = sum_r dW_r grad H_r includes the drift's part
+        du, dju = scale(tau, g), scale_any(tau, hess)
+        u, ju = (du, dju) if u is None else (add(u, du), add_any(ju, dju))
+    return k, hk, u, ju
 
 
 def _step_gradient(system, v, dt, noise):
     r"""$\nabla K(v)$ on so(3)'s components; with `c=`, $K = \tau H_0$, $\tau = h + c\Delta W$."""
     noise = as_step(noise)
-    if system.noise is None:
-        return scale(dt + system.noise_time(noise.dW), _drift(system, v))
-    g = add(scale(dt, _drift(system, v)), _noise(system, v, noise.dW))
+    tau = system.noise.drift_time(noise.dW)
+    g = scale(dt if tau is None else dt + tau, _drift(system, v))
+    own = _noise(system, v, noise.dW)
+    g = g if own is None else add(g, own)
     return add(g, _area(system, v, noise.area)) if system.has_area(noise) else g
 
 
@@ -116,17 +122,20 @@ def _drift_hessian(system, v):
 
 
 def _noise(system, v, w):
-    r"""$u(v) = \sum_r w_r \nabla H_r(v)$ of the noise family (`AbstractNoise.gradient`)."""
-    return vec(system.noise.gradient(unvec(v), w, system.params, system.algebra))
+    r"""$u(v) = \sum_r w_r \nabla \tilde H_r(v)$ of the family's own Hamiltonians
+    (`AbstractNoise.gradient`; `None` without any)."""
+    u = system.noise.gradient(unvec(v), w, system.params, system.algebra)
+    return None if u is None else vec(u)
 
 
 def _noise_jacobian(system, v, w):
-    r"""$(u, \partial u/\partial v)$ (`AbstractNoise.gradient_jacobian`); the Jacobian is
-    `None` for linear noise (zero: no arithmetic with zeros)."""
+    r"""$(u, \partial u/\partial v)$ (`AbstractNoise.gradient_jacobian`) of the family's own Hamiltonians,
+    `(None, None)` without any; the Jacobian is `None` for linear noise (zero: no arithmetic
+    with zeros)."""
     if system.noise.linear:
         return _noise(system, v, w), None
     u, ju = system.noise.gradient_jacobian(unvec(v), w, system.params, system.algebra)
-    return vec(u), mat(ju)
+    return (None, None) if u is None else (vec(u), mat(ju))
 
 
 def _area(system, v, area):

@@ -1,11 +1,15 @@
-"""Noise Hamiltonians $H_1, \\dots, H_s$ of a system with several noises:
-$dy = y \\times \\nabla H_0(y)\\,dt + \\sum_r y \\times \\nabla H_r(y) \\circ dW_r$.
+"""The noise of a system, $dy = y \\times \\nabla H_0(y)\\,dt + \\sum_r y \\times
+\\nabla H_r(y) \\circ dW_r$: every system has a noise family, the one home of what a step's
+noise does.
 
 A noise family is a pytree whose leaves are its parameters (so `jax.grad` reaches them) and
-which gives the integrators the one combination they need: $u(y) = \\sum_r w_r \\nabla H_r(y)$
-for weights $w$ (a step's increments), and its Jacobian $\\partial u/\\partial y$. A family
-writes `values` and `gradient`; the Jacobian comes from JAX unless it has a closed form
-(`salt_noise`, `random_inertia_noise`).
+which gives the integrators the one combination they need: for weights $w$ (a step's
+increments) $\\sum_r w_r H_r = \\tau(w) H_0 + \\sum_r w_r \\tilde H_r$, a change
+$\\tau(w)$ of the drift's time (`drift_time`; only `ProportionalNoise`, the family of `c=`,
+has one) and the family's own Hamiltonians $\\tilde H_r$, through
+$u(y) = \\sum_r w_r \\nabla\\tilde H_r(y)$ and its Jacobian $\\partial u/\\partial y$. A
+family of its own Hamiltonians writes `values` and `gradient`; the Jacobian comes from JAX
+unless it has a closed form (`salt_noise`, `random_inertia_noise`).
 """
 
 from __future__ import annotations
@@ -14,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._support.checks import concrete, float_dtype, numeric_array
+from .._support.checks import concrete, float_dtype, numeric_array, real_array
 
 
 class AbstractNoise:
@@ -32,10 +36,21 @@ class AbstractNoise:
       Jacobian of shape `shape + shape` (by JAX unless overridden with a closed form).
     - `check_algebra(algebra)`: raise `ValueError` if the family does not fit its states.
 
+    - `drift_time(w)`: $\\tau(w)$ where part of the noise is the drift's own, so that
+      $\\sum_r w_r H_r = \\tau(w) H_0 + \\sum_r w_r\\tilde H_r$ (`None`, the default, where none
+      is: every family but `ProportionalNoise`). A family without Hamiltonians of its own
+      returns `None` from `values`, `gradient` and `gradient_jacobian`.
+
     `params` are the system's parameters (families with their own leaves ignore them).
     """
 
     linear = False  # all H_r linear: u does not depend on y (SALT; enables closed forms)
+    takes_areas = True  # the step's Lévy areas enter it (not with one noise)
+    c = None  # the amplitude of a noise proportional to the drift (`ProportionalNoise`)
+
+    def drift_time(self, w):
+        r"""$\tau(w)$: how far the weights `w` move the drift's time (`None`: not at all)."""
+        return None
 
     @property
     def n_noises(self) -> int:
@@ -69,6 +84,89 @@ class AbstractNoise:
     def area_gradient(self, y, area, params, algebra):
         r"""$\nabla G_A(y)$ (`area_hamiltonian`), by JAX."""
         return algebra.gradient(jax.grad(self.area_hamiltonian)(y, area, params, algebra))
+
+
+@jax.tree_util.register_pytree_node_class
+class ProportionalNoise(AbstractNoise):
+    r"""One noise proportional to the drift, $H_1 = cH_0$:
+    $dy = y \times \nabla H_0(y)\,(dt + c \circ dW)$, the paper's noise. A step with the
+    increment $\Delta W$ is the drift's step over the random time $\tau = h + c\Delta W$
+    (`drift_time`), so the family has no Hamiltonians of its own, and no Lévy area (one
+    noise). Build with `proportional_noise(c)`, or pass `c=` to a system; `c` is a pytree
+    leaf."""
+
+    takes_areas = False
+
+    def __init__(self, c):
+        self.c = c
+
+    @property
+    def n_noises(self):
+        return 1
+
+    def tree_flatten(self):
+        return (self.c,), None
+
+    @classmethod
+    def tree_unflatten(cls, aux, children):
+        return cls(*children)
+
+    def __repr__(self):
+        return f"proportional_noise({self.c!r})"
+
+    def drift_time(self, w):
+        return self.c * jnp.reshape(w, ())
+
+    def values(self, y, params):
+        return None
+
+    def gradient(self, y, w, params, algebra):
+        return None
+
+    def gradient_jacobian(self, y, w, params, algebra):
+        return None, None
+
+    def area_hamiltonian(self, y, area, params, algebra):
+        raise ValueError(
+            "this system has one noise proportional to the drift (c=): it has no Lévy area."
+        )
+
+    area_gradient = area_hamiltonian
+
+
+def proportional_noise(c, dtype=None):
+    r"""One noise proportional to the drift, $H_1 = cH_0$: the noise of `c=`
+    ($dy = y \times \nabla H_0(y)\,(dt + c \circ dW)$).
+
+    **Arguments:** `c`, a finite real scalar (0: no noise; a pytree leaf, so `jax.grad`
+    reaches it); `dtype` (default: `c`'s floating dtype, at least the default float).
+
+    **Returns:** the noise family (a `ProportionalNoise`, one noise) for `noise=` of any
+    system; `RigidBody(I, c=0.2)` is `RigidBody(I, noise=proportional_noise(0.2))`.
+    """
+    c = real_array("c", c)
+    c = c.astype(float_dtype(c) if dtype is None else dtype)
+    if c.shape != ():
+        raise ValueError(f"c must be a scalar, got shape {c.shape}.")
+    c_np = concrete(c)
+    if c_np is not None and not np.isfinite(c_np):
+        raise ValueError(f"c must be finite, got {c_np}.")
+    return ProportionalNoise(c)
+
+
+def noise_or_c(c, noise, params, leaves, algebra):
+    """A system's noise family from its arguments: `noise` (a family or a function, `as_noise`)
+    or `c` (`proportional_noise`, 0 when neither is given), in the floating dtype of `leaves`
+    (the system's parameters) and `c`. Refuses both together and bad values by name."""
+    if noise is not None:
+        if c is not None:
+            raise ValueError(
+                "Pass either c (one noise proportional to the drift, H_1 = c H_0) "
+                "or noise (the noise Hamiltonians), not both."
+            )
+        return as_noise(noise, params, float_dtype(*leaves), algebra)
+    c = real_array("c", 0.0 if c is None else c)
+    return proportional_noise(c, float_dtype(c, *leaves))
 
 
 def _parameter_matrix(name, x, what, matrices=False):

@@ -9,9 +9,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._algebra import so
+from .._algebra import SO3, so
 from .._support.checks import concrete, float_dtype, real_array
-from .system import LiePoissonSystem, _noise_or_c
+from .noise import noise_or_c
+from .system import LiePoissonSystem
 
 
 def _rigid_body_hamiltonian(y, inertia):
@@ -57,10 +58,8 @@ class RigidBody(LiePoissonSystem):
         i_np = concrete(inertia)
         if i_np is not None and not (np.all(np.isfinite(i_np)) and np.all(i_np > 0)):
             raise ValueError(f"inertia must be finite and positive, got {i_np}.")
-        self.c, self.noise = _noise_or_c(c, noise, inertia, [inertia])
-        self.inertia = inertia.astype(
-            float_dtype(inertia, *jax.tree_util.tree_leaves((self.c, self.noise)))
-        )
+        self.noise = noise_or_c(c, noise, inertia, [inertia], SO3)
+        self.inertia = inertia.astype(float_dtype(inertia, *jax.tree_util.tree_leaves(self.noise)))
 
     @classmethod
     def paper(cls):
@@ -70,13 +69,13 @@ class RigidBody(LiePoissonSystem):
         return cls([r2 + r2 / 1.51, r2 - 0.51 * r2 / 1.51, 1.0], 0.2)
 
     def tree_flatten(self) -> tuple[tuple, Any]:
-        return (self.inertia, self.c, self.noise), None
+        return (self.inertia, self.noise), None
 
     @classmethod
     def tree_unflatten(cls, aux, children):
         # Bypass __init__: unflattening happens with tracers and placeholder leaves.
         obj = object.__new__(cls)
-        obj.inertia, obj.c, obj.noise = children
+        obj.inertia, obj.noise = children
         return obj
 
     def __repr__(self):
@@ -146,17 +145,17 @@ class GeneralisedRigidBody(LiePoissonSystem):
         if j_np is not None and not (np.all(np.isfinite(j_np)) and np.all(j_np > 0)):
             raise ValueError(f"j must be finite and positive, got {j_np}.")
         self.algebra = so(j.shape[0])
-        self.c, self.noise = _noise_or_c(c, noise, j, [j], self.algebra)
-        self.j = j.astype(float_dtype(j, *jax.tree_util.tree_leaves((self.c, self.noise))))
+        self.noise = noise_or_c(c, noise, j, [j], self.algebra)
+        self.j = j.astype(float_dtype(j, *jax.tree_util.tree_leaves(self.noise)))
 
     def tree_flatten(self) -> tuple[tuple, Any]:
-        return (self.j, self.c, self.noise), self.algebra
+        return (self.j, self.noise), self.algebra
 
     @classmethod
     def tree_unflatten(cls, aux, children):
         obj = object.__new__(cls)
         obj.algebra = aux
-        obj.j, obj.c, obj.noise = children
+        obj.j, obj.noise = children
         return obj
 
     def __repr__(self):

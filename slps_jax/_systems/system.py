@@ -6,13 +6,12 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from .._algebra import SO3, AbstractAlgebra
 from .._brownian import as_step
-from .._support.checks import concrete, float_dtype, real_array, real_dtype
+from .._support.checks import float_dtype, real_dtype
 from . import fields
-from .noise import AbstractNoise, as_noise
+from .noise import AbstractNoise, noise_or_c
 
 
 @jax.tree_util.register_pytree_node_class
@@ -87,8 +86,7 @@ class LiePoissonSystem:
 
     algebra: AbstractAlgebra = SO3
     params: Any
-    c: jax.Array | None  # one noise proportional to the drift, or
-    noise: AbstractNoise | None  # a noise family
+    noise: AbstractNoise  # the noise family (`c=`: `ProportionalNoise`)
 
     def __init__(
         self, hamiltonian, params=None, c=None, noise=None, algebra: AbstractAlgebra = SO3
@@ -109,16 +107,16 @@ class LiePoissonSystem:
         self.hamiltonian_fn = hamiltonian
         self.params = params
         self.algebra = algebra
-        self.c, self.noise = _noise_or_c(c, noise, params, leaves, algebra)
+        self.noise = noise_or_c(c, noise, params, leaves, algebra)
 
     def tree_flatten(self) -> tuple[tuple, Any]:
-        return (self.params, self.c, self.noise), (self.hamiltonian_fn, self.algebra)
+        return (self.params, self.noise), (self.hamiltonian_fn, self.algebra)
 
     @classmethod
     def tree_unflatten(cls, aux, children):
         obj = object.__new__(cls)
         obj.hamiltonian_fn, obj.algebra = aux
-        obj.params, obj.c, obj.noise = children
+        obj.params, obj.noise = children
         return obj
 
     def __repr__(self):
@@ -135,7 +133,12 @@ class LiePoissonSystem:
     @property
     def n_noises(self):
         """The number $s$ of independent noises (1 with `c=`)."""
-        return 1 if self.noise is None else self.noise.n_noises
+        return self.noise.n_noises
+
+    @property
+    def c(self):
+        """The amplitude $c$ of one noise proportional to the drift (`c=`), else `None`."""
+        return self.noise.c
 
     # What the system states in closed form, for the algebra's fast paths (`SO3Algebra`).
     quadratic_drift = None
@@ -144,7 +147,7 @@ class LiePoissonSystem:
 
     def _noise_repr(self):
         """`c=...` or `noise=...`, for the systems' `__repr__`."""
-        return f"c={self.c!r}" if self.noise is None else f"noise={self.noise!r}"
+        return f"noise={self.noise!r}" if self.c is None else f"c={self.c!r}"
 
     # Whether H_0 is a quadratic form (declared by the systems that know it: the rigid
     # bodies, Euler–Zeitlin); with c= then y -> y/s is a time change (`LiePoisson(scale=)`).
@@ -173,10 +176,10 @@ class LiePoissonSystem:
 
     def noise_hamiltonians(self, y):
         r"""$(H_1(y), \dots, H_s(y))$ over the state axes of `y`, shape `(..., s)`."""
-        if self.noise is None:
+        if self.c is not None:  # (H_1 = c H_0: no Hamiltonian of the family's own)
             return (self.c * self.hamiltonian(y))[..., None]
         return jnp.vectorize(
-            lambda u: self._family().values(u, self.params), signature=self._signature("(s)")
+            lambda u: self.noise.values(u, self.params), signature=self._signature("(s)")
         )(jnp.asarray(y))
 
     def casimir(self, y):
@@ -208,47 +211,51 @@ class LiePoissonSystem:
     def noise_gradient(self, y, noise):
         r"""$u(y) = \sum_r \Delta W_r \nabla H_r(y)$ for one state `y` (no area term)."""
         dW = as_step(noise).dW
-        if self.noise is None:
-            return self.noise_time(dW) * self.gradient(y)
-        return self.noise.gradient(y, dW, self.params, self.algebra)
+        tau = self.noise.drift_time(dW)
+        own = self.noise.gradient(y, dW, self.params, self.algebra)
+        if tau is None:
+            return own
+        drift = tau * self.gradient(y)
+        return drift if own is None else own + drift
 
     def area_hamiltonian(self, y, area):
         r"""$G_A(y) = \tfrac12\sum_{q,r} A_{qr}\langle y, [\nabla H_q(y), \nabla H_r(y)]\rangle$
         for one state `y` and a step's areas `area` (`(s, s)`): the Hamiltonian whose field is
         $\sum_{q<r} A_{qr}[f_q, f_r]$, the Lévy-area term of the step. On so(3)
         $[a, b] = a \times b$; for SALT noise $G_A$ is linear (closed form)."""
-        return self._family().area_hamiltonian(y, area, self.params, self.algebra)
+        return self.noise.area_hamiltonian(y, area, self.params, self.algebra)
 
     def area_gradient(self, y, area):
         r"""$\nabla G_A(y)$ (`area_hamiltonian`) for one state `y`."""
-        return self._family().area_gradient(y, area, self.params, self.algebra)
-
-    def _family(self) -> AbstractNoise:
-        if self.noise is None:
-            raise ValueError("this system has one noise proportional to the drift (c=), no family.")
-        return self.noise
+        return self.noise.area_gradient(y, area, self.params, self.algebra)
 
     def has_area(self, noise):
         """Whether the step `noise` brings Lévy areas that enter the step (noises of the
         system's own: with one noise `c=` there is no area)."""
-        return noise.area is not None and self.noise is not None
+        return noise.area is not None and self.noise.takes_areas
 
     def step_hamiltonian(self, y, dt, noise):
         r"""$K(y) = hH_0(y) + \sum_r \Delta W_r H_r(y)$ (plus $G_A(y)$ with areas) for one
         state `y`."""
         noise = as_step(noise)
-        if self.noise is None:
-            return (dt + self.noise_time(noise.dW)) * self.hamiltonian(y)
-        k = dt * self.hamiltonian(y) + jnp.dot(noise.dW, self.noise.values(y, self.params))
+        k = self._drift_time(dt, noise) * self.hamiltonian(y)
+        own = self.noise.values(y, self.params)
+        k = k if own is None else k + jnp.dot(noise.dW, own)
         return k + self.area_hamiltonian(y, noise.area) if self.has_area(noise) else k
 
     def step_gradient(self, y, dt, noise):
         r"""$\nabla K(y)$ for one state `y`."""
         noise = as_step(noise)
-        if self.noise is None:
-            return (dt + self.noise_time(noise.dW)) * self.gradient(y)
-        g = dt * self.gradient(y) + self.noise_gradient(y, noise)
+        g = self._drift_time(dt, noise) * self.gradient(y)
+        own = self.noise.gradient(y, noise.dW, self.params, self.algebra)
+        g = g if own is None else g + own
         return g + self.area_gradient(y, noise.area) if self.has_area(noise) else g
+
+    def _drift_time(self, dt, noise):
+        r"""The time $h + \tau(\Delta W)$ over which the step moves with the drift's field
+        ($h$ where the noise has no part proportional to the drift)."""
+        tau = self.noise.drift_time(noise.dW)
+        return dt if tau is None else dt + tau
 
     def step_gradient_of(self, y, dt, noise):
         r"""$x \mapsto \nabla K(x)$ for one step (`step_gradient`), for the iterations of an
@@ -256,7 +263,7 @@ class LiePoissonSystem:
         depend on the state (a linear family: $\sum_r \Delta W_r \nabla H_r$ and the area
         term, $O(s)$ matrix products on so(n), su(N)), not at every evaluation."""
         noise = as_step(noise)
-        if self.noise is None or not self.noise.linear:
+        if not self.noise.linear:
             return lambda x: self.step_gradient(x, dt, noise)
         u = self.noise_gradient(y, noise)
         u = u + self.area_gradient(y, noise.area) if self.has_area(noise) else u
@@ -274,29 +281,10 @@ class LiePoissonSystem:
         $\tau = h + c\,\Delta W$ of a system whose one noise is proportional to the drift.
         `dW` is the step's increments, shape `(n_noises,) = (1,)` (a scalar, or the step's
         `BrownianStep`, is accepted)."""
-        if self.c is None:
+        tau = self.noise.drift_time(as_step(dW).dW)
+        if tau is None:
             raise ValueError("noise_time: this system has noises of its own (noise=), not c.")
-        return self.c * jnp.reshape(as_step(dW).dW, ())
-
-
-def _noise_or_c(c, noise, params, leaves, algebra: AbstractAlgebra = SO3):
-    """`(c, noise)` of a system: `c` a scalar of the system's dtype and `noise` `None`, or
-    `c` `None` and `noise` a noise family. Refuses both together and bad values by name."""
-    if noise is not None:
-        if c is not None:
-            raise ValueError(
-                "Pass either c (one noise proportional to the drift, H_1 = c H_0) "
-                "or noise (the noise Hamiltonians), not both."
-            )
-        return None, as_noise(noise, params, float_dtype(*leaves), algebra)
-    c = real_array("c", 0.0 if c is None else c)
-    c = c.astype(float_dtype(c, *leaves))
-    if c.shape != ():
-        raise ValueError(f"c must be a scalar, got shape {c.shape}.")
-    c_np = concrete(c)
-    if c_np is not None and not np.isfinite(c_np):
-        raise ValueError(f"c must be finite, got {c_np}.")
-    return c, None
+        return tau
 
 
 def check_system(system):
