@@ -93,3 +93,18 @@ def test_flow_reference_is_the_exact_reference():
 def test_calibration_result_model_is_system():
     res = sj.CalibrationResult(RB, np.zeros(1), None, np.ones(4))
     assert deprecated(lambda: res.model, ".system") is RB
+
+
+@pytest.mark.parametrize("name", ["step_gradient", "step_hamiltonian", "step_gradient_of"])
+def test_a_steps_noise_keyword_is_increments(name):
+    # `noise` is the system's family of Hamiltonians; a step's increments are `increments`
+    system = sj.RigidBody([1.0, 2.0, 3.0], noise=sj.salt_noise(0.3 * np.eye(3)))
+    step = sj.BrownianStep(jnp.asarray([0.1, -0.2, 0.05]))
+    method = getattr(system, name)
+    new = method(Y0, 0.01, increments=step)
+    old = deprecated(lambda: method(Y0, 0.01, noise=step), "increments=")
+    if name == "step_gradient_of":
+        new, old = new(Y0), old(Y0)
+    np.testing.assert_array_equal(old, new)
+    u = deprecated(lambda: system.noise_gradient(Y0, noise=step), "increments=")
+    np.testing.assert_array_equal(u, system.noise_gradient(Y0, step))

@@ -34,53 +34,53 @@ from .._algebra.so3 import (
 from .._brownian import as_step
 
 
-def local_field(system, x, dt, noise):
-    r"""$F(x) = [x, \nabla K(x)]$ of one step (`noise` its `BrownianStep`), in the local form."""
+def local_field(system, x, dt, increments):
+    r"""$F(x) = [x, \nabla K(x)]$ of one step (`increments` its `BrownianStep`), in the local form."""
     if system.algebra is SO3:
-        return cross(x, _step_gradient(system, x, dt, noise))
-    return system.algebra.bracket(x, system.step_gradient(x, dt, noise))
+        return cross(x, _step_gradient(system, x, dt, increments))
+    return system.algebra.bracket(x, system.step_gradient(x, dt, increments))
 
 
-def coordinate_field(system, u, dt, noise):
+def coordinate_field(system, u, dt, increments):
     """`local_field` on the local form's real coordinates (the unknowns of an implicit solve)."""
     alg = system.algebra
     x = alg.from_local_coordinates(u)
-    return alg.local_coordinates(local_field(system, x, dt, noise))
+    return alg.local_coordinates(local_field(system, x, dt, increments))
 
 
-def coordinate_field_jacobian(system, u, dt, noise):
+def coordinate_field_jacobian(system, u, dt, increments):
     """`(coordinate_field(u), its Jacobian)`: on so(3) in closed form, elsewhere by
     forward-mode autodiff."""
     if system.algebra is SO3:
-        k, hk, _, _ = step_fields(system, u, dt, noise, second=False)
+        k, hk, _, _ = step_fields(system, u, dt, increments, second=False)
         # d(u x k(u))/du = hat(u) grad^2 K - hat(k)
         return cross(u, k), madd(mm_any(hat(u), hk), mscale(-1.0, hat(k)))
-    f = lambda u: coordinate_field(system, u, dt, noise)
+    f = lambda u: coordinate_field(system, u, dt, increments)
     return f(u), jax.jacfwd(f)(u)
 
 
-def step_fields(system, v, dt, noise, second=True):
+def step_fields(system, v, dt, increments, second=True):
     r"""What scheme (42)'s in-map needs of a step (`sine_chart_in_map`), on so(3)'s
     components: $(\nabla K, \nabla^2 K, u, \partial u/\partial v)$ at `v`, with
     $u = \sum_r \Delta W_r \nabla H_r$ the increments' part of the noise (the areas'
     $\nabla G_A$ is in $K$ only). Without the second-order term (`second=False`) `u` and
-    its Jacobian are `None`; a Jacobian is `None` where it is zero (linear noise), and
+    its Jacobian are `None`; a Jacobian is `None` where it is zero (linear increments), and
     diagonal (`is_diagonal`) where the closed form is."""
     if system.algebra is not SO3:
         raise ValueError(
             "step_fields: the components of so(3)* (a system on sj.SO3); this system is on "
             f"{system.algebra}."
         )
-    noise = as_step(noise)
+    increments = as_step(increments)
     g, hess = _drift_hessian(system, v)
-    tau = system.noise.drift_time(noise.dW)  # (the noise's part proportional to the drift)
+    tau = system.noise.drift_time(increments.dW)  # (the noise's part proportional to the drift)
     time = dt if tau is None else dt + tau
     k, hk = scale(time, g), scale_any(time, hess)
-    u, ju = _noise_jacobian(system, v, noise.dW)  # (the family's own Hamiltonians)
+    u, ju = _noise_jacobian(system, v, increments.dW)  # (the family's own Hamiltonians)
     if u is not None:
         k, hk = add(k, u), add_any(hk, ju)
-    if system.has_area(noise):
-        ga, ha = _area_jacobian(system, v, noise.area)
+    if system.has_area(increments):
+        ga, ha = _area_jacobian(system, v, increments.area)
         k, hk = add(k, ga), add_any(hk, ha)
     if not second:
         return k, hk, None, None
@@ -90,14 +90,14 @@ def step_fields(system, v, dt, noise, second=True):
     return k, hk, u, ju
 
 
-def _step_gradient(system, v, dt, noise):
+def _step_gradient(system, v, dt, increments):
     r"""$\nabla K(v)$ on so(3)'s components; with `c=`, $K = \tau H_0$, $\tau = h + c\Delta W$."""
-    noise = as_step(noise)
-    tau = system.noise.drift_time(noise.dW)
+    increments = as_step(increments)
+    tau = system.noise.drift_time(increments.dW)
     g = scale(dt if tau is None else dt + tau, _drift(system, v))
-    own = _noise(system, v, noise.dW)
+    own = _noise(system, v, increments.dW)
     g = g if own is None else add(g, own)
-    return add(g, _area(system, v, noise.area)) if system.has_area(noise) else g
+    return add(g, _area(system, v, increments.area)) if system.has_area(increments) else g
 
 
 def _drift(system, v):
@@ -144,7 +144,7 @@ def _area(system, v, area):
 
 
 def _area_jacobian(system, v, area):
-    r"""$(\nabla G_A(v), \nabla^2 G_A(v))$; `None` (zero) for linear noise, whose $G_A$ is
+    r"""$(\nabla G_A(v), \nabla^2 G_A(v))$; `None` (zero) for linear increments, whose $G_A$ is
     linear."""
     if system.noise.linear:
         return _area(system, v, area), None

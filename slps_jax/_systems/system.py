@@ -10,6 +10,7 @@ import jax.numpy as jnp
 from .._algebra import SO3, AbstractAlgebra
 from .._brownian import as_step
 from .._support.checks import float_dtype, real_dtype
+from .._support.deprecated import renamed_arguments
 from . import fields
 from .noise import AbstractNoise, noise_or_c
 
@@ -201,16 +202,17 @@ class LiePoissonSystem:
         y = jnp.asarray(y)
         return self.algebra.bracket(y, self.gradient(y))
 
-    # One sample's step. `noise` is the step's noise, a `BrownianStep` (increments `dW`, and
-    # Lévy areas `area` or `None`; an array of increments is accepted for a step without
-    # areas). The step's Hamiltonian is
+    # One sample's step. `increments` is the step's noise, a `BrownianStep` (increments `dW`,
+    # and Lévy areas `area` or `None`; an array of increments is accepted for a step without
+    # areas; the system's `noise` is its family of Hamiltonians). The step's Hamiltonian is
     #   K = h H_0 + sum_r dW_r H_r + G_A,  G_A(y) = 1/2 sum_{q,r} A_qr <y, [grad H_q, grad H_r]>,
     # G_A the Hamiltonian of the area term sum_{q<r} A_qr [f_q, f_r] of the strong-order-1
     # expansion (`docs/levy-area.md`).
 
-    def noise_gradient(self, y, noise):
+    @renamed_arguments(noise="increments")
+    def noise_gradient(self, y, increments):
         r"""$u(y) = \sum_r \Delta W_r \nabla H_r(y)$ for one state `y` (no area term)."""
-        dW = as_step(noise).dW
+        dW = as_step(increments).dW
         tau = self.noise.drift_time(dW)
         own = self.noise.gradient(y, dW, self.params, self.algebra)
         if tau is None:
@@ -229,44 +231,47 @@ class LiePoissonSystem:
         r"""$\nabla G_A(y)$ (`area_hamiltonian`) for one state `y`."""
         return self.noise.area_gradient(y, area, self.params, self.algebra)
 
-    def has_area(self, noise):
-        """Whether the step `noise` brings Lévy areas that enter the step (noises of the
+    def has_area(self, increments):
+        """Whether the step `increments` brings Lévy areas that enter the step (noises of the
         system's own: with one noise `c=` there is no area)."""
-        return noise.area is not None and self.noise.takes_areas
+        return increments.area is not None and self.noise.takes_areas
 
-    def step_hamiltonian(self, y, dt, noise):
+    @renamed_arguments(noise="increments")
+    def step_hamiltonian(self, y, dt, increments):
         r"""$K(y) = hH_0(y) + \sum_r \Delta W_r H_r(y)$ (plus $G_A(y)$ with areas) for one
         state `y`."""
-        noise = as_step(noise)
-        k = self._drift_time(dt, noise) * self.hamiltonian(y)
+        increments = as_step(increments)
+        k = self._drift_time(dt, increments) * self.hamiltonian(y)
         own = self.noise.values(y, self.params)
-        k = k if own is None else k + jnp.dot(noise.dW, own)
-        return k + self.area_hamiltonian(y, noise.area) if self.has_area(noise) else k
+        k = k if own is None else k + jnp.dot(increments.dW, own)
+        return k + self.area_hamiltonian(y, increments.area) if self.has_area(increments) else k
 
-    def step_gradient(self, y, dt, noise):
+    @renamed_arguments(noise="increments")
+    def step_gradient(self, y, dt, increments):
         r"""$\nabla K(y)$ for one state `y`."""
-        noise = as_step(noise)
-        g = self._drift_time(dt, noise) * self.gradient(y)
-        own = self.noise.gradient(y, noise.dW, self.params, self.algebra)
+        increments = as_step(increments)
+        g = self._drift_time(dt, increments) * self.gradient(y)
+        own = self.noise.gradient(y, increments.dW, self.params, self.algebra)
         g = g if own is None else g + own
-        return g + self.area_gradient(y, noise.area) if self.has_area(noise) else g
+        return g + self.area_gradient(y, increments.area) if self.has_area(increments) else g
 
-    def _drift_time(self, dt, noise):
+    def _drift_time(self, dt, increments):
         r"""The time $h + \tau(\Delta W)$ over which the step moves with the drift's field
         ($h$ where the noise has no part proportional to the drift)."""
-        tau = self.noise.drift_time(noise.dW)
+        tau = self.noise.drift_time(increments.dW)
         return dt if tau is None else dt + tau
 
-    def step_gradient_of(self, y, dt, noise):
+    @renamed_arguments(noise="increments")
+    def step_gradient_of(self, y, dt, increments):
         r"""$x \mapsto \nabla K(x)$ for one step (`step_gradient`), for the iterations of an
         implicit step near the state `y`: the noise's part computed once where it does not
         depend on the state (a linear family: $\sum_r \Delta W_r \nabla H_r$ and the area
         term, $O(s)$ matrix products on so(n), su(N)), not at every evaluation."""
-        noise = as_step(noise)
+        increments = as_step(increments)
         if not self.noise.linear:
-            return lambda x: self.step_gradient(x, dt, noise)
-        u = self.noise_gradient(y, noise)
-        u = u + self.area_gradient(y, noise.area) if self.has_area(noise) else u
+            return lambda x: self.step_gradient(x, dt, increments)
+        u = self.noise_gradient(y, increments)
+        u = u + self.area_gradient(y, increments.area) if self.has_area(increments) else u
         return lambda x: dt * self.gradient(x) + u
 
     # The step in the form a method's loop carries (`fields`): what the methods call, so
