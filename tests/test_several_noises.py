@@ -155,7 +155,9 @@ class Axes(sj.AbstractNoise):
         return cls(*children)
 
 
-@pytest.mark.parametrize("method", [sj.LiePoisson(), sj.Midpoint(), sj.SaltSplitting()])
+@pytest.mark.parametrize(
+    "method", [sj.LiePoisson(), sj.Midpoint(), sj.IsospectralMidpoint(), sj.SaltSplitting()]
+)
 def test_a_family_of_ones_own_runs_as_the_built_in_one(method):
     # The closed forms of salt_noise (its zero Jacobian, its constant area term) against
     # JAX's derivatives of the same Hamiltonians, through whole runs with Lévy areas.
