@@ -18,8 +18,9 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -264,8 +265,7 @@ def draw_joined(sample_key, n, substeps, fine_dt, bound, dtype, n_noises, terms=
     )
 
 
-@jax.tree_util.register_pytree_node_class
-class BrownianPath:
+class BrownianPath(eqx.Module):
     r"""The Brownian motions of an ensemble, as the driver asks for them: the noise of step
     `n` of the sample whose key is `key` is `sampler(key)(n)`, a `BrownianStep`. Everything
     that decides it lives here: the step, the truncation of the increments, the Lévy areas
@@ -281,15 +281,29 @@ class BrownianPath:
     - `terms`: the series length of the Lévy-area sampler of a fine step
       (`levy_area_terms`), or `None`: no areas (static).
 
-    A pytree: `dt`, `bound` and a traced `substeps` are its leaves.
+    An `equinox.Module`: `dt`, `bound` and a traced `substeps` are its leaves.
     """
+
+    dt: Any
+    bound: Any
+    n_noises: int = eqx.field(static=True)
+    terms: int | None = eqx.field(static=True)
+    fixed_substeps: int | None = eqx.field(static=True)  # (substeps, a Python int)
+    traced_substeps: Any  # (or substeps, an integer array)
 
     def __init__(self, dt, bound, n_noises, *, substeps=1, terms=None):
         self.dt = dt
         self.bound = bound
         self.n_noises = n_noises
-        self.substeps = substeps
         self.terms = terms
+        fixed = isinstance(substeps, int)
+        self.fixed_substeps = substeps if fixed else None
+        self.traced_substeps = None if fixed else substeps
+
+    @property
+    def substeps(self) -> Any:
+        """$m$, the fine steps per step: a Python int, or a traced integer array."""
+        return self.fixed_substeps if self.traced_substeps is None else self.traced_substeps
 
     @classmethod
     def of(cls, dt, n_noises, dtype, *, truncate_k, levy_area=False):
@@ -334,17 +348,6 @@ class BrownianPath:
     def _draw(self, key, n, m, fine_dt):
         """Coarse step `n` made of `m` fine steps of size `fine_dt` (`draw_joined`)."""
         return draw_joined(key, n, m, fine_dt, self.bound, self.dt.dtype, self.n_noises, self.terms)
-
-    def tree_flatten(self):
-        static = isinstance(self.substeps, int)
-        leaves = (self.dt, self.bound) + (() if static else (self.substeps,))
-        return leaves, (self.n_noises, self.terms, self.substeps if static else None)
-
-    @classmethod
-    def tree_unflatten(cls, aux, leaves):
-        n_noises, terms, substeps = aux
-        dt, bound, *rest = leaves
-        return cls(dt, bound, n_noises, substeps=rest[0] if rest else substeps, terms=terms)
 
 
 def _check_counts(n_steps, n_samples):
@@ -494,18 +497,15 @@ class OrnsteinUhlenbeck:
         return OrnsteinUhlenbeckPath(np.asarray(dt, dtype), consts)
 
 
-@jax.tree_util.register_pytree_node_class
-class OrnsteinUhlenbeckPath:
+class OrnsteinUhlenbeckPath(eqx.Module):
     """The Ornstein–Uhlenbeck driver as the driver asks for it (`BrownianPath`'s sibling):
     `sampler(key)` is a `StatefulDraws`, since a trace's next increment depends on its
     present value. Sample `key`'s path does not depend on how the steps are blocked: step
     `n` draws from `fold_in(key', n)`. A pytree: `dt` and the step's constants are leaves."""
 
     levy_area = False
-
-    def __init__(self, dt, consts):
-        self.dt = dt
-        self.consts = consts
+    dt: Any
+    consts: tuple
 
     @property
     def n_noises(self):
@@ -516,13 +516,6 @@ class OrnsteinUhlenbeckPath:
 
     def sampler(self, key):
         return StatefulDraws(self, key)
-
-    def tree_flatten(self):
-        return (self.dt, *self.consts), None
-
-    @classmethod
-    def tree_unflatten(cls, aux, leaves):
-        return cls(leaves[0], tuple(leaves[1:]))
 
 
 class StatefulDraws:

@@ -127,15 +127,13 @@ def test_the_sine_chart_in_map_is_the_generating_functions(model):
             np.testing.assert_allclose(comp.unmat(jac), jax.jacfwd(ref)(v), atol=1e-14)
 
 
-@jax.tree_util.register_pytree_node_class
 class Axes(sj.AbstractNoise):
     """SALT written as a user's family: `values` and `gradient` only (Jacobians and the
     Lévy-area term from JAX)."""
 
     linear = True
 
-    def __init__(self, chi):
-        self.chi = chi
+    chi: jax.Array  # (a field: a leaf of the pytree)
 
     @property
     def n_noises(self):
@@ -146,13 +144,6 @@ class Axes(sj.AbstractNoise):
 
     def gradient(self, y, w, params, algebra):
         return w @ self.chi
-
-    def tree_flatten(self):
-        return (self.chi,), None
-
-    @classmethod
-    def tree_unflatten(cls, aux, children):
-        return cls(*children)
 
 
 @pytest.mark.parametrize(

@@ -17,6 +17,7 @@ import math
 import os
 import sys
 
+import equinox as eqx
 import jax
 import jax.core
 import jax.numpy as jnp
@@ -179,14 +180,16 @@ def check_options(method):
 
 
 _PACKAGE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # slps_jax/
+# (equinox wraps the methods of its Modules: its frames lie between a user and the library)
+_INSIDE = (_PACKAGE, os.path.dirname(os.path.abspath(eqx.__file__)))
 
 
 def user_stacklevel():
     """The `stacklevel` for a `warnings.warn` in the function that calls this one that points
-    at the first line outside this package: the user's call, however deep the library's
-    own calls (and decorators) are."""
+    at the first line outside this package (and equinox's method wrappers): the user's call,
+    however deep the library's own calls (and decorators) are."""
     level, frame = 1, sys._getframe(1)
-    while frame is not None and frame.f_code.co_filename.startswith(_PACKAGE):
+    while frame is not None and frame.f_code.co_filename.startswith(_INSIDE):
         frame, level = frame.f_back, level + 1
     return level
 

@@ -2,8 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any
-
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -21,7 +20,6 @@ def _euler_hamiltonian(w, params):
     return n * zeitlin.energy(w) / (2.0 * zeitlin.hbar(n))
 
 
-@jax.tree_util.register_pytree_node_class
 class EulerZeitlin(LiePoissonSystem):
     r"""Zeitlin's model of the incompressible Euler equations on the unit sphere, stochastic:
 
@@ -61,6 +59,9 @@ class EulerZeitlin(LiePoissonSystem):
     Luesink, arXiv:2408.16701, the stochastic version with transport noise.
     """
 
+    poisson: str = eqx.field(static=True)
+    tables: Tables | None
+
     def __init__(self, N, *, c=None, noise=None, dtype=None, poisson="auto"):
         if isinstance(N, (bool, np.bool_)) or not isinstance(N, (int, np.integer)) or N < 2:
             raise ValueError(f"EulerZeitlin needs an integer N >= 2, got {N!r}.")
@@ -84,20 +85,12 @@ class EulerZeitlin(LiePoissonSystem):
         super().__init__(_euler_hamiltonian, None, noise=noise, algebra=algebra)
         zeitlin._route(poisson)  # (refuses an unknown route)
         self.poisson = poisson
-        self.tables = None
-        if poisson == "eigenbasis":
-            complex_ = jnp.result_type(1j if dtype is None else dtype)
-            self.tables = Tables(zeitlin.poisson_eigenbasis(int(N), jnp.finfo(complex_).dtype))
-
-    def tree_flatten(self) -> tuple[tuple, Any]:
-        children, aux = super().tree_flatten()
-        return (*children, self.tables), (*aux, self.poisson)
-
-    @classmethod
-    def tree_unflatten(cls, aux, children):
-        obj = super().tree_unflatten(aux[:-1], children[:-1])
-        obj.tables, obj.poisson = children[-1], aux[-1]
-        return obj
+        complex_ = jnp.result_type(1j if dtype is None else dtype)
+        self.tables = (
+            Tables(zeitlin.poisson_eigenbasis(int(N), jnp.finfo(complex_).dtype))
+            if poisson == "eigenbasis"
+            else None
+        )
 
     def _solve_poisson(self, w):
         tables = None if self.tables is None else self.tables.arrays

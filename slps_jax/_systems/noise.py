@@ -14,6 +14,10 @@ unless it has a closed form (`salt_noise`, `random_inertia_noise`).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import ClassVar
+
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -21,13 +25,14 @@ import numpy as np
 from .._support.checks import concrete, float_dtype, numeric_array, real_array
 
 
-class AbstractNoise:
+class AbstractNoise(eqx.Module):
     """A noise family: the extension point for noise Hamiltonians with closed forms or
     parameters of their own (`LiePoissonSystem(..., noise=family)`, `RigidBody(..., noise=)`,
     `EulerZeitlin(N, noise=)`).
 
-    A subclass is a pytree (`jax.tree_util.register_pytree_node_class`, its parameters the
-    leaves) and writes `n_noises`, `values` and `gradient`; everything else has a default.
+    A subclass is an `equinox.Module` (its parameters, declared as fields, are the pytree's
+    leaves; static data is `eqx.field(static=True)`) and writes `n_noises`, `values` and
+    `gradient`; everything else has a default.
 
     - `n_noises`: the number $s$ of noises (static).
     - `values(y, params)`: $(H_1(y), \\dots, H_s(y))$ for one state `y`.
@@ -86,7 +91,6 @@ class AbstractNoise:
         return algebra.gradient(jax.grad(self.area_hamiltonian)(y, area, params, algebra))
 
 
-@jax.tree_util.register_pytree_node_class
 class ProportionalNoise(AbstractNoise):
     r"""One noise proportional to the drift, $H_1 = cH_0$:
     $dy = y \times \nabla H_0(y)\,(dt + c \circ dW)$, the paper's noise. A step with the
@@ -96,20 +100,11 @@ class ProportionalNoise(AbstractNoise):
     leaf."""
 
     takes_areas = False
-
-    def __init__(self, c):
-        self.c = c
+    c: jax.Array
 
     @property
     def n_noises(self):
         return 1
-
-    def tree_flatten(self):
-        return (self.c,), None
-
-    @classmethod
-    def tree_unflatten(cls, aux, children):
-        return cls(*children)
 
     def __repr__(self):
         return f"proportional_noise({self.c!r})"
@@ -199,8 +194,8 @@ class _ParameterNoise(AbstractNoise):
     """A family whose one parameter is an `(s, 3)` array, one row per noise, stored under
     `parameter_name` (a pytree leaf; `calibrate` fits it by that name)."""
 
-    parameter_name: str
-    builder: str  # the public function that builds it, for the repr
+    parameter_name: ClassVar[str]
+    builder: ClassVar[str]  # the public function that builds it, for the repr
 
     def __init__(self, value):
         setattr(self, self.parameter_name, value)
@@ -212,13 +207,6 @@ class _ParameterNoise(AbstractNoise):
     @property
     def n_noises(self):
         return self.parameter.shape[0]
-
-    def tree_flatten(self):
-        return (self.parameter,), None
-
-    @classmethod
-    def tree_unflatten(cls, aux, children):
-        return cls(*children)
 
     def __repr__(self):
         return f"{self.builder}({self.parameter!r})"
@@ -238,7 +226,6 @@ class _ParameterNoise(AbstractNoise):
             raise TypeError(f"{self.builder}: {self.parameter_name} must be real.")
 
 
-@jax.tree_util.register_pytree_node_class
 class SaltNoise(_ParameterNoise):
     r"""Stochastic advection by Lie transport: $H_r(y) = \chi_r \cdot y$, so the noise field
     $y \times \chi_r$ rotates $y$ about the fixed axis $\chi_r$. Build with `salt_noise`."""
@@ -286,7 +273,6 @@ def salt_noise(chi):
     return SaltNoise(_parameter_matrix("chi", chi, "the axis of each noise", matrices=True))
 
 
-@jax.tree_util.register_pytree_node_class
 class RandomInertiaNoise(_ParameterNoise):
     r"""Random inertia: $H_r(y) = \tfrac12 \sum_j \sigma_{rj} y_j^2$. Build with
     `random_inertia_noise`."""
@@ -318,26 +304,17 @@ def random_inertia_noise(sigma):
     return RandomInertiaNoise(_parameter_matrix("sigma", sigma, "the strengths of each noise"))
 
 
-@jax.tree_util.register_pytree_node_class
 class FunctionNoise(AbstractNoise):
     """Noise Hamiltonians from a function `fn(y, params) -> (s,)`, derivatives by JAX.
     `LiePoissonSystem(..., noise=fn)` builds it (and checks the shape); the function is static
     data, its parameters are the system's `params`."""
 
-    def __init__(self, fn, n_noises):
-        self.fn = fn
-        self._n = n_noises
+    fn: Callable = eqx.field(static=True)
+    count: int = eqx.field(static=True)
 
     @property
     def n_noises(self):
-        return self._n
-
-    def tree_flatten(self):
-        return (), (self.fn, self._n)
-
-    @classmethod
-    def tree_unflatten(cls, aux, children):
-        return cls(*aux)
+        return self.count
 
     def __repr__(self):
         return getattr(self.fn, "__name__", repr(self.fn))

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -19,7 +18,6 @@ def _rigid_body_hamiltonian(y, inertia):
     return 0.5 * jnp.sum(y**2 / inertia, axis=-1)
 
 
-@jax.tree_util.register_pytree_node_class
 class RigidBody(LiePoissonSystem):
     r"""The stochastic rigid body $dy = y \times I^{-1} y\,(dt + c \circ dW)$.
 
@@ -48,8 +46,6 @@ class RigidBody(LiePoissonSystem):
     (inside `jit` or `grad`) are not checked.
     """
 
-    hamiltonian_fn = staticmethod(_rigid_body_hamiltonian)
-
     def __init__(self, inertia, c=None, noise=None):
         inertia = real_array("inertia", inertia)
         inertia = inertia.astype(float_dtype(inertia))
@@ -59,7 +55,9 @@ class RigidBody(LiePoissonSystem):
         if i_np is not None and not (np.all(np.isfinite(i_np)) and np.all(i_np > 0)):
             raise ValueError(f"inertia must be finite and positive, got {i_np}.")
         self.noise = noise_or_c(c, noise, inertia, [inertia], SO3)
-        self.inertia = inertia.astype(float_dtype(inertia, *jax.tree_util.tree_leaves(self.noise)))
+        self.params = inertia.astype(float_dtype(inertia, *jax.tree_util.tree_leaves(self.noise)))
+        self.hamiltonian_fn = _rigid_body_hamiltonian
+        self.algebra = SO3
 
     @classmethod
     def paper(cls):
@@ -68,25 +66,15 @@ class RigidBody(LiePoissonSystem):
         r2 = math.sqrt(2.0)
         return cls([r2 + r2 / 1.51, r2 - 0.51 * r2 / 1.51, 1.0], 0.2)
 
-    def tree_flatten(self) -> tuple[tuple, Any]:
-        return (self.inertia, self.noise), None
-
-    @classmethod
-    def tree_unflatten(cls, aux, children):
-        # Bypass __init__: unflattening happens with tracers and placeholder leaves.
-        obj = object.__new__(cls)
-        obj.inertia, obj.noise = children
-        return obj
-
     def __repr__(self):
         return f"RigidBody(inertia={self.inertia!r}, {self._noise_repr()})"
 
     quadratic_hamiltonian = True
 
     @property
-    def params(self):
-        """The inertia: the parameters of the Hamiltonian, as for a `LiePoissonSystem`."""
-        return self.inertia
+    def inertia(self):
+        """The principal moments $(I_1, I_2, I_3)$: the Hamiltonian's parameters (`params`)."""
+        return self.params
 
     def hamiltonian(self, y):
         """$H(y) = \\tfrac12 \\sum_i y_i^2 / I_i$, over the last axis of `y`."""
@@ -116,7 +104,6 @@ def _generalised_rigid_body_hamiltonian(y, j):
     return 0.25 * jnp.sum(y**2 / (j[..., :, None] + j[..., None, :]), axis=(-2, -1))
 
 
-@jax.tree_util.register_pytree_node_class
 class GeneralisedRigidBody(LiePoissonSystem):
     r"""The n-dimensional (Manakov) rigid body on so(n)*, with noise:
     $dY = [Y, \Omega]\,(dt + c\circ dW)$, or with noises of its own
@@ -134,8 +121,6 @@ class GeneralisedRigidBody(LiePoissonSystem):
     `LiePoissonSystem` (its `params` are `j`).
     """
 
-    hamiltonian_fn = staticmethod(_generalised_rigid_body_hamiltonian)
-
     def __init__(self, j, c=None, noise=None):
         j = real_array("j", j)
         j = j.astype(float_dtype(j))
@@ -146,17 +131,8 @@ class GeneralisedRigidBody(LiePoissonSystem):
             raise ValueError(f"j must be finite and positive, got {j_np}.")
         self.algebra = so(j.shape[0])
         self.noise = noise_or_c(c, noise, j, [j], self.algebra)
-        self.j = j.astype(float_dtype(j, *jax.tree_util.tree_leaves(self.noise)))
-
-    def tree_flatten(self) -> tuple[tuple, Any]:
-        return (self.j, self.noise), self.algebra
-
-    @classmethod
-    def tree_unflatten(cls, aux, children):
-        obj = object.__new__(cls)
-        obj.algebra = aux
-        obj.j, obj.noise = children
-        return obj
+        self.params = j.astype(float_dtype(j, *jax.tree_util.tree_leaves(self.noise)))
+        self.hamiltonian_fn = _generalised_rigid_body_hamiltonian
 
     def __repr__(self):
         return f"GeneralisedRigidBody(j={self.j!r}, {self._noise_repr()})"
@@ -164,9 +140,9 @@ class GeneralisedRigidBody(LiePoissonSystem):
     quadratic_hamiltonian = True
 
     @property
-    def params(self):
-        """$J$: the parameters of the Hamiltonian."""
-        return self.j
+    def j(self):
+        """$(J_1, \\dots, J_n)$: the Hamiltonian's parameters (`params`)."""
+        return self.params
 
     def hamiltonian(self, y):
         return _generalised_rigid_body_hamiltonian(jnp.asarray(y), self.j)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 
@@ -15,22 +16,13 @@ from . import fields
 from .noise import AbstractNoise, noise_or_c
 
 
-@jax.tree_util.register_pytree_node_class
-class Tables:
+class Tables(eqx.Module):
     """Precomputed arrays a system carries (`EulerZeitlin`'s Poisson eigenbasis): leaves of
     its pytree, so that `jit` takes them as arguments rather than compiling them in as
     constants, but not parameters: the derivatives with respect to the system that the
     driver forms (a retried step's Jacobians) skip them."""
 
-    def __init__(self, arrays):
-        self.arrays = tuple(arrays)
-
-    def tree_flatten(self):
-        return self.arrays, None
-
-    @classmethod
-    def tree_unflatten(cls, aux, children):
-        return cls(children)
+    arrays: tuple = eqx.field(converter=tuple)
 
 
 def differentiable_leaves(system):
@@ -45,8 +37,7 @@ def differentiable_leaves(system):
     return leaves, treedef, idx
 
 
-@jax.tree_util.register_pytree_node_class
-class LiePoissonSystem:
+class LiePoissonSystem(eqx.Module):
     r"""A stochastic Lie–Poisson system on so(3)* (or, with `algebra=`, so(n)* and su(N)*,
     where $y \times \cdot$ reads $[Y, \cdot]$): a drift Hamiltonian $H_0$ you supply and
     its noise, either one noise proportional to the drift,
@@ -85,7 +76,8 @@ class LiePoissonSystem:
     Lie–Poisson systems*, system (1) with $B(y) = \hat y$.
     """
 
-    algebra: AbstractAlgebra = SO3
+    hamiltonian_fn: Any = eqx.field(static=True)
+    algebra: AbstractAlgebra = eqx.field(static=True)
     params: Any
     noise: AbstractNoise  # the noise family (`c=`: `ProportionalNoise`)
 
@@ -109,16 +101,6 @@ class LiePoissonSystem:
         self.params = params
         self.algebra = algebra
         self.noise = noise_or_c(c, noise, params, leaves, algebra)
-
-    def tree_flatten(self) -> tuple[tuple, Any]:
-        return (self.params, self.noise), (self.hamiltonian_fn, self.algebra)
-
-    @classmethod
-    def tree_unflatten(cls, aux, children):
-        obj = object.__new__(cls)
-        obj.hamiltonian_fn, obj.algebra = aux
-        obj.params, obj.noise = children
-        return obj
 
     def __repr__(self):
         name = getattr(self.hamiltonian_fn, "__name__", repr(self.hamiltonian_fn))
