@@ -20,6 +20,7 @@ import numpy as np
 from .._brownian import BrownianStep
 from .._driver.integrate import _integrate_jit
 from .._driver.plan import check_method, check_retry, check_y0
+from .._support.checks import check_count
 from .._support.solution import RESULTS
 
 
@@ -306,6 +307,7 @@ def particle_filter(
     jitter_rho=0.9,
     method: Any = "auto",
     retry_substeps: int | None = 4,
+    chunk_size: int | None = None,
 ):
     r"""Assimilate observations into an ensemble of a stochastic Lie–Poisson system: the
     filter of `assimilate` (adaptive tempering, systematic resampling, pCN jittering of each
@@ -331,6 +333,10 @@ def particle_filter(
     - `dt`: the integrator's step; `key`: a JAX key; `t0`: the particles' time (0).
     - `ess_threshold`, `jitter_steps`, `jitter_rho`: as for `assimilate`.
     - `method`, `retry_substeps`: as for `integrate`.
+    - `chunk_size`: `None` (default): every forecast runs all particles at once (`vmap`);
+      `k`: `k` particles at a time (`jax.lax.map` in batches), so that the memory of a
+      forecast is that of `k` particles. Each particle's forecast is its own, so the
+      result is the same (`tests/test_assimilation.py`).
 
     **Returns:** a `FilterResult`.
     """
@@ -358,6 +364,8 @@ def particle_filter(
             f"(dt = {h}); their gaps are {gaps.tolist()} s."
         )
     retry = check_retry(retry_substeps)
+    if chunk_size is not None:
+        chunk_size = min(check_count("chunk_size", chunk_size), x.shape[0])
     dtype = x.real.dtype
     step = jnp.asarray(h, dtype)
 
@@ -367,8 +375,13 @@ def particle_filter(
         )
         return ys[-1], result == RESULTS.successful
 
+    def forecast(states, dws):
+        if chunk_size is None:
+            return jax.vmap(one)(states, dws)
+        return jax.lax.map(lambda a: one(*a), (states, dws), batch_size=chunk_size)
+
     return assimilate(
-        jax.vmap(one),
+        forecast,
         x,
         observations,
         observe=observe,
