@@ -7,9 +7,9 @@ linear bookkeeping of a method that records what it is given. The orders are in
 `test_levy_order.py`.
 """
 
-import dataclasses
 import math
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -167,12 +167,12 @@ def test_one_noise_has_no_areas(paper):
     assert A.shape == (8, 1, 1) and not np.any(A)
 
 
-@dataclasses.dataclass(frozen=True)
 class _Recorder(AbstractMethod):
     """A 'method' on so(4) that adds its step's (dt, dW_1, dW_2, A_12) to the first four
-    coordinates of the state, and fails any step longer than `longest`."""
+    coordinates of the state, and fails any step longer than `longest`. (A method is an
+    equinox Module whose options are static fields: the driver compiles it in.)"""
 
-    longest: float = 1.0
+    longest: float = eqx.field(default=1.0, static=True)
     strong_orders = StrongOrders(one=None, increments=None, areas=1.0)
 
     def step(self, model, y, dt, dW):

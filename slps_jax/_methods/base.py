@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 
@@ -51,7 +52,7 @@ class StrongOrders(NamedTuple):
     areas: float | None = None
 
 
-class AbstractMethod:
+class AbstractMethod(eqx.Module):
     """A one-step method for
     $dy = y \\times \\nabla H_0(y)\\,dt + \\sum_r y \\times \\nabla H_r(y) \\circ dW_r$ (on so(n):
     $dY = [Y, \\nabla H_0]\\,dt + \\sum_r [Y, \\nabla H_r] \\circ dW_r$).
@@ -64,7 +65,7 @@ class AbstractMethod:
     # The capabilities a system must have (`Capability` objects, each a test of the system:
     # `RIGID_BODY`, `NOISE_PROPORTIONAL_TO_DRIFT`, ...); the driver refuses a pair that lacks
     # one and names the methods that would work. Empty: any system.
-    requires: frozenset = frozenset()
+    requires: ClassVar[frozenset] = frozenset()
 
     # Whether a step can fail on finite input (an implicit solve without an admissible root,
     # an explicit step that overflows). Exact flows and compositions of exact rotations

@@ -2,15 +2,12 @@
 
 from __future__ import annotations
 
-import dataclasses
-
 import jax
 import jax.numpy as jnp
 
 from .base import AbstractMethod, StrongOrders, explicit_info
 
 
-@dataclasses.dataclass(frozen=True)
 class EulerMaruyama(AbstractMethod):
     r"""$y_{n+1} = y_n + y_n \times \nabla K_n(y_n)$, $K_n = hH_0 + \sum_r \Delta W_{r,n} H_r$
     (for one noise $H_1 = cH_0$: $y_n + f(y_n)(h + c\Delta W_n)$), the paper's comparison

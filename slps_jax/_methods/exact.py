@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 from .._systems.capabilities import NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
@@ -10,7 +9,6 @@ from .._systems.elliptic_flow import rigid_body_flow
 from .base import AbstractMethod, StrongOrders, explicit_info
 
 
-@dataclasses.dataclass(frozen=True)
 class Exact(AbstractMethod):
     r"""$y_{n+1} = \varphi_{\tau_n}(y_n)$, $\tau_n = h + c\Delta W_n$: no discretisation error.
 

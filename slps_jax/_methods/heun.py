@@ -2,15 +2,12 @@
 
 from __future__ import annotations
 
-import dataclasses
-
 import jax
 import jax.numpy as jnp
 
 from .base import AbstractMethod, StrongOrders, explicit_info
 
 
-@dataclasses.dataclass(frozen=True)
 class Heun(AbstractMethod):
     r"""The stochastic Heun method (explicit trapezoidal rule):
 

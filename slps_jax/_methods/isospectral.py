@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import math
 from typing import NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 
@@ -18,7 +18,6 @@ from .base import AbstractMethod, StepInfo, StrongOrders, default_tol, finite_re
 from .newton import _RUNNING, implicit_root, jacobian_mode, solve_array
 
 
-@dataclasses.dataclass(frozen=True)
 class IsospectralMidpoint(AbstractMethod):
     r"""The isospectral midpoint rule (Modin & Viviani 2020), stochastic as in Ephrati,
     Jansson, Lang & Luesink (2024):
@@ -99,12 +98,12 @@ class IsospectralMidpoint(AbstractMethod):
     strong_orders = StrongOrders(one=1.0, increments=0.5, areas=1.0)
     poisson = True
 
-    tol: float | None = None
-    rtol: float | None = None
-    max_iter: int | None = None
-    jacobian: str = "auto"
-    final_update: str = "auto"
-    warm_start: int = 3
+    tol: float | None = eqx.field(default=None, static=True)
+    rtol: float | None = eqx.field(default=None, static=True)
+    max_iter: int | None = eqx.field(default=None, static=True)
+    jacobian: str = eqx.field(default="auto", static=True)
+    final_update: str = eqx.field(default="auto", static=True)
+    warm_start: int = eqx.field(default=3, static=True)
 
     def _cayley(self, system, dtype):
         """Whether the step is the Cayley rotation (`final_update`): by default wherever the

@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import operator
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -316,7 +316,6 @@ def group_in_map(system, a, dt, dW, second):
     return adjoint(m) - m
 
 
-@dataclasses.dataclass(frozen=True)
 class LiePoisson(AbstractMethod):
     r"""Scheme (42) of Liu & Wang: the stochastic Lie–Poisson reduction integrator.
 
@@ -381,12 +380,12 @@ class LiePoisson(AbstractMethod):
     strong_orders = StrongOrders(one=1.0, increments=0.5, areas=1.0)
     poisson = True
 
-    tol: float | None = None
-    max_iter: int | None = None
-    scale: float | None = None
-    unroll: int = 0
-    jacobian: str = "auto"
-    second_order: bool = True
+    tol: float | None = eqx.field(default=None, static=True)
+    max_iter: int | None = eqx.field(default=None, static=True)
+    scale: float | None = eqx.field(default=None, static=True)
+    unroll: int = eqx.field(default=0, static=True)
+    jacobian: str = eqx.field(default="auto", static=True)
+    second_order: bool = eqx.field(default=True, static=True)
 
     def __post_init__(self):
         check_options(self)

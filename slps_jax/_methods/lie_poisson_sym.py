@@ -2,8 +2,7 @@
 
 from __future__ import annotations
 
-import dataclasses
-
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 
@@ -106,7 +105,6 @@ class _SymmetricLiePoisson(AbstractMethod):
         )
 
 
-@dataclasses.dataclass(frozen=True)
 class LiePoissonSym2(_SymmetricLiePoisson):
     r"""The symmetric composition of the generating-function step of scheme (42) with its
     adjoint: strong order 1, and a Poisson map that keeps the Casimir $|y|$ to round-off.
@@ -139,11 +137,10 @@ class LiePoissonSym2(_SymmetricLiePoisson):
     D. Cohen, K. Debrabant, A. Rößler, arXiv:2004.12887.
     """
 
-    tol: float | None = None
-    max_iter: int = 12
+    tol: float | None = eqx.field(default=None, static=True)
+    max_iter: int = eqx.field(default=12, static=True)
 
 
-@dataclasses.dataclass(frozen=True)
 class LiePoissonSym4(_SymmetricLiePoisson):
     r"""Yoshida's triple jump of `LiePoissonSym2`: deterministic order 4, strong order 2.
 
@@ -164,7 +161,7 @@ class LiePoissonSym4(_SymmetricLiePoisson):
     Phys. Lett. A 150 (1990), 262–268; D. Cohen, K. Debrabant, A. Rößler, arXiv:2004.12887.
     """
 
-    tol: float | None = None
-    max_iter: int = 12
+    tol: float | None = eqx.field(default=None, static=True)
+    max_iter: int = eqx.field(default=12, static=True)
     _substeps = TRIPLE_JUMP
     strong_orders = StrongOrders(one=2.0, increments=0.5, areas=1.0)

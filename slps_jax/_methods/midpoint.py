@@ -2,8 +2,7 @@
 
 from __future__ import annotations
 
-import dataclasses
-
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 
@@ -13,7 +12,6 @@ from .base import AbstractMethod, StepInfo, StrongOrders, default_tol, finite_re
 from .newton import identity_plus, implicit_root, jacobian_mode, newton
 
 
-@dataclasses.dataclass(frozen=True)
 class Midpoint(AbstractMethod):
     r"""The implicit midpoint rule $y_{n+1} = y_n + F_n(\tfrac12(y_n + y_{n+1}))$ with
     $F_n(y) = y \times \nabla K_n(y)$, $K_n = hH_0 + \sum_r \Delta W_{r,n} H_r$ (for one noise
@@ -38,8 +36,8 @@ class Midpoint(AbstractMethod):
     strong_orders = StrongOrders(one=1.0, increments=0.5, areas=1.0)
     poisson = True
 
-    tol: float | None = None
-    max_iter: int | None = None
+    tol: float | None = eqx.field(default=None, static=True)
+    max_iter: int | None = eqx.field(default=None, static=True)
 
     def __post_init__(self):
         check_options(self)

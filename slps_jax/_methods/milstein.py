@@ -3,8 +3,6 @@ keeps no structure."""
 
 from __future__ import annotations
 
-import dataclasses
-
 import jax
 import jax.numpy as jnp
 
@@ -12,7 +10,6 @@ from .._brownian import as_step
 from .base import AbstractMethod, StrongOrders, explicit_info
 
 
-@dataclasses.dataclass(frozen=True)
 class Milstein(AbstractMethod):
     r"""The Stratonovich Milstein method with the iterated integrals
     $J_{qr} = \tfrac12\Delta W_q\Delta W_r + A_{qr}$ (increments and Lévy areas) and its

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
-
 import jax
 import jax.numpy as jnp
 
@@ -40,7 +38,6 @@ def axis_flow(y, inverse_inertia, axis, tau):
     return tuple(out)
 
 
-@dataclasses.dataclass(frozen=True)
 class Strang(AbstractMethod):
     r"""Symmetric (Strang) splitting of the Hamiltonian into its three axis parts.
 
@@ -102,7 +99,6 @@ def _composed_step(system, y, tau, weights):
     return y_next, explicit_info(y_next)
 
 
-@dataclasses.dataclass(frozen=True)
 class Strang4(AbstractMethod):
     r"""Yoshida's triple jump of `Strang`: explicit, deterministic order 4, strong order 2.
 
@@ -131,7 +127,6 @@ class Strang4(AbstractMethod):
         return _composed_step(system, y, dt + system.noise_time(dW), TRIPLE_JUMP)
 
 
-@dataclasses.dataclass(frozen=True)
 class SaltSplitting(AbstractMethod):
     r"""Explicit symmetric splitting for a rigid body with linear (SALT) noise,
     $dy = y \times I^{-1}y\,dt + \sum_r y \times \chi_r \circ dW_r$:
