@@ -5,7 +5,7 @@ when asked for, their Lévy areas `area` (`(s, s)`, antisymmetric). Every rule f
 here: drawing it from a sample's key (`draw`), joining consecutive steps into one (`join`:
 increments add, areas by Chen's relation), and scaling it (`scale_noise`: a step split into `m`
 equal substeps has `(dW/m, A/m)` each, consistent with Chen's relation because the
-substeps' increments are parallel).
+fine steps' increments are parallel).
 
 Sample `i` of an ensemble uses the key `fold_in(key, i)`, and its step `n` the increment drawn
 from `fold_in(fold_in(key, i), n)`. So a sample's path depends on nothing but the user's key,
@@ -92,10 +92,10 @@ def coarsen(dW, area, m):
     return d.sum(-2), a + 0.5 * (cross - jnp.swapaxes(cross, -1, -2))
 
 
-def zero_step(n_noises, dtype, levy_area):
+def zero_step(n_noises, dtype, areas):
     """The noise of a step of length 0 (the start of `join`)."""
     return BrownianStep(
-        jnp.zeros((n_noises,), dtype), jnp.zeros((n_noises, n_noises), dtype) if levy_area else None
+        jnp.zeros((n_noises,), dtype), jnp.zeros((n_noises, n_noises), dtype) if areas else None
     )
 
 
@@ -180,7 +180,7 @@ AREA_STREAM = 0xFFFFFFFF
 
 
 def levy_area_terms(dt, n_noises):
-    r"""The number $p$ of series terms of the area sampler (`levy_area`) for steps of size
+    r"""The number $p$ of series terms of the area sampler (`draw_levy_area`) for steps of size
     `dt` and `n_noises` noises: the smallest $p \ge 1$ with
     $\sqrt s\,h/(\sqrt{12}\,\pi\,p) \le h^{3/2}$, the bound of Mrongowius & Rößler
     (2022) on the root-mean-square error of every area. A mean-square error $O(h^3)$ per step
@@ -195,7 +195,7 @@ def _tail(p):
     return math.pi**2 / 6.0 - sum(1.0 / k**2 for k in range(1, p + 1))
 
 
-def levy_area(key, dW, dt, bound, terms):
+def draw_levy_area(key, dW, dt, bound, terms):
     r"""The Lévy areas of one step given its increments `dW` (shape `(s,)`), sampled by the
     algorithm of Mrongowius & Rößler (2022): the Fourier series of the Brownian bridge
     (Kloeden, Platen & Wright 1992) truncated after `terms` terms,
@@ -246,20 +246,20 @@ def draw(sample_key, n, dt, bound, dtype, n_noises, terms=None):
     if terms is None:
         return BrownianStep(dW)
     area_key = jax.random.fold_in(step_key, AREA_STREAM)
-    return BrownianStep(dW, levy_area(area_key, dW, jnp.asarray(dt, dtype), bound, terms))
+    return BrownianStep(dW, draw_levy_area(area_key, dW, jnp.asarray(dt, dtype), bound, terms))
 
 
-def draw_joined(sample_key, n, substeps, fine_dt, bound, dtype, n_noises, terms=None):
+def draw_joined(sample_key, n, fine_steps, fine_dt, bound, dtype, n_noises, terms=None):
     """The noise of coarse step `n` made of the fine steps `n m, ..., n m + m - 1`
-    (`m = substeps`, possibly traced) of size `fine_dt`, joined by `join`: the very same
+    (`m = fine_steps`, possibly traced) of size `fine_dt`, joined by `join`: the very same
     Brownian path as a run with step `fine_dt`."""
-    if isinstance(substeps, int) and substeps == 1:
+    if isinstance(fine_steps, int) and fine_steps == 1:
         return draw(sample_key, n, fine_dt, bound, dtype, n_noises, terms)
     return jax.lax.fori_loop(
         0,
-        substeps,
+        fine_steps,
         lambda k, w: join(
-            w, draw(sample_key, n * substeps + k, fine_dt, bound, dtype, n_noises, terms)
+            w, draw(sample_key, n * fine_steps + k, fine_dt, bound, dtype, n_noises, terms)
         ),
         zero_step(n_noises, dtype, terms is not None),
     )
@@ -274,36 +274,36 @@ class BrownianPath(eqx.Module):
     - `dt`: the driver's step, an array (or NumPy scalar) of the computation's floating dtype.
     - `bound`: the truncation bound of the fine increments (`truncation_bound`), same dtype.
     - `n_noises`: the number $s$ of Brownian motions (static).
-    - `substeps`: $m$: each step joins the fine steps $nm, \dots, nm + m - 1$ of size
+    - `fine_steps`: $m$: each step joins the fine steps $nm, \dots, nm + m - 1$ of size
       $dt/m$ (`draw_joined`), so that a coarse run sees the very same Brownian motion as a
       run with step $dt/m$. A Python int is static; an integer array is traced (one
       program serves every step size of a convergence study).
     - `terms`: the series length of the Lévy-area sampler of a fine step
       (`levy_area_terms`), or `None`: no areas (static).
 
-    An `equinox.Module`: `dt`, `bound` and a traced `substeps` are its leaves.
+    An `equinox.Module`: `dt`, `bound` and a traced `fine_steps` are its leaves.
     """
 
     dt: Any
     bound: Any
     n_noises: int = eqx.field(static=True)
     terms: int | None = eqx.field(static=True)
-    fixed_substeps: int | None = eqx.field(static=True)  # (substeps, a Python int)
-    traced_substeps: Any  # (or substeps, an integer array)
+    fixed_fine_steps: int | None = eqx.field(static=True)  # (fine_steps, a Python int)
+    traced_fine_steps: Any  # (or fine_steps, an integer array)
 
-    def __init__(self, dt, bound, n_noises, *, substeps=1, terms=None):
+    def __init__(self, dt, bound, n_noises, *, fine_steps=1, terms=None):
         self.dt = dt
         self.bound = bound
         self.n_noises = n_noises
         self.terms = terms
-        fixed = isinstance(substeps, int)
-        self.fixed_substeps = substeps if fixed else None
-        self.traced_substeps = None if fixed else substeps
+        fixed = isinstance(fine_steps, int)
+        self.fixed_fine_steps = fine_steps if fixed else None
+        self.traced_fine_steps = None if fixed else fine_steps
 
     @property
-    def substeps(self) -> Any:
+    def fine_steps(self) -> Any:
         """$m$, the fine steps per step: a Python int, or a traced integer array."""
-        return self.fixed_substeps if self.traced_substeps is None else self.traced_substeps
+        return self.fixed_fine_steps if self.traced_fine_steps is None else self.traced_fine_steps
 
     @classmethod
     def of(cls, dt, n_noises, dtype, *, truncate_k, levy_area=False):
@@ -319,31 +319,31 @@ class BrownianPath(eqx.Module):
         )
 
     @property
-    def levy_area(self):
+    def has_areas(self):
         """Whether the steps' noises carry their Lévy areas."""
         return self.terms is not None
 
     def coarsened(self, m, dt):
         """The same Brownian motions in steps `dt` of `m` of this path's steps (`m` and `dt`
         may be traced)."""
-        return BrownianPath(dt, self.bound, self.n_noises, substeps=m, terms=self.terms)
+        return BrownianPath(dt, self.bound, self.n_noises, fine_steps=m, terms=self.terms)
 
     def without_areas(self):
         """The same increments, without the Lévy areas (they are drawn from a stream of
         their own, so the increments do not change)."""
-        return BrownianPath(self.dt, self.bound, self.n_noises, substeps=self.substeps)
+        return BrownianPath(self.dt, self.bound, self.n_noises, fine_steps=self.fine_steps)
 
     def sampler(self, key):
         """The noise of the steps of the sample whose key is `key`: a function of the step
         index `n` (possibly traced) returning its `BrownianStep`. The fine step is computed
         here, once, not at every step."""
-        fine_dt = self.dt / self.substeps
-        return lambda n: self._draw(key, n, self.substeps, fine_dt)
+        fine_dt = self.dt / self.fine_steps
+        return lambda n: self._draw(key, n, self.fine_steps, fine_dt)
 
     def joined(self, key, n_steps):
         r"""The noise of the first `n_steps` steps (a Python int) of the sample whose key is
         `key`, joined into one step: for the increments, $W(n\,dt)$."""
-        return self._draw(key, 0, n_steps * self.substeps, self.dt / self.substeps)
+        return self._draw(key, 0, n_steps * self.fine_steps, self.dt / self.fine_steps)
 
     def _draw(self, key, n, m, fine_dt):
         """Coarse step `n` made of `m` fine steps of size `fine_dt` (`draw_joined`)."""
@@ -375,7 +375,7 @@ def brownian_increments(
     - `n_noises`: `None` for one noise, or the number `s` of independent noises (the
       system's `n_noises`): then each step has `s` increments, a last axis of length `s`.
 
-    - `levy_area`: also return the Lévy areas of every step (`levy_area`, with
+    - `levy_area`: also return the Lévy areas of every step (`draw_levy_area`, with
       `levy_area_terms(dt, n_noises)` series terms), shape `(..., n_steps, s, s)`,
       antisymmetric; needs `n_noises`. For `s = 1` they are zero.
 
@@ -440,7 +440,7 @@ def _brownian_paths(key, path, *, n_samples, n_steps, one_noise, levy_area):
     def one(k):
         out = jax.vmap(path.sampler(k))(steps)
         if levy_area:
-            area = out.area if path.levy_area else jnp.zeros((n_steps, s, s), dtype)
+            area = out.area if path.has_areas else jnp.zeros((n_steps, s, s), dtype)
             return out.dW, area
         return out.dW[:, 0] if one_noise else out.dW
 
@@ -503,7 +503,7 @@ class OrnsteinUhlenbeckPath(eqx.Module):
     present value. Sample `key`'s path does not depend on how the steps are blocked: step
     `n` draws from `fold_in(key', n)`. A pytree: `dt` and the step's constants are leaves."""
 
-    levy_area = False
+    has_areas = False
     dt: Any
     consts: tuple
 

@@ -50,9 +50,9 @@ def chen_combine(dW1, A1, dW2, A2):
     return dW1 + dW2, A1 + A2 + 0.5 * (cross - jnp.swapaxes(cross, -1, -2))
 
 
-def wong_zakai_solution(vector_fields, y0, dW_fine, T, substeps=4):
+def wong_zakai_solution(vector_fields, y0, dW_fine, T, rk4_steps=4):
     """The SDE's solution driven by the piecewise-linear path of `dW_fine`: on piece `j`,
-    `dy/dt = f0(y) + sum_r f_r(y) d_j^r / dt_fine`, `substeps` RK4 steps per piece.
+    `dy/dt = f0(y) + sum_r f_r(y) d_j^r / dt_fine`, `rk4_steps` RK4 steps per piece.
 
     - `vector_fields(y) -> (f0(y), F(y))`, `F(y)` of shape `(s, *y.shape)`.
     - `y0`: the initial state, shared by all paths.
@@ -64,7 +64,7 @@ def wong_zakai_solution(vector_fields, y0, dW_fine, T, substeps=4):
     y0 = jnp.asarray(y0, jnp.result_type(jnp.asarray(y0).dtype, dW_fine.dtype))
     n_fine = dW_fine.shape[1]
     dt = T / n_fine
-    h = dt / substeps
+    h = dt / rk4_steps
 
     def field(y, rate):
         f0, F = vector_fields(y)
@@ -79,7 +79,7 @@ def wong_zakai_solution(vector_fields, y0, dW_fine, T, substeps=4):
 
     def piece(y, d):
         rate = d / dt
-        return lax.fori_loop(0, substeps, lambda i, y: rk4(i, y, rate), y), None
+        return lax.fori_loop(0, rk4_steps, lambda i, y: rk4(i, y, rate), y), None
 
     def one(dW):
         return lax.scan(piece, y0, dW)[0]

@@ -84,7 +84,7 @@ def _case(name):
         y0 = Y4
     dW_fine = fine_path(key, N_PATHS, N_FINE, T, 3)
     # (the fine path is the same for every case: three noises)
-    return model, y0, dW_fine, wong_zakai_solution(fields, y0, dW_fine, T, substeps=2)
+    return model, y0, dW_fine, wong_zakai_solution(fields, y0, dW_fine, T, rk4_steps=2)
 
 
 CASES = {}

@@ -341,7 +341,7 @@ def ensemble(method, system, y0, keys, path, n_blocks, block_len, want_stats, re
 ensemble_jit = jax.jit(
     ensemble, static_argnames=("method", "n_blocks", "block_len", "want_stats", "retry")
 )
-# Step count traced (and the path's substeps): one compilation for every step size of a study.
+# Step count traced (and the path's fine steps): one compilation for every step size of a study.
 ensemble_dynamic_jit = jax.jit(
     ensemble, static_argnames=("method", "n_blocks", "want_stats", "retry")
 )

@@ -49,7 +49,7 @@ def _composition(system, y, dt, dW, weights, tol, max_iter, info):
     `K`, such as the rigid body's, that is the in-map of `-s K`; docs/several-noises.md.)
     Every solve is one round of one loop (`u <- R u`, `R` solving the in-map at `sign u` of
     `x -> sign w_k K(sign x) / 2`, the sign `-` for the adjoint half), so the solver is
-    compiled once whatever the number of substeps.
+    compiled once whatever the number of stages.
     """
     gammas = jnp.asarray(weights, jnp.asarray(dt).dtype)
 
@@ -78,7 +78,7 @@ def _check_unit_ball(name, y0):
 
 class _SymmetricLiePoisson(AbstractMethod):
     requires = frozenset({SO3_VECTORS})  # (the sine chart of so(3); so(n): LiePoisson)
-    # (each substep with weight w gets the increments and areas times w: `_brownian.scale_noise`)
+    # (each stage with weight w gets the increments and areas times w: `_brownian.scale_noise`)
     strong_orders = StrongOrders(one=1.0, increments=0.5, areas=1.0)
     poisson = True
     tol: float | None  # (the subclasses' fields)
@@ -90,7 +90,7 @@ class _SymmetricLiePoisson(AbstractMethod):
     def check_initial(self, system, y0):
         _check_unit_ball(type(self).__name__, y0)
 
-    _substeps = (1.0,)
+    _stages = (1.0,)
 
     def step(self, system, y, dt, dW):
         dtype = y.dtype
@@ -98,7 +98,7 @@ class _SymmetricLiePoisson(AbstractMethod):
         yc = comp.vec(y)
         inside = jnp.where(comp.dot(yc, yc) < 1.0, RESULTS.successful, RESULTS.outside_domain)
         info0 = StepInfo(inside.astype(jnp.int32), jnp.zeros((), jnp.int32), jnp.zeros((), dtype))
-        yc, info = _composition(system, yc, dt, dW, self._substeps, tol, self.max_iter, info0)
+        yc, info = _composition(system, yc, dt, dW, self._stages, tol, self.max_iter, info0)
         y_next = comp.unvec(yc).astype(dtype)
         return y_next, StepInfo(
             finite_result(y_next, info.result), info.iterations, info.residual.astype(dtype)
@@ -125,7 +125,7 @@ class LiePoissonSym2(_SymmetricLiePoisson):
     step Hamiltonian $K_n = hH_0 + \sum_r\Delta W_{r,n}H_r$ (`docs/several-noises.md`), and
     with non-commuting noise fields the strong order is 1/2, like every method that uses
     only the increments, and 1 with the Lévy areas (their term in $K_n$, scaled with the
-    substeps; measured 1.06, `docs/levy-area.md`). Needs $|y_0| < 1$.
+    stages; measured 1.06, `docs/levy-area.md`). Needs $|y_0| < 1$.
     A step that does not converge is reported through `StepInfo`, never as NaN.
 
     **Arguments:** `tol` (max-norm residual tolerance, default `64 eps`), `max_iter` (Newton
@@ -163,5 +163,5 @@ class LiePoissonSym4(_SymmetricLiePoisson):
 
     tol: float | None = eqx.field(default=None, static=True)
     max_iter: int = eqx.field(default=12, static=True)
-    _substeps = TRIPLE_JUMP
+    _stages = TRIPLE_JUMP
     strong_orders = StrongOrders(one=2.0, increments=0.5, areas=1.0)

@@ -104,7 +104,7 @@ def _time_changed_flow(system, y0, t1, w_t):
     return drift_flow(system, y0, t1 + system.c * w_t)
 
 
-def _substeps(dt, fine_dt, name):
+def _fine_steps(dt, fine_dt, name):
     ratio = dt / fine_dt
     s = int(round(ratio))
     if s < 1 or abs(ratio - s) > 1e-9 * ratio:
@@ -238,12 +238,12 @@ def _study(
             else fine_dt / (64 if reference_factor is None else reference_factor)
         )
     _brownian.check_truncation(fine_dt, truncate_k)
-    n_fine = _substeps(float(t1), fine_dt, "t1")
+    n_fine = _fine_steps(float(t1), fine_dt, "t1")
     dtype = real_dtype(y0.dtype)
     keys = _brownian.sample_keys(key, int(n_samples))
 
     for dt in dts:
-        if n_fine % _substeps(float(dt), fine_dt, "dt"):
+        if n_fine % _fine_steps(float(dt), fine_dt, "dt"):
             raise ValueError(f"t1={t1} must be a multiple of every step size, not of dt={dt}.")
     # Lévy areas (for the methods that use them): drawn at the finest step, joined over the
     # coarse ones by Chen's relation; a dict chooses per method, the reference on "auto"
@@ -264,7 +264,7 @@ def _study(
     def final_states(method, dt, name="dt", areas=False):
         """The final states, the failed samples (a NumPy mask) and what failed, in words
         (`None` if nothing); with `areas`, the method gets the Lévy areas."""
-        s = _substeps(dt, fine_dt, name)
+        s = _fine_steps(dt, fine_dt, name)
         path = (fine if areas else fine.without_areas()).coarsened(
             jnp.asarray(s), jnp.asarray(dt, dtype)
         )
