@@ -165,26 +165,40 @@ def _so4_setup():
     return sj, system, y0
 
 
+_H = 2.0**-5
+
+
+def _observe(y):  # three entries of an so(4) state
+    return y[0, 1:]
+
+
+def _so4_filter(system, y0, ys, n, obs_times, *, key, **options):
+    """`particle_filter` on so(4) from `n` copies of `y0`, observing `_observe` with errors of
+    0.05, at step `_H`."""
+    import slps_jax as sj
+
+    return sj.particle_filter(
+        system,
+        np.broadcast_to(y0, (n, 4, 4)),
+        ys,
+        obs_times=obs_times,
+        observe=_observe,
+        obs_std=0.05,
+        dt=_H,
+        key=jax.random.key(key),
+        **options,
+    )
+
+
 def test_every_analysis_particle_stays_on_its_coadjoint_orbit():
     # so(4) with three transport noises, IsospectralMidpoint (the default there): resampling
     # copies states and jittering re-runs a parent's state, so every particle keeps the
     # initial Casimirs
     sj, system, y0 = _so4_setup()
-    h, n = 2.0**-5, 16
-    truth = sj.integrate(system, y0, 0.1 * np.ones((16, 3)), h)
-    observe = lambda y: y[0, 1:]  # three entries of the state
-    ys = np.stack([observe(truth), observe(truth)]) + 0.01
-    res = sj.particle_filter(
-        system,
-        np.broadcast_to(y0, (n, 4, 4)),
-        ys,
-        obs_times=[0.25, 0.5],
-        observe=observe,
-        obs_std=0.05,
-        dt=h,
-        key=jax.random.key(3),
-        jitter_steps=2,
-    )
+    n = 16
+    truth = sj.integrate(system, y0, 0.1 * np.ones((16, 3)), _H)
+    ys = np.stack([_observe(truth), _observe(truth)]) + 0.01
+    res = _so4_filter(system, y0, ys, n, [0.25, 0.5], key=3, jitter_steps=2)
     c0 = np.asarray(sj.so(4).casimirs(y0))
     cs = np.asarray(sj.so(4).casimirs(res.particles))
     assert res.particles.shape == (2, n, 4, 4) and cs.shape == (2, n, 2)
@@ -241,21 +255,10 @@ def test_complex_states_get_real_increments_and_keep_their_orbit():
 def test_chunking_the_particles_does_not_change_the_filter():
     # each particle's forecast is its own: in chunks of 3 (the last one short) by lax.map,
     # the filter gives what it gives with every particle at once
-    sj, system, y0 = _so4_setup()
-    h, n = 2.0**-5, 8
-    observe = lambda y: y[0, 1:]
-    ys = np.stack([np.asarray(observe(y0))] * 2) + 0.01
-    run = lambda chunk: sj.particle_filter(
-        system,
-        np.broadcast_to(y0, (n, 4, 4)),
-        ys,
-        obs_times=[0.125, 0.25],
-        observe=observe,
-        obs_std=0.05,
-        dt=h,
-        key=jax.random.key(5),
-        jitter_steps=1,
-        chunk_size=chunk,
+    _, system, y0 = _so4_setup()
+    ys = np.stack([np.asarray(_observe(y0))] * 2) + 0.01
+    run = lambda chunk: _so4_filter(
+        system, y0, ys, 8, [0.125, 0.25], key=5, jitter_steps=1, chunk_size=chunk
     )
     whole, chunked = run(None), run(3)
     assert np.ptp(np.asarray(whole.particles[-1]), axis=0).max() > 1e-4  # (distinct particles)

@@ -64,7 +64,7 @@ def step_fields(system, v, dt, increments, second=True):
     components: $(\nabla K, \nabla^2 K, u, \partial u/\partial v)$ at `v`, with
     $u = \sum_r \Delta W_r \nabla H_r$ the increments' part of the noise (the areas'
     $\nabla G_A$ is in $K$ only). Without the second-order term (`second=False`) `u` and
-    its Jacobian are `None`; a Jacobian is `None` where it is zero (linear increments), and
+    its Jacobian are `None`; a Jacobian is `None` where it is zero (linear noise), and
     diagonal (`is_diagonal`) where the closed form is."""
     if system.algebra is not SO3:
         raise ValueError(
@@ -93,8 +93,7 @@ def step_fields(system, v, dt, increments, second=True):
 def _step_gradient(system, v, dt, increments):
     r"""$\nabla K(v)$ on so(3)'s components; with `c=`, $K = \tau H_0$, $\tau = h + c\Delta W$."""
     increments = as_step(increments)
-    tau = system.noise.drift_time(increments.dW)
-    g = scale(dt if tau is None else dt + tau, _drift(system, v))
+    g = scale(system._drift_time(dt, increments), _drift(system, v))
     own = _noise(system, v, increments.dW)
     g = g if own is None else add(g, own)
     return add(g, _area(system, v, increments.area)) if system.has_area(increments) else g
@@ -144,7 +143,7 @@ def _area(system, v, area):
 
 
 def _area_jacobian(system, v, area):
-    r"""$(\nabla G_A(v), \nabla^2 G_A(v))$; `None` (zero) for linear increments, whose $G_A$ is
+    r"""$(\nabla G_A(v), \nabla^2 G_A(v))$; `None` (zero) for linear noise, whose $G_A$ is
     linear."""
     if system.noise.linear:
         return _area(system, v, area), None
