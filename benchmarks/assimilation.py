@@ -50,7 +50,13 @@ def experiment(M, N, n, n_obs, every=50, h=0.01, spin=2000, train=3000, seed=0):
     obs_std = 0.1 * sd
     ys = c_truth[1:, obs] + obs_std * rng.normal(size=(n_obs, obs.size))
     init = sj.simulate(
-        model, truth[0], t1=0.5, dt=h, n_samples=n, key=jax.random.key(9), levy_area=False
+        model,
+        truth[0],
+        t1=0.5,
+        dt=h,
+        n_samples=n,
+        key=jax.random.key(9),
+        driver=sj.BrownianMotion(levy_area=False),
     ).ys[:, -1]
     t0 = time.perf_counter()
     res = sj.particle_filter(
@@ -72,7 +78,7 @@ def experiment(M, N, n, n_obs, every=50, h=0.01, spin=2000, train=3000, seed=0):
         n_samples=n,
         key=jax.random.key(1),
         save_every=every,
-        levy_area=False,
+        driver=sj.BrownianMotion(levy_area=False),
     ).ys[:, 1:]
     ca = np.asarray(z.mat2shr(res.particles)).real
     cf = np.asarray(z.mat2shr(free)).real.transpose(1, 0, 2)

@@ -111,7 +111,7 @@ def measure(name, how, n_samples, n_steps, retry=None, system_name="rigid"):
             args = dW if areas else (dW,)
             fn = jax.vmap(
                 lambda dw, a=None: sj.integrate(
-                    system, y0, dw, dt, method=method, throw=False, levy_area=a, **opts
+                    system, y0, dw, dt, method=method, throw=False, areas=a, **opts
                 )
             )
         else:

@@ -166,7 +166,7 @@ def solver(system, y0, method, h, areas):
     """All samples' final states of `method` on given increments (and areas): one jit."""
     if areas:
         return lambda d, a: jax.vmap(
-            lambda di, ai: sj.integrate(system, y0, di, h, levy_area=ai, method=method, throw=False)
+            lambda di, ai: sj.integrate(system, y0, di, h, areas=ai, method=method, throw=False)
         )(d, a)
     return lambda d, a: jax.vmap(
         lambda di: sj.integrate(system, y0, di, h, method=method, throw=False)
@@ -177,7 +177,7 @@ def count_failed(system, y0, method, h, areas, d, a):
     """Samples whose step failed: `integrate(throw=False)` freezes such a sample, so its last
     two saved states are identical (an untimed extra run)."""
     run = lambda di, ai: sj.integrate(
-        system, y0, di, h, method=method, save_every=1, throw=False, levy_area=ai if areas else None
+        system, y0, di, h, method=method, save_every=1, throw=False, areas=ai if areas else None
     )
     traj = jax.jit(jax.vmap(run))(d, a)
     return int(jnp.sum(jnp.all(traj[:, -1] == traj[:, -2], axis=tuple(range(1, traj.ndim - 1)))))
@@ -513,7 +513,7 @@ def main(argv=None):
                 reference_factor=factor,
                 retry_substeps=4,
                 methods=chosen,
-                levy_area=areas,
+                driver=sj.BrownianMotion(levy_area=areas),
             )
             weak.update({n: (res.order[n], res.bias[n], res.ci[n]) for n in chosen})
     for row in summary:
@@ -551,7 +551,7 @@ def main(argv=None):
                 method=method,
                 save_every=int(round(1 / h_long)),
                 throw=False,
-                levy_area=areas,
+                driver=sj.BrownianMotion(levy_area=areas),
             )
         ys = np.asarray(sol.ys)
         ok = np.asarray(sol.result) == 0  # failed samples (EulerMaruyama blows up) left out

@@ -7,8 +7,8 @@ matrix of spectral norm 0.8 (seed 1), T = 1.
 - Cost against n = 3, 4, 6, 8, 12, 16: run time per sample-step (median of >= 3 blocking
   calls after a warm-up; compile time on its own) of `jit(vmap(integrate))`, 32 samples x 32
   steps (h = 2^-5) on shared increments, for `LiePoisson` (both ways of solving, the chord
-  iteration `"chart"`, its default, and `"newton"`),
-  `IsospectralMidpoint` (`"newton"` and `"identity"`), `Midpoint`, `Heun` and diffrax
+  iteration `"chord"`, its default, and `"newton"`),
+  `IsospectralMidpoint` (`"newton"` and `"fixed_point"`), `Midpoint`, `Heun` and diffrax
   `Heun` (on the same increments; only with the `bench` extra). Also Newton updates per step.
 - Work-precision at n = 4: RMS error at T (the norm of the pairing, |Y|^2 = sum_{i<j} Y_ij^2)
   against the time change Y(T) = phi_{T + c W(T)}(Y0) of `drift_flow`, 200 samples,
@@ -57,10 +57,10 @@ def setup(n):
 
 def methods(n):
     out = {
-        "LiePoisson newton": sj.LiePoisson(jacobian="newton"),
-        "LiePoisson chart": sj.LiePoisson(jacobian="chart"),
-        "Isospectral newton": sj.IsospectralMidpoint(jacobian="newton"),
-        "Isospectral identity": sj.IsospectralMidpoint(jacobian="identity"),
+        "LiePoisson newton": sj.LiePoisson(iteration="newton"),
+        "LiePoisson chord": sj.LiePoisson(iteration="chord"),
+        "Isospectral newton": sj.IsospectralMidpoint(iteration="newton"),
+        "Isospectral fixed point": sj.IsospectralMidpoint(iteration="fixed_point"),
         "Midpoint": sj.Midpoint(),
         "Heun": sj.Heun(),
     }

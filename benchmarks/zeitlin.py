@@ -278,7 +278,7 @@ def scale(ns, dtypes, budget_s, members, member_ns, write):
                 jax.random.key(N), 1, 0.64 / N, n_noises=8, levy_area=True
             )
             areas = lambda m, w, d, a: sj.integrate(
-                m, w, d, 0.64 / N, levy_area=a, throw=False, method=sj.IsospectralMidpoint()
+                m, w, d, 0.64 / N, areas=a, throw=False, method=sj.IsospectralMidpoint()
             )
             parts["step_8_areas_ms"] = (areas, (noisy, w0, dW8.astype(real), A8.astype(real)))
             if N in member_ns:

@@ -31,6 +31,7 @@ from ._algebra import so as so
 from ._algebra import su as su
 
 # Brownian motion
+from ._brownian import BrownianMotion as BrownianMotion
 from ._brownian import BrownianStep as BrownianStep
 from ._brownian import OrnsteinUhlenbeck as OrnsteinUhlenbeck
 from ._brownian import brownian_increments as brownian_increments

@@ -360,7 +360,15 @@ def _check_counts(n_steps, n_samples):
 
 
 def brownian_increments(
-    key, n_steps, dt, *, n_samples=None, truncate_k=4, dtype=None, n_noises=None, levy_area=False
+    key,
+    n_steps,
+    dt,
+    *,
+    n_samples=None,
+    truncate_k: float | None = 4,
+    dtype=None,
+    n_noises=None,
+    levy_area=False,
 ):
     """The increments `simulate` uses, materialised: for `integrate`, plots and checks.
 
@@ -447,6 +455,61 @@ def _brownian_paths(key, path, *, n_samples, n_steps, one_noise, levy_area):
     keys = sample_keys(key, 1 if n_samples is None else n_samples)
     out = jax.vmap(one)(keys)
     return jax.tree_util.tree_map(lambda x: x[0], out) if n_samples is None else out
+
+
+class BrownianMotion:
+    r"""The default driver of an ensemble: independent standard Brownian motions, one per
+    noise, each step's increments drawn truncated, and with them, when asked for, the steps'
+    Lévy areas. `simulate(system, y0, ..., driver=BrownianMotion(levy_area=True))`;
+    `brownian_increments` materialises the same increments for `integrate`.
+
+    **Arguments:**
+
+    - `truncate_k`: the $k$ of the truncation
+      $\Delta\hat W = \sqrt h\,\mathrm{clip}(\xi, \pm\sqrt{2k|\ln h|})$ (Milstein, Repin &
+      Tretyakov 2002; default 4, the paper's), or `None` for none.
+    - `levy_area`: whether the steps' Lévy areas are drawn: `"auto"` (default: for a method
+      that `uses_levy_area` when the system has several noises), `True` (refused for a
+      method that cannot use them) or `False`. Each step's areas are sampled given its
+      increments, so the increments are the same with or without them; one noise has no
+      areas. The convergence studies also take a dict `{method name: "auto"/True/False}`,
+      to choose per method (the others and the reference on `"auto"`).
+    """
+
+    def __init__(
+        self,
+        *,
+        truncate_k: float | None = 4,
+        levy_area: str | bool | dict[str, str | bool] = "auto",
+    ):
+        check_truncation(0.5, truncate_k)
+        if not (
+            isinstance(levy_area, (bool, np.bool_, dict))
+            or (isinstance(levy_area, str) and levy_area == "auto")
+        ):
+            raise TypeError(
+                f"BrownianMotion: levy_area must be 'auto', True or False, got {levy_area!r}."
+            )
+        self.truncate_k = truncate_k
+        self.levy_area = levy_area
+
+    def __repr__(self):
+        return f"BrownianMotion(truncate_k={self.truncate_k!r}, levy_area={self.levy_area!r})"
+
+    def __eq__(self, other):
+        return isinstance(other, BrownianMotion) and (self.truncate_k, self.levy_area) == (
+            other.truncate_k,
+            other.levy_area,
+        )
+
+    def __hash__(self):  # (a TypeError for a dict option)
+        return hash((BrownianMotion, self.truncate_k, self.levy_area))
+
+    def path(self, dt, n_noises, dtype, *, levy_area):
+        """The driver's steps of size `dt` (a Python float) for `n_noises` noises, with the
+        Lévy areas when `levy_area` (the option resolved for the method, a bool)."""
+        check_truncation(dt, self.truncate_k)
+        return BrownianPath.of(dt, n_noises, dtype, truncate_k=self.truncate_k, levy_area=levy_area)
 
 
 class OrnsteinUhlenbeck:

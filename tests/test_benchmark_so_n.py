@@ -16,7 +16,7 @@ def test_so_n(tmp_path):
     assert is_png(tmp_path / "so_n.png")
     out = json.loads((tmp_path / "so_n.json").read_text())
     methods = {r["method"] for r in out["cost"]}
-    assert {"LiePoisson chart", "Isospectral identity", "Midpoint", "Heun"} <= methods
+    assert {"LiePoisson chord", "Isospectral fixed point", "Midpoint", "Heun"} <= methods
     assert ("diffrax Heun" in methods) == HAVE_DIFFRAX
     wp = out["work_precision"]
     errors = {

@@ -108,3 +108,84 @@ def test_a_steps_noise_keyword_is_increments(name):
     np.testing.assert_array_equal(old, new)
     u = deprecated(lambda: system.noise_gradient(Y0, noise=step), "increments=")
     np.testing.assert_array_equal(u, system.noise_gradient(Y0, step))
+
+
+# Every entry point whose `truncate_k=` and `levy_area=` are now its driver's options: called
+# with them and an initial state it refuses before compiling, it warns, naming
+# `BrownianMotion`, and then fails on the state (not on the keywords).
+OLD_DRIVER_KEYWORDS = dict(truncate_k=None, levy_area=False)
+DRIVER_CALLS = {
+    "simulate": lambda kw: sj.simulate(RB, BAD_Y0, t1=1.0, dt=0.1, n_samples=2, key=KEY, **kw),
+    "ensemble_statistics": lambda kw: sj.ensemble_statistics(
+        RB, BAD_Y0, t1=1.0, dt=0.1, n_samples=2, key=KEY, chunk_size=2, **kw
+    ),
+    "simulate_to_store": lambda kw: sj.simulate_to_store(
+        RB, BAD_Y0, "unused", t1=1.0, dt=0.1, n_samples=2, key=KEY, save_every=5, **kw
+    ),
+    "strong_convergence": lambda kw: sj.strong_convergence(
+        RB, BAD_Y0, t1=1.0, dts=[0.5, 0.25], n_samples=2, key=KEY, methods=sj.Strang(), **kw
+    ),
+    "weak_convergence": lambda kw: sj.weak_convergence(
+        RB,
+        BAD_Y0,
+        t1=1.0,
+        dts=[0.5, 0.25],
+        n_samples=2,
+        key=KEY,
+        methods=sj.Strang(),
+        observable=lambda y: y,
+        **kw,
+    ),
+    "calibrate": lambda kw: sj.calibrate(
+        np.zeros((1, 6)), BAD_Y0, ts=[0.5], dt=0.1, n_samples=2, key=KEY, init=RB, **kw
+    ),
+    "forecast_ensembles": lambda kw: sj.forecast_ensembles(
+        RB, np.zeros((2, 2)), lead=2, dt=0.1, every=1, members=2, key=KEY, **kw
+    ),
+}
+
+
+@pytest.mark.parametrize("name", sorted(DRIVER_CALLS))
+def test_truncate_k_and_levy_area_are_the_drivers_options(name):
+    call = DRIVER_CALLS[name]
+    with pytest.raises((ValueError, TypeError), match="y0|starts") as err:
+        deprecated(lambda: call(OLD_DRIVER_KEYWORDS), "driver=sj.BrownianMotion(truncate_k=None")
+    assert "truncate_k" not in str(err.value)
+    with pytest.raises(TypeError, match="and driver="):
+        call(dict(truncate_k=None, driver=sj.OrnsteinUhlenbeck(1.0)))
+
+
+def test_old_driver_keywords_give_the_same_paths():
+    """The deprecated keywords reach the driver: the same paths, bit for bit, with the Lévy
+    areas of three non-commuting noises drawn and the increments untruncated."""
+    system = sj.RigidBody([1.0, 2.0, 3.0], noise=sj.salt_noise(0.3 * np.eye(3)))
+    kw = dict(t1=0.25, dt=1 / 16, n_samples=3, key=KEY, method=sj.Midpoint())
+    new = sj.simulate(system, Y0, driver=sj.BrownianMotion(truncate_k=None, levy_area=True), **kw)
+    old = deprecated(lambda: sj.simulate(system, Y0, truncate_k=None, levy_area=True, **kw), "")
+    without = sj.simulate(system, Y0, driver=sj.BrownianMotion(levy_area=False), **kw)
+    np.testing.assert_array_equal(old.ys, new.ys)
+    assert np.max(np.abs(np.asarray(without.ys) - np.asarray(new.ys))) > 1e-8
+    dW, A = sj.brownian_increments(KEY, 4, 1 / 16, n_noises=3, levy_area=True)
+    areas = sj.integrate(system, Y0, dW, 1 / 16, areas=A, method=sj.Midpoint())
+    old = deprecated(
+        lambda: sj.integrate(system, Y0, dW, 1 / 16, levy_area=A, method=sj.Midpoint()), "areas="
+    )
+    np.testing.assert_array_equal(old, areas)
+
+
+@pytest.mark.parametrize(
+    "cls,old,new",
+    [
+        (sj.LiePoisson, "chart", "chord"),
+        (sj.LiePoisson, "newton", "newton"),
+        (sj.IsospectralMidpoint, "identity", "fixed_point"),
+        (sj.IsospectralMidpoint, "newton", "newton"),
+    ],
+)
+def test_a_methods_jacobian_option_is_its_iteration(cls, old, new):
+    # A method is its static options: equal methods (and hashes) are the same compiled step.
+    method = deprecated(lambda: cls(jacobian=old), f"iteration={new!r}")
+    assert method == cls(iteration=new) and hash(method) == hash(cls(iteration=new))
+    assert method.iteration == new and "jacobian" not in repr(method)
+    with pytest.raises(TypeError, match="jacobian=.*iteration="):
+        cls(jacobian=old, iteration=new)

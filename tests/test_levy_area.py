@@ -128,7 +128,7 @@ def test_simulate_uses_the_areas_brownian_increments_gives():
     sol = sj.simulate(model, Y0, t1=0.5, dt=1 / 16, n_samples=3, key=key, method=sj.Midpoint())
     dW, A = sj.brownian_increments(key, 8, 1 / 16, n_samples=3, n_noises=3, levy_area=True)
     for i in range(3):
-        y = sj.integrate(model, Y0, dW[i], 1 / 16, levy_area=A[i], method=sj.Midpoint())
+        y = sj.integrate(model, Y0, dW[i], 1 / 16, areas=A[i], method=sj.Midpoint())
         np.testing.assert_allclose(sol.ys[i, -1], y, rtol=0, atol=1e-14)
     # chunked (ensemble_statistics, 2 samples a chunk): the same samples, areas included
     st = sj.ensemble_statistics(
@@ -145,7 +145,14 @@ def test_simulate_uses_the_areas_brownian_increments_gives():
     np.testing.assert_allclose(st.mean[-1], np.mean(sol.ys[:, -1], axis=0), rtol=0, atol=1e-14)
     # and without them ("auto" draws them for Midpoint; False does not): a different path
     plain = sj.simulate(
-        model, Y0, t1=0.5, dt=1 / 16, n_samples=3, key=key, method=sj.Midpoint(), levy_area=False
+        model,
+        Y0,
+        t1=0.5,
+        dt=1 / 16,
+        n_samples=3,
+        key=key,
+        method=sj.Midpoint(),
+        driver=sj.BrownianMotion(levy_area=False),
     )
     y = sj.integrate(model, Y0, dW[0], 1 / 16, method=sj.Midpoint())
     np.testing.assert_allclose(plain.ys[0, -1], y, rtol=0, atol=1e-14)
@@ -157,10 +164,24 @@ def test_one_noise_has_no_areas(paper):
     model, y0 = paper
     key = jax.random.key(2)
     a = sj.simulate(
-        model, y0, t1=0.25, dt=1 / 32, n_samples=2, key=key, method=sj.Midpoint(), levy_area=True
+        model,
+        y0,
+        t1=0.25,
+        dt=1 / 32,
+        n_samples=2,
+        key=key,
+        method=sj.Midpoint(),
+        driver=sj.BrownianMotion(levy_area=True),
     )
     b = sj.simulate(
-        model, y0, t1=0.25, dt=1 / 32, n_samples=2, key=key, method=sj.Midpoint(), levy_area=False
+        model,
+        y0,
+        t1=0.25,
+        dt=1 / 32,
+        n_samples=2,
+        key=key,
+        method=sj.Midpoint(),
+        driver=sj.BrownianMotion(levy_area=False),
     )
     np.testing.assert_array_equal(a.ys, b.ys)
     dW, A = sj.brownian_increments(key, 8, 1 / 32, n_noises=1, levy_area=True)
@@ -197,12 +218,12 @@ def test_a_retried_step_keeps_its_increments_and_areas():
     A = jnp.asarray([[[0.0, 0.05], [-0.05, 0.0]], [[0.0, -0.02], [0.02, 0.0]]])
     y0 = jnp.zeros((4, 4))
     # the first attempt of each step (dt = 0.1) fails, its 4 substeps succeed
-    y1 = sj.integrate(model, y0, dW, 0.1, levy_area=A, method=_Recorder(longest=0.05))
+    y1 = sj.integrate(model, y0, dW, 0.1, areas=A, method=_Recorder(longest=0.05))
     x = np.asarray(alg.coordinates(y1))
     np.testing.assert_allclose(x[:4], [0.2, 0.4, 0.2, 0.03], rtol=1e-14)
     with pytest.raises(RuntimeError, match="could not be solved"):
         sj.integrate(
-            model, y0, dW, 0.1, levy_area=A, method=_Recorder(longest=0.05), retry_substeps=None
+            model, y0, dW, 0.1, areas=A, method=_Recorder(longest=0.05), retry_substeps=None
         )
 
 
@@ -210,13 +231,13 @@ def test_levy_area_arguments_are_checked():
     model = salt_body()
     dW, A = sj.brownian_increments(jax.random.key(0), 4, 0.1, n_noises=3, levy_area=True)
     with pytest.raises(TypeError, match="Heun does not use Lévy areas.*Midpoint"):
-        sj.integrate(model, Y0, dW, 0.1, levy_area=A, method=sj.Heun())
+        sj.integrate(model, Y0, dW, 0.1, areas=A, method=sj.Heun())
     with pytest.raises(ValueError, match=r"shape \(n_steps, s, s\) = \(4, 3, 3\)"):
-        sj.integrate(model, Y0, dW, 0.1, levy_area=A[:, :2], method=sj.Midpoint())
+        sj.integrate(model, Y0, dW, 0.1, areas=A[:, :2], method=sj.Midpoint())
     with pytest.raises(ValueError, match="antisymmetric"):
-        sj.integrate(model, Y0, dW, 0.1, levy_area=jnp.abs(A), method=sj.Midpoint())
+        sj.integrate(model, Y0, dW, 0.1, areas=jnp.abs(A), method=sj.Midpoint())
     with pytest.raises(ValueError, match=r"finite; steps \[2\]"):
-        sj.integrate(model, Y0, dW, 0.1, levy_area=A.at[2, 0, 1].set(np.nan), method=sj.Midpoint())
+        sj.integrate(model, Y0, dW, 0.1, areas=A.at[2, 0, 1].set(np.nan), method=sj.Midpoint())
     for method, option, match in [
         (sj.Heun(), True, "levy_area=True: Heun"),
         (sj.Midpoint(), "yes", "'auto', True or False"),
@@ -230,7 +251,7 @@ def test_levy_area_arguments_are_checked():
                 n_samples=2,
                 key=jax.random.key(0),
                 method=method,
-                levy_area=option,
+                driver=sj.BrownianMotion(levy_area=option),
             )
     with pytest.raises(ValueError, match="needs n_noises"):
         sj.brownian_increments(jax.random.key(0), 4, 0.1, levy_area=True)

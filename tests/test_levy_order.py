@@ -140,7 +140,7 @@ def _coarse_runs(model, y0, method, dW_fine, areas):
                 h,
                 method=method,
                 throw=False,
-                levy_area=None if a is None else a[i][None],
+                areas=None if a is None else a[i][None],
             )
 
         return jax.lax.fori_loop(0, n, step, jnp.asarray(y0))
@@ -179,7 +179,7 @@ def test_declared_strong_orders_against_the_exact_signature(name, cls):
     if declared.areas is None:
         dW, A = coarsen(dW_fine[:1], int(round(HS[-1] * N_FINE)))
         with pytest.raises(TypeError, match="does not use Lévy areas"):
-            sj.integrate(model, y0, dW[0], HS[-1], levy_area=A[0], method=method)
+            sj.integrate(model, y0, dW[0], HS[-1], areas=A[0], method=method)
     else:
         assert 0.85 * declared.areas <= order["areas"] <= 1.25 * declared.areas, (order, errors)
         assert order["flipped"] <= 0.75, (order, errors)
@@ -201,7 +201,7 @@ def test_no_areas_equals_zero_areas(cls):
         pytest.skip(f"{cls.__name__} does not run this system")
     dW, A = sj.brownian_increments(jax.random.key(3), 8, 1 / 8, n_noises=3, levy_area=True)
     without = sj.integrate(model, y0, dW, 1 / 8, method=cls())
-    zero = sj.integrate(model, y0, dW, 1 / 8, levy_area=0 * A, method=cls())
+    zero = sj.integrate(model, y0, dW, 1 / 8, areas=0 * A, method=cls())
     np.testing.assert_allclose(zero, without, rtol=0, atol=1e-14)
 
 
@@ -214,7 +214,7 @@ def test_gradients_through_the_area_term_match_finite_differences():
     def loss(theta, method):
         model = sj.RigidBody(theta[:3], noise=sj.salt_noise(theta[3:].reshape(3, 3)))
         return jnp.dot(
-            weights, sj.integrate(model, Y0, dW, 1 / 16, levy_area=A, method=method, throw=False)
+            weights, sj.integrate(model, Y0, dW, 1 / 16, areas=A, method=method, throw=False)
         )
 
     theta = jnp.concatenate([INERTIA, jnp.asarray(CHI).ravel()])
@@ -244,7 +244,7 @@ def test_sampled_areas_in_a_study_give_order_one():
         key=jax.random.key(1),
         reference=sj.SaltSplitting(),
         methods={"s": sj.SaltSplitting(), "no areas": sj.SaltSplitting()},
-        levy_area={"no areas": False},
+        driver=sj.BrownianMotion(levy_area={"no areas": False}),
         reference_factor=32,
     )
     assert 0.85 <= res.order["s"] <= 1.25, res.table()
@@ -260,7 +260,7 @@ def test_sampled_areas_in_a_study_give_order_one():
             n_samples=4,
             key=jax.random.key(1),
             methods={"s": sj.SaltSplitting()},
-            levy_area={"t": False},
+            driver=sj.BrownianMotion(levy_area={"t": False}),
             reference=sj.SaltSplitting(),
         )
 

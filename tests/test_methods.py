@@ -154,7 +154,7 @@ def test_method_on_system(cls, system):
         dW[0].astype(jnp.float32),
         DT,
         method=method,
-        levy_area=None if A is None else A[0].astype(jnp.float32),
+        areas=None if A is None else A[0].astype(jnp.float32),
     )
     assert y32.dtype == jnp.float32
     np.testing.assert_allclose(np.asarray(y32, np.float64), sol.ys[0, -1], rtol=0, atol=1e-4)

@@ -264,9 +264,9 @@ BAD_SIMULATE = [
     (dict(save_every=2.0), ValueError, "save_every"),
     (dict(save_every=0), ValueError, "save_every"),
     (dict(save_every=True), ValueError, "save_every"),
-    (dict(truncate_k=True), ValueError, "truncate_k"),
-    (dict(truncate_k=np.inf), ValueError, "truncate_k"),
-    (dict(truncate_k=-1), ValueError, "truncate_k"),
+    (dict(driver="brownian"), TypeError, "driver must be"),
+    (dict(driver=sj.BrownianMotion(levy_area={"LP": True})), TypeError, "a dict chooses"),
+    (dict(dt=2.0, t1=4.0), ValueError, "truncate_k=None"),
     (dict(key=3), TypeError, r"jax.random.key\(3\)"),
     (dict(key=np.uint32(3)), TypeError, "jax.random.key"),
     (dict(key=True), TypeError, "jax.random.key"),
@@ -288,6 +288,20 @@ BAD_SIMULATE = [
     (dict(retry_substeps=1), ValueError, "retry_substeps"),
     (dict(retry_substeps=2.0), ValueError, "retry_substeps"),
 ]
+
+
+BAD_BROWNIAN = [
+    (dict(truncate_k=True), ValueError, "truncate_k"),
+    (dict(truncate_k=np.inf), ValueError, "truncate_k"),
+    (dict(truncate_k=-1), ValueError, "truncate_k"),
+    (dict(levy_area="yes"), TypeError, "levy_area"),
+]
+
+
+@pytest.mark.parametrize("bad,exc,match", BAD_BROWNIAN)
+def test_brownian_motion_rejects_bad_options(bad, exc, match):
+    with pytest.raises(exc, match=match):
+        sj.BrownianMotion(**bad)
 
 
 @pytest.mark.parametrize("bad,exc,match", BAD_SIMULATE)

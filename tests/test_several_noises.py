@@ -246,7 +246,7 @@ def test_casimir_kept_with_three_noises():
             dt,
             method=method,
             save_every=100,
-            levy_area=A if method.uses_levy_area() else None,
+            areas=A if method.uses_levy_area() else None,
         )
         drift = np.abs(np.linalg.norm(ys, axis=1) - np.linalg.norm(Y0)).max()
         assert drift < 1e-13, (name, drift)
@@ -489,7 +489,7 @@ def test_simulate_draws_one_increment_per_noise():
         dt=2.0**-5,
         n_samples=3,
         key=key,
-        levy_area=False,
+        driver=sj.BrownianMotion(levy_area=False),
         method=sj.LiePoisson(),
     )
     dWs = sj.brownian_increments(key, 8, 2.0**-5, n_samples=3, n_noises=3)
@@ -509,7 +509,7 @@ def test_simulate_draws_one_increment_per_noise():
         # (with the Lévy areas: SALT's closed-form area term against autodiff's)
         for method in (sj.LiePoisson(), sj.Midpoint()):
             got = sj.integrate(
-                sj.RigidBody(INERTIA, noise=family), Y0, dW, 2.0**-5, method=method, levy_area=A
+                sj.RigidBody(INERTIA, noise=family), Y0, dW, 2.0**-5, method=method, areas=A
             )
             want = sj.integrate(
                 sj.LiePoissonSystem(rigid_body_h, INERTIA, noise=fn),
@@ -517,6 +517,6 @@ def test_simulate_draws_one_increment_per_noise():
                 dW,
                 2.0**-5,
                 method=method,
-                levy_area=A,
+                areas=A,
             )
             np.testing.assert_allclose(got, want, atol=1e-13)

@@ -207,8 +207,8 @@ def test_bad_input_refused_by_name():
         sj.so(2)
     with pytest.raises(ValueError, match="j must be finite and positive"):
         sj.GeneralisedRigidBody([1.0, -1.0, 2.0])
-    with pytest.raises(ValueError, match="jacobian"):
-        sj.IsospectralMidpoint(jacobian="exact")
+    with pytest.raises(ValueError, match="iteration must be"):
+        sj.IsospectralMidpoint(iteration="exact")
 
 
 def test_simulate_on_so_n_and_float32():

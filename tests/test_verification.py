@@ -45,8 +45,8 @@ def test_forecast_ensembles_are_simulate_per_start(model_world):
     w = model_world
     system = sj.EulerZeitlin(w["N"], noise=w["noise"])
     kw = dict(lead=w["lead"], dt=w["h"], every=w["every"], members=3, key=jax.random.key(2))
-    for driver, areas in ((None, "auto"), (sj.OrnsteinUhlenbeck([0.3, 0.6]), False)):
-        both = sj.forecast_ensembles(system, w["starts"][:2], driver=driver, levy_area=areas, **kw)
+    for driver in (sj.BrownianMotion(), sj.OrnsteinUhlenbeck([0.3, 0.6])):
+        both = sj.forecast_ensembles(system, w["starts"][:2], driver=driver, **kw)
         assert both.shape == (2, 3, 2, w["N"], w["N"])
         for s in range(2):
             sol = sj.simulate(

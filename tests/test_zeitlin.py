@@ -255,7 +255,7 @@ def test_complex64_model_casts_its_input_and_keeps_the_casimirs_to_its_round_off
             w0,
             dW,
             0.01,
-            levy_area=A,
+            areas=A,
             method=sj.IsospectralMidpoint(),
         )
         for dt in (jnp.complex64, jnp.complex128)
@@ -416,9 +416,7 @@ def test_final_updates_agree_at_the_root_and_the_default_follows_the_precision()
     dW, A = sj.brownian_increments(jax.random.key(4), 3, 0.01, n_noises=3, levy_area=True)
     model = sj.EulerZeitlin(N, noise=sj.salt_noise(X))
     y = {
-        f: sj.integrate(
-            model, w0, dW, 0.01, levy_area=A, method=sj.IsospectralMidpoint(final_update=f)
-        )
+        f: sj.integrate(model, w0, dW, 0.01, areas=A, method=sj.IsospectralMidpoint(final_update=f))
         for f in ("explicit", "cayley", "auto")
     }
     # (the same root to rtol = sqrt(eps) of the increment: the two updates differ by about
@@ -431,7 +429,7 @@ def test_final_updates_agree_at_the_root_and_the_default_follows_the_precision()
             w0,
             dW,
             0.01,
-            levy_area=A,
+            areas=A,
             method=sj.IsospectralMidpoint(rtol=0.0, final_update=f),
         )
         for f in ("explicit", "cayley", "auto")

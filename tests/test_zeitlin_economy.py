@@ -130,7 +130,7 @@ def test_a_diverging_iteration_stops_as_stalled():
         n_samples=1,
         key=jax.random.key(0),
         method=sj.IsospectralMidpoint(),
-        truncate_k=None,
+        driver=sj.BrownianMotion(truncate_k=None),
         retry_substeps=None,
         newton_stats=True,
         throw=False,

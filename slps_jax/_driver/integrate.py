@@ -13,7 +13,6 @@ from .. import _brownian
 from .._methods.base import AbstractMethod, finite_result
 from .._support.batching import batched_like
 from .._support.checks import (
-    arguments_for,
     check_positive,
     check_retry,
     check_save_every,
@@ -25,7 +24,14 @@ from .._support.checks import (
 from .._support.deprecated import renamed_arguments
 from .._support.solution import RESULTS, Solution
 from .failures import report
-from .plan import check_levy_area, check_method, check_system, check_y0, plan_ensemble
+from .plan import (
+    check_levy_area,
+    check_method,
+    check_system,
+    check_y0,
+    driver_keywords,
+    plan_ensemble,
+)
 from .retry import robust_step, step_with_history
 from .sharding import as_given, automatic, sharded_keys
 
@@ -351,14 +357,14 @@ ensemble_dynamic_jit = jax.jit(
 # Public API.
 
 
-@renamed_arguments(model="system")
+@renamed_arguments(model="system", levy_area="areas")
 def integrate(
     system,
     y0,
     dW,
     dt,
     *,
-    levy_area=None,
+    areas=None,
     method: AbstractMethod | str = "auto",
     save_every=None,
     throw=True,
@@ -380,10 +386,11 @@ def integrate(
     - `dW`: Brownian increments, shape `(n_steps, n_noises)` (one column per noise;
       `(n_steps,)` for a system with one noise).
     - `dt`: the step size.
-    - `levy_area`: `None` (default), or the Lévy areas of the steps, shape
+    - `areas`: `None` (default), or the Lévy areas of the steps, shape
       `(n_steps, s, s)`, antisymmetric: `A[n, q, r]` $= \tfrac12(J_{qr} - J_{rq})$,
       $J_{qr} = \int_{t_n}^{t_{n+1}} (W_q(t) - W_q(t_n)) \circ dW_r(t)$
-      (`brownian_increments(..., levy_area=True)` draws them). With them a method that
+      (`brownian_increments(..., levy_area=True)` draws them; the old name of this
+      argument, `levy_area=`, warns). With them a method that
       `uses_levy_area` has strong order 1 for several non-commuting noises; refused for
       one that does not.
     - `method`: a method instance, or `"auto"` (default): `Midpoint()` on so(3)*,
@@ -421,7 +428,7 @@ def integrate(
         bad = np.flatnonzero(~np.all(np.isfinite(dW_np), axis=1))
         raise ValueError(f"dW must be finite; entries {bad[:5].tolist()} are not.")
     n_steps = dW.shape[0]
-    area = check_levy_area(levy_area, n_steps, s, method)
+    area = check_levy_area(areas, n_steps, s, method)
     k = check_save_every(save_every, n_steps)
     retry = check_retry(retry_substeps)
     dtype = real_dtype(y0.dtype)
@@ -436,6 +443,7 @@ def integrate(
 
 
 @renamed_arguments(model="system")
+@driver_keywords
 def simulate(
     system,
     y0,
@@ -446,21 +454,20 @@ def simulate(
     key,
     method: AbstractMethod | str = "auto",
     save_every=None,
-    truncate_k=4,
     newton_stats=False,
     throw=False,
     retry_substeps: int | None = 4,
     sharding=None,
-    levy_area="auto",
-    driver=None,
+    driver: _brownian.BrownianMotion | _brownian.OrnsteinUhlenbeck | None = None,
 ):
     r"""Simulate an ensemble of paths of a stochastic Lie–Poisson system on $[0, t_1]$,
     $dy = [y, \nabla H_0]\,dt + \sum_r [y, \nabla H_r]\circ dW_r$ (with `c=`,
     $dy = f(y)(dt + c\circ dW)$).
 
-    Sample `i` draws its increments from `fold_in(key, i)` inside the time loop, truncated as
-    $\Delta\hat W = \sqrt h\,\mathrm{clip}(\xi, \pm\sqrt{2k|\ln h|})$ (Milstein, Repin &
-    Tretyakov 2002). Nothing of size `n_steps` is stored when only the final state is saved,
+    Sample `i` draws its increments from `fold_in(key, i)` inside the time loop (by
+    default Brownian increments truncated as
+    $\Delta\hat W = \sqrt h\,\mathrm{clip}(\xi, \pm\sqrt{2k|\ln h|})$, Milstein, Repin &
+    Tretyakov 2002: `driver`). Nothing of size `n_steps` is stored when only the final state is saved,
     and a sample's path does not depend on `n_samples`.
 
     **Arguments:**
@@ -474,7 +481,6 @@ def simulate(
       `jax.random.PRNGKey`, `uint32[2]`, is accepted too; a plain integer is not).
     - `method`: as for `integrate` (default `"auto"`).
     - `save_every`: `None` (final state only) or `k` (states at steps `0, k, ..., n`).
-    - `truncate_k`: the `k` of the truncation (default 4, the paper's), `None` for none.
     - `newton_stats`: also report Newton iteration counts and residuals in `stats`.
     - `throw`: `False` (default): if samples failed (even split into substeps), the
       `Solution` is returned with them flagged (`Solution.ok`, `result`: a `RESULTS` code
@@ -494,20 +500,34 @@ def simulate(
       partitioner and the arrays of the `Solution` come back sharded along their first
       axis, on the given mesh; the paths are the same as without. `n_samples` must be a
       multiple of the number of shards.
-    - `levy_area`: `"auto"` (default: drawn for a method that `uses_levy_area` when the
-      system has several noises), `True` or `False`. Each step's areas are sampled given its
-      increments (`brownian_increments(..., levy_area=True)` gives the same), which makes
-      such a method strong order 1 for non-commuting noise; the increments are the same
-      with or without them. One noise has no areas.
-    - `driver`: `None` (default): Brownian motions; or `sj.OrnsteinUhlenbeck(T)`: smooth
-      unit Ornstein–Uhlenbeck traces of correlation times `T` (one per noise), each step's
-      increment their integral over the step, drawn exactly (no truncation, no Lévy areas;
-      `sj.ou_increments` gives the same increments for `integrate`).
+    - `driver`: what draws the steps' noise. `None` (default) or `sj.BrownianMotion(...)`:
+      Brownian motions, with its options `truncate_k` (the `k` of the truncation, default 4,
+      the paper's; `None` for none) and `levy_area` (`"auto"`, the default: each step's
+      Lévy areas drawn for a method that `uses_levy_area` when the system has several
+      noises, which makes such a method strong order 1 for non-commuting noise; `True`,
+      `False`). `sj.OrnsteinUhlenbeck(T)`: smooth unit Ornstein–Uhlenbeck traces of
+      correlation times `T` (one per noise), each step's increment their integral over the
+      step, drawn exactly (no truncation, no Lévy areas; `sj.ou_increments` gives the same
+      increments for `integrate`). The keywords `truncate_k=` and `levy_area=` of earlier
+      versions still work, with a `DeprecationWarning`.
 
     **Returns:** a `Solution`.
     """
     check_throw(throw)
-    p = plan_ensemble("simulate", **arguments_for(plan_ensemble, locals()))
+    p = plan_ensemble(
+        "simulate",
+        system,
+        y0,
+        t1=t1,
+        dt=dt,
+        n_samples=n_samples,
+        key=key,
+        method=method,
+        save_every=save_every,
+        retry_substeps=retry_substeps,
+        sharding=sharding,
+        driver=driver,
+    )
     sol = run_ensemble(p, newton_stats=newton_stats, saved=save_every is not None)
     report("simulate", throw, retry_substeps is not None, sol.fail_step, sol.result)
     return sol

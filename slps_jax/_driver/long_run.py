@@ -14,7 +14,7 @@ from .. import _brownian
 from .._support.progress import progress_bar
 from .._support.store import RunStore, open_run
 from .integrate import _highest_precision, initial_carry, run_blocks
-from .plan import plan_ensemble
+from .plan import driver_keywords, plan_ensemble
 
 # Snapshots per record at most (default): a record is one compiled call and one append.
 RECORD_SNAPSHOTS = 16
@@ -24,6 +24,7 @@ CASIMIR_ORDER = 6
 SPECTRA_MAX_N = 128
 
 
+@driver_keywords
 def simulate_to_store(
     system,
     y0,
@@ -39,10 +40,8 @@ def simulate_to_store(
     save_states=True,
     record_snapshots=RECORD_SNAPSHOTS,
     resume=False,
-    truncate_k=4,
     retry_substeps: int | None = 4,
-    levy_area="auto",
-    driver=None,
+    driver: _brownian.BrownianMotion | _brownian.OrnsteinUhlenbeck | None = None,
     progress=True,
 ):
     r"""`simulate`'s ensemble, written to a run store on disk as it goes: memory stays flat in
@@ -94,10 +93,8 @@ def simulate_to_store(
         key=key,
         method=method,
         save_every=save_every,
-        truncate_k=truncate_k,
         retry_substeps=retry_substeps,
         sharding=None,
-        levy_area=levy_area,
         driver=driver,
     )
     if p.method.flow_in_time is not None:

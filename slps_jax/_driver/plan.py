@@ -10,6 +10,9 @@ arguments of an ensemble once, for `simulate`, `ensemble_statistics` and (throug
 from __future__ import annotations
 
 import dataclasses
+import functools
+from collections.abc import Callable
+from typing import Any, ParamSpec, TypeVar
 
 import jax
 import numpy as np
@@ -28,10 +31,13 @@ from .._support.checks import (
     real_array,
     real_dtype,
 )
-from .._support.deprecated import renamed_arguments
+from .._support.deprecated import renamed_arguments, warn
 from .._systems.capabilities import RIGID_BODY, SO3_VECTORS
 from .._systems.system import LiePoissonSystem, check_system
 from .sharding import check_sharding
+
+P = ParamSpec("P")
+R = TypeVar("R")
 
 
 def check_pair(method, system):
@@ -87,7 +93,7 @@ def _area_methods():
 
 
 def check_levy_area(area, n_steps, n_noises, method):
-    """The Lévy areas given to `integrate`: `None`, or an array of shape
+    """The Lévy areas given to `integrate` (`areas`): `None`, or an array of shape
     `(n_steps, s, s)`, finite and antisymmetric, for a method that uses them. Returns the
     array, or `None` for one noise (its areas are zero)."""
     if area is None:
@@ -97,22 +103,22 @@ def check_levy_area(area, n_steps, n_noises, method):
             f"{type(method).__name__} does not use Lévy areas (its step sees only "
             f"the increments); methods that do: {_area_methods()}."
         )
-    area = real_array("levy_area", area)
+    area = real_array("areas", area)
     shape = (n_steps, n_noises, n_noises)
     if area.shape != shape:
         raise ValueError(
-            f"levy_area must have shape (n_steps, s, s) = {shape}, one "
+            f"areas must have shape (n_steps, s, s) = {shape}, one "
             f"antisymmetric (s, s) matrix per step, got shape {area.shape}."
         )
     a_np = concrete(area)
     if a_np is not None:
         if not np.all(np.isfinite(a_np)):
             bad = np.flatnonzero(~np.all(np.isfinite(a_np), axis=(1, 2)))
-            raise ValueError(f"levy_area must be finite; steps {bad[:5].tolist()} are not.")
+            raise ValueError(f"areas must be finite; steps {bad[:5].tolist()} are not.")
         asym = float(np.max(np.abs(a_np + np.swapaxes(a_np, 1, 2))))
         if asym > 1e-12 * max(1.0, float(np.max(np.abs(a_np)))):
             raise ValueError(
-                f"levy_area must be antisymmetric, A[n, q, r] = -A[n, r, q]; "
+                f"areas must be antisymmetric, A[n, q, r] = -A[n, r, q]; "
                 f"max |A + A^T| = {asym:.3g}."
             )
     return None if n_noises == 1 else area
@@ -132,6 +138,56 @@ def check_levy_option(levy_area, method, system):
             f"methods that do: {_area_methods()}."
         )
     return bool(levy_area) and system.n_noises > 1
+
+
+def check_driver(driver):
+    """`driver` checked: `None` stands for `BrownianMotion()`."""
+    if driver is None:
+        return _brownian.BrownianMotion()
+    if not isinstance(driver, (_brownian.BrownianMotion, _brownian.OrnsteinUhlenbeck)):
+        raise TypeError(
+            f"driver must be None, sj.BrownianMotion(...) or sj.OrnsteinUhlenbeck(...), got "
+            f"{driver!r}."
+        )
+    return driver
+
+
+def driver_path(driver, dt, method, system, dtype):
+    """The path of a checked `driver` at steps `dt` for `method` on `system`: its Lévy-area
+    option resolved (`check_levy_option`) for a `BrownianMotion`."""
+    if isinstance(driver, _brownian.OrnsteinUhlenbeck):
+        return driver.path(dt, system.n_noises, dtype)
+    if isinstance(driver.levy_area, dict):
+        raise TypeError(
+            "BrownianMotion(levy_area={...}): a dict chooses per method in the convergence "
+            "studies; an ensemble of one method takes 'auto', True or False."
+        )
+    areas = check_levy_option(driver.levy_area, method, system)
+    return driver.path(dt, system.n_noises, dtype, levy_area=areas)
+
+
+def driver_keywords(f: Callable[P, R]) -> Callable[P, R]:
+    """A decorator for an entry point whose `truncate_k=` and `levy_area=` are now the
+    options of its driver, `driver=sj.BrownianMotion(truncate_k=..., levy_area=...)`: the old
+    keywords still work for one release, with a `DeprecationWarning`."""
+
+    @functools.wraps(f)
+    def inner(*args: P.args, **kwargs: P.kwargs) -> R:
+        old: dict[str, Any] = {n: kwargs.pop(n) for n in ("truncate_k", "levy_area") if n in kwargs}
+        if old:
+            name = getattr(f, "__name__", "the function")
+            given = ", ".join(f"{n}={v!r}" for n, v in old.items())
+            if kwargs.get("driver") is not None:
+                raise TypeError(
+                    f"{name}() got {given} and driver=: the Brownian motions' options are "
+                    f"BrownianMotion's ({name}(driver=sj.BrownianMotion({given})); an "
+                    f"OrnsteinUhlenbeck driver has no truncation and no Lévy areas)."
+                )
+            warn(f"{name}({'=..., '.join(old)}=...)", f"{name}(driver=sj.BrownianMotion({given}))")
+            kwargs["driver"] = _brownian.BrownianMotion(**old)
+        return f(*args, **kwargs)
+
+    return inner
 
 
 def check_y0(y0, method, system):
@@ -191,16 +247,13 @@ def plan_ensemble(
     key,
     method,
     save_every,
-    truncate_k,
     retry_substeps,
     sharding,
-    levy_area,
+    driver,
     chunk_size=None,
-    driver=None,
 ):
     """Check an ensemble's arguments (the sharding against `chunk_size` when it is run in
-    chunks) and return its `EnsemblePlan`. The entry points pass theirs on by name,
-    `arguments_for(plan_ensemble, locals())`."""
+    chunks) and return its `EnsemblePlan`."""
     check_system(system)
     method = check_method(method, system)
     y0 = check_y0(y0, method, system)
@@ -217,24 +270,8 @@ def plan_ensemble(
         chunk_size = min(check_count("chunk_size", chunk_size), n_samples)
         sharding = check_sharding(sharding, chunk_size, name="chunk_size")
     key = _brownian.check_key(key)
-    _brownian.check_truncation(dt, truncate_k)
     save_every = check_save_every(save_every, n_steps)
-    if driver is None:
-        levy_area = check_levy_option(levy_area, method, system)
-        path = _brownian.BrownianPath.of(
-            dt, system.n_noises, real_dtype(y0.dtype), truncate_k=truncate_k, levy_area=levy_area
-        )
-    elif isinstance(driver, _brownian.OrnsteinUhlenbeck):
-        if levy_area is True:
-            raise ValueError(
-                "levy_area=True with an OrnsteinUhlenbeck driver: a smooth driver has no Lévy "
-                "areas (leave levy_area at 'auto')."
-            )
-        path = driver.path(dt, system.n_noises, real_dtype(y0.dtype))
-    else:
-        raise TypeError(
-            f"driver must be None (Brownian motions) or sj.OrnsteinUhlenbeck(...), got {driver!r}."
-        )
+    path = driver_path(check_driver(driver), dt, method, system, real_dtype(y0.dtype))
     return EnsemblePlan(
         system,
         method,

@@ -21,12 +21,12 @@ import numpy as np
 
 from .. import _brownian
 from .._methods.base import AbstractMethod
-from .._support.checks import arguments_for, user_stacklevel
+from .._support.checks import user_stacklevel
 from .._support.deprecated import renamed_arguments
 from .._support.progress import advance, progress_bar
 from .failures import message
 from .integrate import ensemble
-from .plan import plan_ensemble
+from .plan import driver_keywords, plan_ensemble
 from .sharding import automatic
 
 STATISTICS = ("mean", "var", "cov", "skewness", "kurtosis")
@@ -153,6 +153,7 @@ def _chunk(
 
 
 @renamed_arguments(model="system")
+@driver_keywords
 def ensemble_statistics(
     system,
     y0,
@@ -166,12 +167,10 @@ def ensemble_statistics(
     save_every=None,
     statistics=("mean", "var"),
     observable: Callable[..., Any] | None = None,
-    truncate_k=4,
     retry_substeps: int | None = 4,
     sharding=None,
     progress=True,
-    levy_area="auto",
-    driver=None,
+    driver: _brownian.BrownianMotion | _brownian.OrnsteinUhlenbeck | None = None,
 ):
     r"""Moments of an ensemble of $dy = f(y)(dt + c \circ dW)$, run in chunks of samples.
 
@@ -184,8 +183,8 @@ def ensemble_statistics(
 
     **Arguments:**
 
-    - `system`, `y0`, `t1`, `dt`, `key`, `method`, `truncate_k`, `retry_substeps`,
-      `levy_area`, `driver`: as for `simulate`.
+    - `system`, `y0`, `t1`, `dt`, `key`, `method`, `retry_substeps`, `driver`: as for
+      `simulate`.
     - `n_samples`: the total number of samples; `chunk_size`: samples per chunk (at most
       `n_samples` are run).
     - `save_every`: `None` (statistics of the final state, and of `y0` at `t = 0`) or `k`
@@ -206,7 +205,21 @@ def ensemble_statistics(
     substeps, `retry_substeps`) are left out of the moments and counted in `n_failed`, with a
     `RuntimeWarning`: the run returns its results, and failures are never used as data.
     """
-    p = plan_ensemble("ensemble_statistics", **arguments_for(plan_ensemble, locals()))
+    p = plan_ensemble(
+        "ensemble_statistics",
+        system,
+        y0,
+        t1=t1,
+        dt=dt,
+        n_samples=n_samples,
+        key=key,
+        method=method,
+        save_every=save_every,
+        retry_substeps=retry_substeps,
+        sharding=sharding,
+        driver=driver,
+        chunk_size=chunk_size,
+    )
     method, y0, dt, n_steps, k = p.method, p.y0, p.dt, p.n_steps, p.save_every
     n_samples = p.n_samples
     chunk_size = p.chunk_size

@@ -13,6 +13,7 @@ import jax.numpy as jnp
 from .._algebra import adjoint, matmul
 from .._support.batching import batched_like
 from .._support.checks import check_options, real_dtype
+from .._support.deprecated import renamed_option
 from .._support.solution import RESULTS
 from .base import AbstractMethod, StepInfo, StrongOrders, default_tol, finite_result
 from .newton import _RUNNING, implicit_root, jacobian_mode, solve_array
@@ -37,7 +38,7 @@ class IsospectralMidpoint(AbstractMethod):
     $Q Y_n Q^H$).
 
     Solved for $X$ by Newton's method on small algebras and by a fixed-point iteration on
-    the matrix above (`jacobian`). The fixed point starts from the increments of earlier
+    the matrix above (`iteration`). The fixed point starts from the increments of earlier
     steps (`warm_start`), stops at a tolerance relative to the step's increment (`rtol`), and
     the step then keeps the Casimirs to round-off through the Cayley rotation whatever the
     tolerance (`final_update`): on Euler–Zeitlin at h = 0.64/N s, about 2.4 updates per step
@@ -60,13 +61,14 @@ class IsospectralMidpoint(AbstractMethod):
       for it); a failed step is reported, and split into substeps by the driver's
       `retry_substeps`. `newton_stats=True` reports the updates per step and the share of
       steps that used `max_iter`.
-    - `jacobian`: `"auto"` (default: `"newton"` up to so(5), `"identity"` above),
+    - `iteration`: `"auto"` (default: `"newton"` up to so(5), `"fixed_point"` above),
       `"newton"` (the Jacobian by autodiff at every update: quadratic convergence, 2–3
-      updates; on the real coordinates of $X$), `"identity"` (the fixed-point iteration
+      updates; on the real coordinates of $X$), `"fixed_point"` (the fixed-point iteration
       $X = Y_n + \tfrac12[\hat W, X] + \tfrac14\hat W X\hat W$ on the matrix, two
       products per update, complex ones as three real products: linear convergence at a
       rate $O(h^{1/2})$ and no linear algebra, the fastest from so(8) on and on su(N); it can
       fail to converge at large steps and strong noise, where Newton does not).
+      The old name of this option, `jacobian=` (`"identity"` for `"fixed_point"`), warns.
     - `warm_start`: how the fixed point starts (0 … 3): from $Y_n$ (0), or from
       $Y_n + \tau_n\,d$, $d$ extrapolated from the increments per unit time
       $(X_m - Y_m)/\tau_m$ of the last `warm_start` steps (1: the last one, quflow's start;
@@ -101,9 +103,10 @@ class IsospectralMidpoint(AbstractMethod):
     tol: float | None = eqx.field(default=None, static=True)
     rtol: float | None = eqx.field(default=None, static=True)
     max_iter: int | None = eqx.field(default=None, static=True)
-    jacobian: str = eqx.field(default="auto", static=True)
+    iteration: str = eqx.field(default="auto", static=True)
     final_update: str = eqx.field(default="auto", static=True)
     warm_start: int = eqx.field(default=3, static=True)
+    jacobian: str | None = eqx.field(default=None, static=True, repr=False)  # (deprecated)
 
     def _cayley(self, system, dtype):
         """Whether the step is the Cayley rotation (`final_update`): by default wherever the
@@ -122,16 +125,17 @@ class IsospectralMidpoint(AbstractMethod):
 
     def __post_init__(self):
         check_options(self)
+        self.iteration = renamed_option(self, "jacobian", "iteration", {"identity": "fixed_point"})
+        self.jacobian = None
         if self.final_update not in ("auto", "explicit", "cayley"):
             raise ValueError(
                 f"IsospectralMidpoint: final_update must be 'auto', 'explicit' "
                 f"or 'cayley', got {self.final_update!r}."
             )
-        if self.jacobian not in ("auto", "newton", "identity"):
+        if self.iteration not in ("auto", "newton", "fixed_point"):
             raise ValueError(
-                f"IsospectralMidpoint: jacobian must be 'auto', 'newton' or "
-                f"'identity', got "
-                f"{self.jacobian!r}."
+                f"IsospectralMidpoint: iteration must be 'auto', 'newton' or 'fixed_point', "
+                f"got {self.iteration!r}."
             )
         if self.rtol is not None and (
             not isinstance(self.rtol, (int, float)) or not 0.0 <= self.rtol < 1.0
@@ -147,11 +151,12 @@ class IsospectralMidpoint(AbstractMethod):
             )
 
     def _mode(self, system):
-        return jacobian_mode(self.jacobian, system.algebra.group_dim, large="identity")
+        mode = "identity" if self.iteration == "fixed_point" else self.iteration
+        return jacobian_mode(mode, system.algebra.group_dim, large="identity")
 
     def initial_history(self, system, y0):
         r"""The increments of the last `warm_start` steps, per unit of the step's time, and how
-        many of them are known: kept for the fixed point on matrices (`jacobian="identity"`)
+        many of them are known: kept for the fixed point on matrices (`iteration="fixed_point"`)
         of a system whose noise is proportional to the drift (`c=`, deterministic included),
         where the increment scales with the time $h + c\,\Delta W$ of the step. Empty
         otherwise: the increment of a step with noises of their own is mostly this step's

@@ -14,6 +14,7 @@ from .._algebra import adjoint
 from .._algebra import so3 as comp
 from .._brownian import scale_noise
 from .._support.checks import check_options, real_dtype
+from .._support.deprecated import renamed_option
 from .._support.solution import RESULTS
 from .._systems.capabilities import QUADRATIC, SO3_VECTORS
 from .base import AbstractMethod, StepInfo, StrongOrders, default_tol, finite_result
@@ -225,7 +226,7 @@ def _sum(*terms):
     return functools.reduce(operator.add, terms) if terms else 0.0
 
 
-def scaled(lam, fields):
+def member_fields(lam, fields):
     """The fields of the step scaled by `lam` (the continuation's member `lam`): every one
     is linear in the step `(h, dW, A)`. Scaling them, not the step, keeps what depends on
     the step alone (a linear noise's area term) out of the Newton loop: with the step
@@ -357,13 +358,14 @@ class LiePoisson(AbstractMethod):
       $\lambda > 0$ to integrate $z = y/\lambda$ (time scaled by $\lambda$): needed when
       $|y_0| \ge 1$, where the in-map has no solution; choose $\lambda > |y_0|$. It moves the
       solve away from the fold at $|y| = 1$ but costs accuracy (`docs/scheme.md`).
-    - `jacobian` (so(n) only): how the in-map is solved. `"chart"` (the default, `"auto"`):
-      a chord iteration with the Jacobian of the chart at the start of the step (the in-map
-      of a step of size 0), factorised once per step: linear convergence at a rate
-      $O(h^{1/2})$, about 8 updates, with no autodiff Jacobian; `"newton"`: the full
+    - `iteration` (so(n) only): how the in-map is solved. `"chord"` (the default,
+      `"auto"`): a chord iteration with the Jacobian of the chart at the start of the step
+      (the in-map of a step of size 0), factorised once per step: linear convergence at a
+      rate $O(h^{1/2})$, about 8 updates, with no autodiff Jacobian; `"newton"`: the full
       Jacobian by forward-mode autodiff at every update (quadratic convergence, 3 updates,
       but `n(n-1)/2` tangents each: 3–8x slower per step, measured in
-      `benchmarks/so_n.py`).
+      `benchmarks/so_n.py`). The old name of this option, `jacobian=` (`"chart"` for
+      `"chord"`), warns.
     - `second_order`: keep the second-order terms of the generating function, $c^2\Delta W^2$
       of (41) for one noise and the $S_{rq}$ terms for several (default `True`). They make
       the scheme converge to the Stratonovich solution; `False` shows their effect, a bias
@@ -384,8 +386,9 @@ class LiePoisson(AbstractMethod):
     max_iter: int | None = eqx.field(default=None, static=True)
     scale: float | None = eqx.field(default=None, static=True)
     unroll: int = eqx.field(default=0, static=True)
-    jacobian: str = eqx.field(default="auto", static=True)
+    iteration: str = eqx.field(default="auto", static=True)
     second_order: bool = eqx.field(default=True, static=True)
+    jacobian: str | None = eqx.field(default=None, static=True, repr=False)  # (deprecated)
 
     def __post_init__(self):
         check_options(self)
@@ -393,9 +396,12 @@ class LiePoisson(AbstractMethod):
             raise TypeError(
                 f"LiePoisson: second_order must be True or False, got {self.second_order!r}."
             )
-        if self.jacobian not in ("auto", "chart", "newton"):
+        self.iteration = renamed_option(self, "jacobian", "iteration", {"chart": "chord"})
+        self.jacobian = None
+        if self.iteration not in ("auto", "chord", "newton"):
             raise ValueError(
-                f"LiePoisson: jacobian must be 'auto', 'chart' or 'newton', got {self.jacobian!r}."
+                f"LiePoisson: iteration must be 'auto', 'chord' or 'newton', got "
+                f"{self.iteration!r}."
             )
 
     def check_initial(self, system, y0):
@@ -434,7 +440,7 @@ class LiePoisson(AbstractMethod):
         def sine_fn(v, lam, jacobian=True):
             def fields(v):
                 step = system.step_fields(v, dt_s, dW_s, second=self.second_order)
-                return scaled(lam, step)
+                return member_fields(lam, step)
 
             return sine_chart_in_map(v, z, fields, jacobian)
 
@@ -485,7 +491,7 @@ class LiePoisson(AbstractMethod):
                 lambda x: alg.group_coordinates(0.5 * (rotation(x) - adjoint(rotation(x))))
             )(zero)
 
-        mode = "newton" if self.jacobian == "newton" else chart
+        mode = "newton" if self.iteration == "newton" else chart
         x, result, iterations, res = solve_array(
             residual,
             zero,

@@ -14,7 +14,7 @@ from .._support.solution import RESULTS
 from .._systems.capabilities import SO3_VECTORS
 from .base import AbstractMethod, StepInfo, StrongOrders, default_tol, finite_result
 from .composition import TRIPLE_JUMP, combine
-from .lie_poisson import branch_rotation, scaled, sine_chart_in_map, solve_on_branch
+from .lie_poisson import branch_rotation, member_fields, sine_chart_in_map, solve_on_branch
 
 
 def _solve_rotation(system, y, dt, dW, sign, tol, max_iter, active):
@@ -27,7 +27,7 @@ def _solve_rotation(system, y, dt, dW, sign, tol, max_iter, active):
         def fields(u):  # the first-order in-map of u -> sign K(sign u)
             x = comp.scale(sign, u)
             k, hk, _, _ = system.step_fields(x, dt, dW, False)
-            return scaled(lam, (k, comp.scale_any(sign, hk), None, None))
+            return member_fields(lam, (k, comp.scale_any(sign, hk), None, None))
 
         return sine_chart_in_map(v, y, fields, jacobian)
 

@@ -18,7 +18,13 @@ import optax
 from .. import _brownian
 from .._driver.failures import message
 from .._driver.integrate import run_ensemble
-from .._driver.plan import check_levy_option, check_method, plan_ensemble
+from .._driver.plan import (
+    check_driver,
+    check_levy_option,
+    check_method,
+    driver_keywords,
+    plan_ensemble,
+)
 from .._methods.base import AbstractMethod
 from .._support.deprecated import renamed_attribute
 from .._systems.noise import _ParameterNoise
@@ -135,9 +141,8 @@ class _Fit:
     every: int
     saved: tuple  # the indices of the observation times among the saved states
     method: object
-    truncate_k: int
+    driver: object  # a BrownianMotion, its Lévy-area option resolved for the method
     retry_substeps: int | None
-    levy_area: object
     statistic: Callable[..., Any]
 
     def full(self, theta, theta_all):
@@ -158,10 +163,9 @@ class _Fit:
             key=key,
             method=self.method,
             save_every=self.every,
-            truncate_k=self.truncate_k,
             retry_substeps=self.retry_substeps,
             sharding=None,
-            levy_area=self.levy_area,
+            driver=self.driver,
         )
         sol = run_ensemble(p, newton_stats=False, saved=True)
         stats = jax.vmap(self.statistic, in_axes=1)(sol.ys[:, np.asarray(self.saved)])
@@ -181,6 +185,7 @@ def _residuals_and_jacobian(fit, theta, theta_all, observed, weight, key):
     return jax.jacfwd(residuals_aux, has_aux=True)(theta)
 
 
+@driver_keywords
 def calibrate(
     observed,
     y0,
@@ -197,11 +202,10 @@ def calibrate(
     method: AbstractMethod | str = "auto",
     optimizer=None,
     steps=50,
-    truncate_k=4,
     retry_substeps=4,
     rtol=1e-10,
     progress=True,
-    levy_area="auto",
+    driver: _brownian.BrownianMotion | None = None,
 ):
     r"""Fit `inertia` and the noise (`c`, or a noise family's parameters) of a `RigidBody` to
     observed ensemble statistics.
@@ -231,8 +235,9 @@ def calibrate(
 
     - `observed`: array `(len(ts), k)`, the statistics to match.
     - `y0`: the initial value; `ts`: increasing observation times, multiples of `dt`.
-    - `dt`, `n_samples`, `key`, `method`, `truncate_k`, `retry_substeps`, `levy_area`: as in
-      `simulate`.
+    - `dt`, `n_samples`, `key`, `method`, `retry_substeps`: as in `simulate`.
+    - `driver`: `None` or `sj.BrownianMotion(...)`, as in `simulate` (its truncation and
+      Lévy areas).
     - `init`: a `RigidBody` (with `c=` or with a noise family), the starting guess.
     - `statistic`: `(n_samples, 3) -> (k,)`; default `moments` (means of `y` and `y**2`).
     - `observed_stderr`: standard errors of `observed` (same shape), used as weights and for
@@ -304,6 +309,11 @@ def calibrate(
     names = [n for n in all_names if n not in fixed]
     theta_all = params.theta
     method = check_method(method, init)
+    brownian = check_driver(driver)
+    if not isinstance(brownian, _brownian.BrownianMotion):
+        raise TypeError(
+            f"calibrate: driver must be None or sj.BrownianMotion(...), got {driver!r}."
+        )
     fit = _Fit(
         params.family,
         params.shape,
@@ -315,9 +325,11 @@ def calibrate(
         every,
         tuple((idx // every).tolist()),
         method,
-        truncate_k,
+        _brownian.BrownianMotion(
+            truncate_k=brownian.truncate_k,
+            levy_area=check_levy_option(brownian.levy_area, method, init),
+        ),
         retry_substeps,
-        check_levy_option(levy_area, method, init),
         statistic,
     )
 

@@ -18,11 +18,17 @@ import numpy as np
 from .. import _brownian
 from .._driver.failures import message, summary
 from .._driver.integrate import ensemble_dynamic_jit
-from .._driver.plan import check_levy_option, check_method, check_system, check_y0
+from .._driver.plan import (
+    check_driver,
+    check_levy_option,
+    check_method,
+    check_system,
+    check_y0,
+    driver_keywords,
+)
 from .._methods.base import AbstractMethod
 from .._methods.midpoint import Midpoint
 from .._support.checks import (
-    arguments_for,
     check_count,
     check_positive,
     check_retry,
@@ -168,14 +174,19 @@ def _study(
     reference,
     reference_dt,
     reference_factor,
-    truncate_k,
     retry_substeps,
-    levy_area,
+    driver,
 ):
     """Validate a study's arguments (before anything compiles) and set up its shared paths
-    and reference (see `strong_convergence`). The studies pass theirs on by name,
-    `arguments_for(_study, locals())`."""
+    and reference (see `strong_convergence`)."""
     check_system(system)
+    driver = check_driver(driver)
+    if not isinstance(driver, _brownian.BrownianMotion):
+        raise TypeError(
+            f"{caller}: driver must be None or sj.BrownianMotion(...) (a study integrates "
+            f"Brownian paths at several steps), got {driver!r}."
+        )
+    truncate_k, levy_area = driver.truncate_k, driver.levy_area
     if isinstance(methods, dict):
         if not methods:
             raise ValueError("methods must name at least one method, got an empty dict.")
@@ -257,9 +268,7 @@ def _study(
     ref_areas = is_method and check_levy_option(default, reference, system)
     # (the paths at the finest step, with their areas for the runs that take them: the
     # increments do not depend on whether the areas are drawn)
-    fine = _brownian.BrownianPath.of(
-        fine_dt, system.n_noises, dtype, truncate_k=truncate_k, levy_area=True
-    )
+    fine = driver.path(fine_dt, system.n_noises, dtype, levy_area=True)
 
     def final_states(method, dt, name="dt", areas=False):
         """The final states, the failed samples (a NumPy mask) and what failed, in words
@@ -366,6 +375,7 @@ def _runs(st, name, method):
 
 
 @renamed_arguments(model="system")
+@driver_keywords
 def strong_convergence(
     system,
     y0,
@@ -378,10 +388,9 @@ def strong_convergence(
     reference="exact",
     reference_dt=None,
     reference_factor=None,
-    truncate_k=4,
     n_bootstrap=200,
     retry_substeps=4,
-    levy_area="auto",
+    driver: _brownian.BrownianMotion | None = None,
 ):
     r"""Root-mean-square error at `t1` of each method at each step size, on shared paths.
 
@@ -411,17 +420,18 @@ def strong_convergence(
           `(n_samples, *state_shape)` (a system with one noise proportional to the drift).
     - `reference_dt`, `reference_factor`: the reference method's step, or the factor by
       which it is finer than `min(dts)` (not both).
-    - `truncate_k`: the truncation parameter of the fine increments (`None` for none).
     - `n_bootstrap`: resamples for the order's standard error.
     - `retry_substeps`: as in `simulate`: redo failing steps as `k, k^2, k^3` substeps
       (default 4; `None`: not).
-    - `levy_area`: `"auto"` (default), `True` or `False`: whether a method that
-      `uses_levy_area()` gets the Lévy areas of its steps (as in `simulate`), drawn at the
-      finest step and joined over a coarse step by Chen's relation, so that every step size
-      and the reference integrate the same path. A method that does not use them never
-      gets them (with `True` it is refused). Or a dict `{method name: True/False}` to
-      choose per method (the others and the reference on `"auto"`): the same method with
-      and without areas against one reference.
+    - `driver`: `None` or `sj.BrownianMotion(truncate_k=..., levy_area=...)`: the
+      truncation of the fine increments (`truncate_k`, default 4; `None` for none), and
+      whether a method that `uses_levy_area()` gets the Lévy areas of its steps (`levy_area`:
+      `"auto"`, the default, `True` or `False`, as in `simulate`), drawn at the finest step
+      and joined over a coarse step by Chen's relation, so that every step size and the
+      reference integrate the same path. A method that does not use them never gets them
+      (with `True` it is refused). Or `levy_area={method name: True/False}` to choose per
+      method (the others and the reference on `"auto"`): the same method with and without
+      areas against one reference.
 
     Samples on which a method fails (even split into substeps) are left out of that
     method's estimates at every step size, counted in `n_failed`, with a `RuntimeWarning`:
@@ -435,7 +445,21 @@ def strong_convergence(
     well below the errors you fit.
     """
     n_bootstrap = check_count("n_bootstrap", n_bootstrap, minimum=2)
-    st = _study("strong_convergence", **arguments_for(_study, locals()))
+    st = _study(
+        "strong_convergence",
+        system,
+        y0,
+        t1=t1,
+        dts=dts,
+        n_samples=n_samples,
+        key=key,
+        methods=methods,
+        reference=reference,
+        reference_dt=reference_dt,
+        reference_factor=reference_factor,
+        retry_substeps=retry_substeps,
+        driver=driver,
+    )
     dts, y_ref = st.dts, st.y_ref
     errors, stderr, order, order_se, seconds, n_failed = {}, {}, {}, {}, {}, {}
     log_h = np.log(dts)
@@ -519,6 +543,7 @@ class WeakConvergenceResult:
 
 
 @renamed_arguments(model="system")
+@driver_keywords
 def weak_convergence(
     system,
     y0,
@@ -532,11 +557,10 @@ def weak_convergence(
     reference="exact",
     reference_dt=None,
     reference_factor=None,
-    truncate_k=4,
     confidence=0.95,
     n_nodes=64,
     retry_substeps=4,
-    levy_area="auto",
+    driver: _brownian.BrownianMotion | None = None,
 ):
     r"""Weak error $|E_h[g(y_N)] - E[g(y(t_1))]|$ of each method at each step size, for an
     observable $g$ you choose, on shared paths, with confidence intervals and fitted orders.
@@ -575,7 +599,21 @@ def weak_convergence(
         raise ValueError(
             f"observable(y) must return a scalar or shape (m,), got shape {shape[1:]}."
         )
-    st = _study("weak_convergence", **arguments_for(_study, locals()))
+    st = _study(
+        "weak_convergence",
+        system,
+        y0,
+        t1=t1,
+        dts=dts,
+        n_samples=n_samples,
+        key=key,
+        methods=methods,
+        reference=reference,
+        reference_dt=reference_dt,
+        reference_factor=reference_factor,
+        retry_substeps=retry_substeps,
+        driver=driver,
+    )
     z = statistics.NormalDist().inv_cdf(0.5 + confidence / 2)
     g_ref = np.asarray(g(st.y_ref))
     if st.kind == "exact":

@@ -11,9 +11,21 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._brownian import BrownianStep, brownian_increments, ou_increments
+from .._brownian import (
+    BrownianMotion,
+    BrownianStep,
+    OrnsteinUhlenbeck,
+    brownian_increments,
+    ou_increments,
+)
 from .._driver.integrate import _integrate_jit
-from .._driver.plan import check_levy_option, check_method, check_system
+from .._driver.plan import (
+    check_driver,
+    check_levy_option,
+    check_method,
+    check_system,
+    driver_keywords,
+)
 from .._support.checks import check_count, check_positive, check_retry
 from .._systems.euler_zeitlin import EulerZeitlin
 from .scores import crps_ensemble
@@ -36,6 +48,7 @@ def scaled_noise(noise, factor):
     return jax.tree_util.tree_map(lambda x: factor * x, noise)
 
 
+@driver_keywords
 def forecast_ensembles(
     system,
     starts,
@@ -45,15 +58,13 @@ def forecast_ensembles(
     every,
     members,
     key,
-    driver=None,
+    driver: BrownianMotion | OrnsteinUhlenbeck | None = None,
     method="auto",
     retry_substeps: int | None = 4,
-    levy_area=False,
 ):
     r"""Each start's ensemble forecast: the states at `every, 2 every, ..., lead` steps of
-    `dt` after the start, all starts run as one batched program. With `levy_area="auto"`
-    they are what `simulate(system, starts[s], ..., key=fold_in(key, s))` gives (its
-    increments and Lévy areas); by default the same increments without the areas.
+    `dt` after the start, all starts run as one batched program: what
+    `simulate(system, starts[s], ..., key=fold_in(key, s), driver=driver)` gives.
 
     **Arguments:**
 
@@ -63,12 +74,11 @@ def forecast_ensembles(
       multiple of `every`); `dt`: the step size (positive); `members`: members per start.
     - `key`: start `s` draws from `fold_in(key, s)`: a start's ensemble does not depend on
       the others, and common random numbers make factors comparable (`tune_amplitude`).
-    - `driver`, `method`, `retry_substeps`: as for `simulate` (`driver=OrnsteinUhlenbeck(T)`
-      for a noise fitted with `time_model="ou"`).
-    - `levy_area`: `False` (default): forecasts are judged in distribution, where the
-      methods are weak order 1 without the areas (of mean zero), and drawing the areas of
-      many noises dominates the cost; `"auto"` or `True` as for `simulate` (with a `driver`,
-      which has no Lévy areas, `True` is refused and `"auto"` draws none).
+    - `driver`: as for `simulate` (`OrnsteinUhlenbeck(T)` for a noise fitted with
+      `time_model="ou"`), but `None` stands for `BrownianMotion(levy_area=False)`:
+      forecasts are judged in distribution, where the methods are weak order 1 without the
+      areas (of mean zero), and drawing the areas of many noises dominates the cost.
+    - `method`, `retry_substeps`: as for `simulate`.
 
     A member that fails raises `RuntimeError`: forecasts are not scored with failed members.
 
@@ -90,17 +100,15 @@ def forecast_ensembles(
             f"{system.algebra.name}, got shape {starts.shape}."
         )
     dtype, s = system.dtype, system.n_noises
-    if driver is None:
-        areas = check_levy_option(levy_area, method, system)
-    elif levy_area is True:
-        raise ValueError("forecast_ensembles: a smooth driver has no Lévy areas (levy_area=True).")
-    else:
-        areas = False
+    driver = check_driver(BrownianMotion(levy_area=False) if driver is None else driver)
+    areas = isinstance(driver, BrownianMotion) and check_levy_option(
+        driver.levy_area, method, system
+    )
     # each start's increments as simulate draws them (its sample i: fold_in(fold_in(key, s), i))
     dWs, As = [], []
     for k in range(starts.shape[0]):
         start_key = jax.random.fold_in(key, k)
-        if driver is not None:
+        if isinstance(driver, OrnsteinUhlenbeck):
             dWs.append(
                 ou_increments(
                     start_key, lead, dt, driver.correlation_time, n_samples=members, dtype=dtype
@@ -108,7 +116,14 @@ def forecast_ensembles(
             )
         else:
             out = brownian_increments(
-                start_key, lead, dt, n_samples=members, n_noises=s, levy_area=areas, dtype=dtype
+                start_key,
+                lead,
+                dt,
+                n_samples=members,
+                n_noises=s,
+                levy_area=areas,
+                dtype=dtype,
+                truncate_k=driver.truncate_k,
             )
             dWs.append(out[0] if areas else out)
             As.append(out[1] if areas else None)

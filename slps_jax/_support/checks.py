@@ -12,7 +12,6 @@ float32 system asks for. Non-real inputs (complex, bool, strings) are rejected.
 
 from __future__ import annotations
 
-import inspect
 import math
 import os
 import sys
@@ -186,16 +185,17 @@ _INSIDE = (_PACKAGE, os.path.dirname(os.path.abspath(eqx.__file__)))
 
 def user_stacklevel():
     """The `stacklevel` for a `warnings.warn` in the function that calls this one that points
-    at the first line outside this package (and equinox's method wrappers): the user's call,
+    at the first line outside this package (and equinox's method wrappers, and a Module's
+    generated `__init__`): the user's call,
     however deep the library's own calls (and decorators) are."""
     level, frame = 1, sys._getframe(1)
-    while frame is not None and frame.f_code.co_filename.startswith(_INSIDE):
+    while frame is not None and _inside(frame.f_code):
         frame, level = frame.f_back, level + 1
     return level
 
 
-def arguments_for(fn, arguments):
-    """The entries of `arguments` (a caller's `locals()`) that `fn` takes by name: an entry
-    point passes its shared options on once, and their names live in `fn`'s signature only."""
-    names = inspect.signature(fn).parameters
-    return {name: value for name, value in arguments.items() if name in names}
+def _inside(code):
+    """Whether a frame's code is the library's, equinox's, or the `__init__` that
+    `dataclasses` writes for a Module (a method's options checked in its `__post_init__`)."""
+    generated = code.co_filename == "<string>" and code.co_name == "__init__"
+    return generated or code.co_filename.startswith(_INSIDE)

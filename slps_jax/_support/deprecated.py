@@ -64,3 +64,18 @@ def renamed_attribute(old: str, new: str) -> Any:
         return getattr(self, new)
 
     return property(get)
+
+
+def renamed_option(method: Any, old: str, new: str, values: dict, default: Any = "auto") -> Any:
+    """The value of `method`'s option `new`, given its deprecated name `old` (a field that
+    defaults to `None`; its values renamed by `values`): `old` given warns, both given is a
+    `TypeError`. The method's `__post_init__` stores the result as `new`."""
+    value = getattr(method, old)
+    if value is None:
+        return getattr(method, new)
+    name = type(method).__name__
+    if getattr(method, new) != default:
+        raise TypeError(f"{name}() got `{old}=` and `{new}=`: pass `{new}=`.")
+    renamed = values.get(value, value) if isinstance(value, str) else value
+    warn(f"{name}({old}={value!r})", f"{name}({new}={renamed!r})")
+    return renamed
