@@ -13,13 +13,16 @@ cache of an earlier case helps a later one: what a notebook user pays for a new 
                                                       # two installations, SALT with areas
 
 `--system`: `rigid` (the paper's body, `c = 0.2`; the default), `salt` (the rigid body with
-three SALT noises and, for the methods that use them, their Lévy areas) or `so4` (the
-generalised rigid body on so(4), `c = 0.2`). The Heun baselines run on `rigid` only.
+three SALT noises and, for the methods that use them, their Lévy areas), `so4` (the
+generalised rigid body on so(4), `c = 0.2`) or `su16` (Euler–Zeitlin on su(16), `c = 0.2`,
+an initial vorticity of spectral norm 0.5). A method a system cannot serve is skipped. The
+Heun baselines run on `rigid` only.
 """
 
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import os
 import subprocess
@@ -34,10 +37,14 @@ METHODS = [
     "LiePoissonSym2",
     "LiePoissonSym4",
     "Midpoint",
+    "IsospectralMidpoint",
     "Strang",
     "Strang4",
-    "EulerMaruyama",
+    "SaltSplitting",
     "Exact",
+    "Heun",
+    "Milstein",
+    "EulerMaruyama",
 ]
 REFERENCE = "diffrax Heun"
 SCAN_HEUN = "lax.scan Heun"
@@ -47,7 +54,7 @@ def _lines(lowered):
     return lowered.as_text().count("\n")
 
 
-SYSTEMS = ("rigid", "salt", "so4")
+SYSTEMS = ("rigid", "salt", "so4", "su16")
 
 
 def _system(sj, name):
@@ -60,6 +67,12 @@ def _system(sj, name):
     if name == "so4":
         y0 = sj.so(4).from_coordinates(np.array([0.3, -0.2, 0.1, 0.25, 0.15, -0.1]))
         return sj.GeneralisedRigidBody([1.0, 2.0, 3.0, 4.0], c=0.2), np.asarray(y0)
+    if name == "su16":  # Euler–Zeitlin, a traceless skew-Hermitian state of spectral norm 0.5
+        rng = np.random.default_rng(0)
+        z = rng.normal(size=(16, 16)) + 1j * rng.normal(size=(16, 16))
+        w = z - z.conj().T
+        w -= np.trace(w) / 16 * np.eye(16)
+        return sj.EulerZeitlin(16, c=0.2), 0.5 * w / np.linalg.norm(w, 2)
     return sj.RigidBody.paper(), np.asarray(sj.PAPER_Y0)
 
 
@@ -109,9 +122,13 @@ def measure(name, how, n_samples, n_steps, retry=None, system_name="rigid"):
                     levy_area=areas,
                 )
             args = dW if areas else (dW,)
+            # (the areas' keyword: `areas` now, `levy_area` in installations before it)
+            named = (
+                "areas" if "areas" in inspect.signature(sj.integrate).parameters else "levy_area"
+            )
             fn = jax.vmap(
                 lambda dw, a=None: sj.integrate(
-                    system, y0, dw, dt, method=method, throw=False, areas=a, **opts
+                    system, y0, dw, dt, method=method, throw=False, **{named: a}, **opts
                 )
             )
         else:

@@ -113,7 +113,7 @@ PARAMS = [("so(3)", cls) for cls in METHODS if not cls.missing(SALT)] + [
 # On U(3) at h = 1/8, LiePoisson's default chord iteration takes 27 updates a step on average
 # and over 900 on the worst sample (continuation, then substeps), and the batch's loop waits
 # for it; Newton's full Jacobian takes 4-5. The scheme, hence the order, is the same.
-OPTIONS = {("su(3)", sj.LiePoisson): {"jacobian": "newton"}}
+OPTIONS = {("su(3)", sj.LiePoisson): {"iteration": "newton"}}
 
 
 def _coarse_runs(model, y0, method, dW_fine, areas):
