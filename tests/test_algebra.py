@@ -183,3 +183,22 @@ def test_a_method_for_3_vectors_refuses_so3_matrices_naming_sj_so3():
     y0 = np.array([[0.0, 0.3, 0.2], [-0.3, 0.0, 0.1], [-0.2, -0.1, 0.0]])
     with pytest.raises(TypeError, match=r"LiePoissonSym2 needs .*sj\.SO3.*not the matrices"):
         sj.integrate(system, y0, np.zeros((2, 1)), 0.01, method=sj.LiePoissonSym2())
+
+
+def test_an_algebra_is_a_module_compared_by_value():
+    """Static fields only: equal sizes give equal algebras (one compiled program for both),
+    no leaves, and an algebra that misses part of the interface cannot be created."""
+    fresh = type(sj.so(4))(4)
+    assert fresh is not sj.so(4) and fresh == sj.so(4) and hash(fresh) == hash(sj.so(4))
+    assert fresh != sj.so(5) and type(sj.su(4))(4) == sj.su(4)
+    assert jax.tree_util.tree_leaves([sj.SO3, sj.so(4), sj.su(3)]) == []
+    casimirs = jax.jit(lambda alg, y: alg.casimirs(y), static_argnums=0)
+    y = sj.so(4).random_state(jax.random.key(0))
+    np.testing.assert_array_equal(casimirs(fresh, y), casimirs(sj.so(4), y))
+    assert casimirs._cache_size() == 1
+
+    class NoCasimirs(type(sj.so(4))):
+        casimirs = sj.AbstractAlgebra.casimirs
+
+    with pytest.raises(TypeError, match="abstract"):
+        NoCasimirs(4)

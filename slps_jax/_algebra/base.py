@@ -1,9 +1,10 @@
 """The Lie algebra interface: what systems and methods may use of an algebra.
 
-An algebra is static data of a system (hashable, one instance per algebra, compared by
-identity). A state `y` is an array of shape `shape` and dtype `state_dtype(dtype)` (real, or
-complex for su(N)). Every algebra here is a matrix algebra; its states may be stored in
-another form (so(3) as 3-vectors), converted by `to_matrix` / `from_matrix`.
+An algebra is static data of a system: an `equinox.Module` whose fields are static (so(n)'s
+and su(N)'s size), hashed and compared by value, and a pytree with no leaves. A state `y` is
+an array of shape `shape` and dtype `state_dtype(dtype)` (real, or complex for su(N)). Every
+algebra here is a matrix algebra; its states may be stored in another form (so(3) as
+3-vectors), converted by `to_matrix` / `from_matrix`.
 
 What a method may use, and nothing else:
 
@@ -27,8 +28,10 @@ has in closed form.
 
 from __future__ import annotations
 
+import abc
 import functools
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -71,35 +74,58 @@ def skew_from_upper(u, n):
 
 
 @functools.cache
+def upper_indices(n):
+    """`np.triu_indices(n, 1)`: the rows and columns of the entries above the diagonal."""
+    return np.triu_indices(n, 1)
+
+
+@functools.cache
 def _upper_position(n):
     """`p[i, j]`: the position of `(min(i, j), max(i, j))` in `np.triu_indices(n, 1)` (0 on
     the diagonal)."""
-    rows, cols = np.triu_indices(n, 1)
+    rows, cols = upper_indices(n)
     p = np.zeros((n, n), dtype=np.int64)
     p[rows, cols] = np.arange(rows.size)
     return p + p.T
 
 
-class AbstractAlgebra:
+class AbstractAlgebra(eqx.Module):
     r"""The interface of the Lie algebra $\mathfrak g^*$ a system lives on: the state space,
     the pairing $\langle x, y\rangle$, the Lie–Poisson field $[y, \nabla H]$ and the
     Casimirs, and the forms of a step that methods are written on (the list in this
     module's docstring; `docs/algebras.md`).
 
     The algebras are `SO3` (3-vectors), `so(n)` (skew matrices) and `su(N)` (traceless
-    skew-Hermitian matrices, complex states): one instance per algebra, compared by
-    identity, static data of a system (`LiePoissonSystem(..., algebra=)`). A new algebra
-    sets `name`, `shape` (a state's), `dim` (its real dimension), `matrix_size` and
-    `is_complex`, and implements `pairing`, `coordinates`, `from_coordinates`, `gradient`,
-    `casimirs` and `project`; the other methods have defaults for matrix algebras, which
-    an algebra overrides where it has closed forms.
+    skew-Hermitian matrices, complex states): `equinox.Module`s whose fields are static
+    (the size), compared by value, static data of a system (`LiePoissonSystem(...,
+    algebra=)`). A new algebra provides `name`, `shape` (a state's), `dim` (its real
+    dimension) and `matrix_size` (abstract properties),
+    `is_complex` and `condition`, and implements the abstract `pairing`, `coordinates`,
+    `from_coordinates`, `gradient`, `casimirs` and `project`; the other methods have
+    defaults for matrix algebras, which an algebra overrides where it has closed forms.
     """
 
-    name: str
-    shape: tuple
-    dim: int
-    matrix_size: int  # the size n of the matrices (`to_matrix`)
     is_complex = False  # states are complex arrays
+
+    @property
+    @abc.abstractmethod
+    def name(self) -> str:
+        """The algebra's name, such as `"su(4)"`."""
+
+    @property
+    @abc.abstractmethod
+    def shape(self) -> tuple:
+        """The shape of a state."""
+
+    @property
+    @abc.abstractmethod
+    def dim(self) -> int:
+        """The real dimension."""
+
+    @property
+    @abc.abstractmethod
+    def matrix_size(self) -> int:
+        """The size `n` of the matrices (`to_matrix`)."""
 
     # -- the vector space
 
@@ -108,6 +134,7 @@ class AbstractAlgebra:
         dtype = jnp.dtype(dtype)
         return jnp.result_type(dtype, jnp.complex64) if self.is_complex else dtype
 
+    @abc.abstractmethod
     def pairing(self, x, y):
         r"""$\langle x, y\rangle$ over the state axes (real)."""
         raise NotImplementedError
@@ -116,15 +143,18 @@ class AbstractAlgebra:
         r"""$\langle y, y\rangle$ over the state axes."""
         return self.pairing(y, y)
 
+    @abc.abstractmethod
     def coordinates(self, y):
         """Real coordinates of a state, orthonormal for the pairing, shape `(..., dim)`."""
         raise NotImplementedError
 
+    @abc.abstractmethod
     def from_coordinates(self, x):
         raise NotImplementedError
 
     # -- the Lie–Poisson structure
 
+    @abc.abstractmethod
     def gradient(self, g):
         """The gradient for the pairing of a real function, from JAX's gradient `g` of it."""
         raise NotImplementedError
@@ -138,6 +168,7 @@ class AbstractAlgebra:
         of the stacked matrices (`skew_bracket_sum`)."""
         return self.from_matrix(skew_bracket_sum(self.to_matrix(x), self.to_matrix(y)))
 
+    @abc.abstractmethod
     def casimirs(self, y):
         """The Casimir functions (real), shape `(..., k)`."""
         raise NotImplementedError
@@ -168,6 +199,7 @@ class AbstractAlgebra:
     def from_matrix(self, m):
         return m
 
+    @abc.abstractmethod
     def project(self, m):
         """The state whose matrix is nearest to the matrix `m` (its part in the algebra)."""
         raise NotImplementedError

@@ -243,11 +243,23 @@ class SO3Algebra(AbstractAlgebra):
     on them: `_systems/fields.py`). One instance, `SO3`, is shared by every so(3) system.
     """
 
-    name = "so(3)"
-    dim = 3
-    shape = (3,)
-    matrix_size = 3
     condition = "a 3-vector"
+
+    @property
+    def name(self):
+        return "so(3)"
+
+    @property
+    def dim(self):
+        return 3
+
+    @property
+    def shape(self):
+        return (3,)
+
+    @property
+    def matrix_size(self):
+        return 3
 
     def distance(self, y):
         return 0.0  # (every 3-vector is a state)

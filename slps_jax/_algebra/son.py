@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import functools
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from .base import AbstractAlgebra, adjoint, skew_from_upper
+from .base import AbstractAlgebra, adjoint, skew_from_upper, upper_indices
 
 
 class SOnAlgebra(AbstractAlgebra):
@@ -20,17 +21,27 @@ class SOnAlgebra(AbstractAlgebra):
     - `casimirs(Y)`: $\operatorname{tr}(Y^{2k})$, $k = 1, \dots, \lfloor n/2\rfloor$.
     - `coordinates(Y)`: the `n(n-1)/2` entries $Y_{ij}$, $i < j$.
 
-    `so(n)` returns the one instance for each `n` (static data of a system).
+    `so(n)` returns it (static data of a system: its one field, `n`, is static).
     """
 
+    n: int = eqx.field(static=True)
     condition = "skew-symmetric"
 
-    def __init__(self, n):
-        self.n = self.matrix_size = n
-        self.dim = n * (n - 1) // 2
-        self.shape = (n, n)
-        self.name = f"so({n})"
-        self._rows, self._cols = np.triu_indices(n, 1)
+    @property
+    def matrix_size(self):
+        return self.n
+
+    @property
+    def dim(self):
+        return self.n * (self.n - 1) // 2
+
+    @property
+    def shape(self):
+        return (self.n, self.n)
+
+    @property
+    def name(self):
+        return f"so({self.n})"
 
     def pairing(self, x, y):
         return 0.5 * jnp.sum(x * y, axis=(-2, -1))
@@ -52,7 +63,8 @@ class SOnAlgebra(AbstractAlgebra):
         return 0.5 * (m - adjoint(m))
 
     def coordinates(self, y):
-        return y[..., self._rows, self._cols]
+        rows, cols = upper_indices(self.n)
+        return y[..., rows, cols]
 
     def from_coordinates(self, x):
         return skew_from_upper(x, self.n)

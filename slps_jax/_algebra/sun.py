@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import functools
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from .base import AbstractAlgebra, adjoint, skew_from_upper
+from .base import AbstractAlgebra, adjoint, skew_from_upper, upper_indices
 
 
 class SUnAlgebra(AbstractAlgebra):
@@ -29,21 +30,25 @@ class SUnAlgebra(AbstractAlgebra):
     `su(N)` returns the one instance for each `N`.
     """
 
+    n: int = eqx.field(static=True)
     is_complex = True
     condition = "traceless and skew-Hermitian"
 
-    def __init__(self, n):
-        self.n = self.matrix_size = n
-        self.dim = n * n - 1
-        self.shape = (n, n)
-        self.name = f"su({n})"
-        self._rows, self._cols = np.triu_indices(n, 1)
-        basis = np.zeros((n - 1, n))
-        for k in range(1, n):
-            basis[k - 1, :k] = 1.0
-            basis[k - 1, k] = -k
-            basis[k - 1] *= np.sqrt(2.0 / (k * (k + 1)))
-        self._diag = basis  # rows orthonormal for (1/2) sum d_j^2
+    @property
+    def matrix_size(self):
+        return self.n
+
+    @property
+    def dim(self):
+        return self.n * self.n - 1
+
+    @property
+    def shape(self):
+        return (self.n, self.n)
+
+    @property
+    def name(self):
+        return f"su({self.n})"
 
     def pairing(self, x, y):
         return 0.5 * jnp.sum(jnp.real(jnp.conj(x) * y), axis=(-2, -1))
@@ -98,18 +103,31 @@ class SUnAlgebra(AbstractAlgebra):
         return m - tr * jnp.eye(self.n, dtype=m.dtype)
 
     def coordinates(self, y):
-        upper = y[..., self._rows, self._cols]
+        rows, cols = upper_indices(self.n)
+        upper = y[..., rows, cols]
         d = jnp.imag(jnp.diagonal(y, axis1=-2, axis2=-1))
-        diag = 0.5 * d @ jnp.asarray(self._diag.T, d.dtype)
+        diag = 0.5 * d @ jnp.asarray(_diagonal_basis(self.n).T, d.dtype)
         return jnp.concatenate([jnp.real(upper), jnp.imag(upper), diag], axis=-1)
 
     def from_coordinates(self, x):
-        k = len(self._rows)
+        k = self.n * (self.n - 1) // 2
         dtype = jnp.result_type(x.dtype, jnp.complex64)
         upper = (x[..., :k] + 1j * x[..., k : 2 * k]).astype(dtype)
         m = skew_from_upper(upper, self.n)
-        d = x[..., 2 * k :] @ jnp.asarray(self._diag, x.dtype)
+        d = x[..., 2 * k :] @ jnp.asarray(_diagonal_basis(self.n), x.dtype)
         return m + 1j * d[..., None, :] * jnp.eye(self.n, dtype=x.dtype)
+
+
+@functools.cache
+def _diagonal_basis(n):
+    """The `(n - 1, n)` orthonormal basis (for $\tfrac12\\sum_j d_j^2$) of the traceless
+    diagonals: row `k - 1` is $\\sqrt{2/(k(k+1))}\\,(1, \\dots, 1, -k, 0, \\dots)$."""
+    basis = np.zeros((n - 1, n))
+    for k in range(1, n):
+        basis[k - 1, :k] = 1.0
+        basis[k - 1, k] = -k
+        basis[k - 1] *= np.sqrt(2.0 / (k * (k + 1)))
+    return basis
 
 
 @functools.cache
