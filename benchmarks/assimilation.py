@@ -2,14 +2,23 @@
 to su(N), the model su(N) with the transport noise `fit_transport_noise` fits to the truth's
 spin-up, the degrees 1..3 observed every `every` steps with errors of 10 % of each coefficient's
 standard deviation (over the training run; degree 1, conserved by the truth, gets that of degrees
-2..3), `n` particles started from the truth's first state spread by half a second of the noisy
-model. Against a free ensemble of the same model from the same state: the RMSE of the ensemble
-mean on the observed and the unobserved coefficients, the least stage ESS, the tempering stages,
+2..3), `n` particles at the truth's first time: the noisy model run for one interval from the
+truth an interval before (not from the first state, which would leave them an interval ahead of
+the truth). Against a free ensemble of the same model from the truth's first state: the RMSE of
+the ensemble mean and the spread on the observed and the unobserved coefficients, the least
+stage ESS, the tempering stages,
 pCN's acceptance, a rank histogram of the truth among the particles with its chi-square p-value,
 every particle's Casimir drift, and the time.
 
     python benchmarks/assimilation.py            # M = 32, N = 8, 64 particles, 20 observations
     python benchmarks/assimilation.py --fast     # M = 12, N = 5, 8 particles, 2 observations
+    python benchmarks/assimilation.py --no-model-error   # the observation errors alone
+
+Forecasts of one observation interval, 16 members from each of 24 starts of the training run
+(before the assimilation window), tune the fitted noise's amplitude (`tune_amplitude`: least
+CRPS over every coefficient; `--no-tune` keeps it as fitted) and measure the model's error
+beyond its ensembles' spread (`model_error_variance`), whose variance the filter adds to the
+observation errors' (`--no-model-error`: the observation errors alone).
 
 Writes `assimilation.json` and `assimilation.md` into `--out`.
 """
@@ -29,7 +38,20 @@ import slps_jax as sj  # noqa: E402
 from slps_jax import zeitlin as z  # noqa: E402
 
 
-def experiment(M, N, n, n_obs, every=50, h=0.01, spin=2000, train=3000, seed=0):
+def experiment(
+    M,
+    N,
+    n,
+    n_obs,
+    every=50,
+    h=0.01,
+    spin=2000,
+    train=3000,
+    seed=0,
+    model_error=True,
+    tune=True,
+    starts=24,
+):
     start = time.perf_counter()
     rng = np.random.default_rng(seed)
     omega = np.r_[0, rng.normal(size=M * M - 1) / np.floor(np.sqrt(np.arange(1, M * M)))]
@@ -39,7 +61,26 @@ def experiment(M, N, n, n_obs, every=50, h=0.01, spin=2000, train=3000, seed=0):
         sj.EulerZeitlin(M), z.shr2mat(omega, M), np.zeros((steps, 1)), h, save_every=1
     )
     fit = sj.fit_transport_noise(fine[spin : spin + train + 1], dt=h, N=N)
-    model = sj.EulerZeitlin(N, noise=fit.noise)
+    # Forecasts of one observation interval from starts of the training run (before the
+    # assimilation window) tune the noise's amplitude (least CRPS over every coefficient)
+    # and measure the model's error beyond its ensembles' spread.
+    at = spin + np.linspace(0, train - every, starts).astype(int)
+    starts_n, after_n = z.truncate(fine[at], N), z.truncate(fine[at + every], N)[:, None]
+    factor = 1.0
+    if tune:
+        factor = sj.tune_amplitude(
+            fit.noise,
+            starts_n,
+            after_n,
+            N=N,
+            observe=lambda w: jnp.real(z.mat2shr(w))[..., 1:],
+            lead=every,
+            dt=h,
+            every=every,
+            members=16,
+            key=jax.random.key(seed + 100),
+        ).factor
+    model = sj.EulerZeitlin(N, noise=sj.scaled_noise(fit.noise, factor))
     truth = z.truncate(fine[spin + train :: every][: n_obs + 1], N)
     c_truth = np.asarray(z.mat2shr(truth)).real
     obs = np.arange(1, min(16, N * N))  # degrees 1..3
@@ -49,10 +90,20 @@ def experiment(M, N, n, n_obs, every=50, h=0.01, spin=2000, train=3000, seed=0):
     sd = np.maximum(sd, sd[3:].mean())  # (degree 1 is conserved by the truth)
     obs_std = 0.1 * sd
     ys = c_truth[1:, obs] + obs_std * rng.normal(size=(n_obs, obs.size))
+    observe = lambda w: jnp.real(z.mat2shr(w))[..., obs]
+    # (the model's error beyond its spread: the filter adds its variance to the observations')
+    forecasts = sj.forecast_ensembles(
+        model, starts_n, lead=every, dt=h, every=every, members=16, key=jax.random.key(seed + 101)
+    )
+    budget = sj.model_error_variance(forecasts, after_n, observe)
+    excess = np.maximum(budget.variance[0], 0.0)
+    filter_std = np.sqrt(obs_std**2 + excess) if model_error else obs_std
+    # (the particles at the truth's first time: the noisy model run for one interval from the
+    # truth an interval before it, so that their spread costs no lag behind the truth)
     init = sj.simulate(
         model,
-        truth[0],
-        t1=0.5,
+        z.truncate(fine[spin + train - every], N),
+        t1=every * h,
         dt=h,
         n_samples=n,
         key=jax.random.key(9),
@@ -64,8 +115,8 @@ def experiment(M, N, n, n_obs, every=50, h=0.01, spin=2000, train=3000, seed=0):
         init,
         ys,
         obs_times=every * h * np.arange(1, n_obs + 1),
-        observe=lambda w: jnp.real(z.mat2shr(w))[obs],
-        obs_std=obs_std,
+        observe=observe,
+        obs_std=filter_std,
         dt=h,
         key=jax.random.key(seed),
     )
@@ -86,6 +137,9 @@ def experiment(M, N, n, n_obs, every=50, h=0.01, spin=2000, train=3000, seed=0):
     def rmse(c, idx):
         return float(np.sqrt(((c[:, :, idx].mean(1) - c_truth[1:, idx]) ** 2).mean()))
 
+    def spread(c, idx):  # (beside the RMSE: sqrt((1 + 1/n) spread^2) for a calibrated one)
+        return float(np.sqrt((1 + 1 / n) * c[:, :, idx].var(1, ddof=1).mean()))
+
     ranks = (ca[:, :, obs] < c_truth[1:, None, obs]).sum(1).ravel()
     bins = np.add.reduceat(
         np.bincount(ranks, minlength=n + 1), np.linspace(0, n + 1, 6, dtype=int)[:-1]
@@ -98,10 +152,17 @@ def experiment(M, N, n, n_obs, every=50, h=0.01, spin=2000, train=3000, seed=0):
         particles=n,
         observations=n_obs,
         eofs=len(fit.std),
+        noise_factor=factor,
+        model_error=model_error,
+        model_error_share=float(np.mean(excess / (obs_std**2 + excess))),
+        model_error_z=float(np.mean(budget.variance[0] / budget.stderr[0])),
         rmse_observed=rmse(ca, obs),
         rmse_observed_free=rmse(cf, obs),
         rmse_unobserved=rmse(ca, unobs),
         rmse_unobserved_free=rmse(cf, unobs),
+        spread_observed=spread(ca, obs),
+        spread_unobserved=spread(ca, unobs),
+        spread_unobserved_free=spread(cf, unobs),
         least_ess_share=float(res.ess.min()) / n,
         stages_mean=float(np.mean([len(t) for t in res.temperatures])),
         acceptance=float(np.mean([a.mean() for a in res.acceptance])),
@@ -115,6 +176,16 @@ def experiment(M, N, n, n_obs, every=50, h=0.01, spin=2000, train=3000, seed=0):
 
 def main(argv=None):
     p = _common.parser(__doc__, "M = 12, N = 5, 8 particles, 2 observations")
+    p.add_argument(
+        "--no-tune",
+        action="store_true",
+        help="the fitted noise as it is, not its amplitude tuned on the training forecasts",
+    )
+    p.add_argument(
+        "--no-model-error",
+        action="store_true",
+        help="the filter with the observation errors alone, not the model's estimated error",
+    )
     args = p.parse_args(argv)
     os.makedirs(args.out, exist_ok=True)
     info = _common.machine_info()
@@ -123,7 +194,7 @@ def main(argv=None):
         if args.fast
         else dict(M=32, N=8, n=64, n_obs=20)
     )
-    row = experiment(**sizes)
+    row = experiment(**sizes, model_error=not args.no_model_error, tune=not args.no_tune)
     for k, v in row.items():
         print(f"{k}: {v}", flush=True)
     _common.write_json(os.path.join(args.out, "assimilation.json"), dict(machine=info, rows=[row]))

@@ -80,7 +80,9 @@ from ._studies.scores import paired_comparison as paired_comparison
 from ._studies.transport_fit import TransportNoiseFit as TransportNoiseFit
 from ._studies.transport_fit import fit_transport_noise as fit_transport_noise
 from ._studies.verification import AmplitudeTuning as AmplitudeTuning
+from ._studies.verification import ModelErrorVariance as ModelErrorVariance
 from ._studies.verification import forecast_ensembles as forecast_ensembles
+from ._studies.verification import model_error_variance as model_error_variance
 from ._studies.verification import scaled_noise as scaled_noise
 from ._studies.verification import start_crps as start_crps
 from ._studies.verification import tune_amplitude as tune_amplitude

@@ -114,6 +114,7 @@ _HOUSE_STYLE_EXEMPT = {
     **dict.fromkeys(
         (
             "AmplitudeTuning",
+            "ModelErrorVariance",
             "CalibrationResult",
             "FilterResult",
             "Checkpoint",

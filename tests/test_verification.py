@@ -106,3 +106,24 @@ def test_tuning_recovers_the_amplitude_of_data_from_the_model(model_world):
             key=jax.random.key(3),
             factors=[1.0],
         )
+
+
+def test_model_error_variance_recovers_a_shared_error():
+    """Members and truth each spread with variance 1 about a centre, the members also
+    sharing an error of variance 0.3 per start (the model's): the estimate is 0.3 within
+    its standard error, not 0 or the raw excess; without the shared error (members and
+    truth exchangeable: a calibrated ensemble) it is 0 within its standard error."""
+    rng = np.random.default_rng(0)
+    n, m, T, k = 4000, 5, 2, 3
+    centre = rng.normal(size=(n, T, k))
+    truth = centre + rng.normal(size=(n, T, k))
+    spread = rng.normal(size=(n, m, T, k))
+    shared = np.sqrt(0.3) * rng.normal(size=(n, 1, T, k))
+    est = sj.model_error_variance(centre[:, None] + shared + spread, truth, lambda x: x)
+    assert est.variance.shape == est.stderr.shape == (T, k)
+    assert np.all(np.abs(est.variance - 0.3) < 4 * est.stderr) and np.all(est.stderr < 0.05)
+    np.testing.assert_allclose(est.spread, 1.0, atol=0.06)
+    est = sj.model_error_variance(centre[:, None] + spread, truth, lambda x: x)
+    assert np.all(np.abs(est.variance) < 4 * est.stderr), est
+    with pytest.raises(ValueError, match="2 or more"):
+        sj.model_error_variance(spread[:, :1], truth, lambda x: x)

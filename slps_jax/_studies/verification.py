@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -169,6 +170,61 @@ def start_crps(ensembles, truth, observe):
     y = np.asarray(observe(jnp.asarray(truth)))
     x = np.moveaxis(np.asarray(observe(jnp.asarray(ensembles))), 1, 0)  # members first
     return np.mean(crps_ensemble(x, y), axis=tuple(range(1, y.ndim)))
+
+
+class ModelErrorVariance(NamedTuple):
+    """What `model_error_variance` estimates, per lead time and observable `(T, k)`: the
+    `variance` of the forecast error that the ensembles' spread does not account for, its
+    `stderr` over the starts, and the mean squared error of the ensemble mean (`mse`) and
+    mean ensemble variance (`spread`) it is the difference of."""
+
+    variance: np.ndarray
+    stderr: np.ndarray
+    mse: np.ndarray
+    spread: np.ndarray
+
+
+def model_error_variance(ensembles, truth, observe):
+    r"""The variance of forecast errors beyond the ensembles' spread, from forecasts of a
+    training period: the error variance an assimilation should add to its observation
+    errors (or its forecasts) for its analysis to be calibrated.
+
+    For forecasts whose members and truth are exchangeable (a calibrated ensemble of `m`
+    members), the squared error of the ensemble mean $\bar x$ has expectation
+    $(1 + 1/m)$ times the expected ensemble variance $s^2$. An error $e$ of the model's
+    own, shared by the members and independent of their spread, adds its variance:
+    $E|\bar x - x|^2 = \sigma_e^2 + (1 + 1/m)\,E s^2$. So
+    $\hat\sigma_e^2 = \overline{(\bar x - x)^2} - (1 + 1/m)\,\overline{s^2}$, means over
+    the starts, with $s^2$ the unbiased variance over the members; its standard error is
+    that of the per-start differences. It can be negative (an overdispersed ensemble):
+    it is not clipped.
+
+    **Arguments:**
+
+    - `ensembles`: `(n_starts, members, T, *state)`, the forecasts (`forecast_ensembles`),
+      `n_starts >= 2`, `members >= 2`.
+    - `truth`: `(n_starts, T, *state)`, the truth at the same lead times (not observed
+      with error: its observation errors would count as the model's).
+    - `observe`: a function from states `(..., *state)` to observables `(..., k)`.
+
+    **Returns:** a `ModelErrorVariance`, arrays `(T, k)`.
+    """
+    y = np.asarray(observe(jnp.asarray(truth)))
+    x = np.asarray(observe(jnp.asarray(ensembles)))
+    if x.ndim != 4 or y.shape != (x.shape[0], *x.shape[2:]):
+        raise ValueError(
+            f"model_error_variance: observe(ensembles) must be (n_starts, members, T, k) and "
+            f"observe(truth) (n_starts, T, k), got {x.shape} and {y.shape}."
+        )
+    n, m = x.shape[:2]
+    if n < 2 or m < 2:
+        raise ValueError(
+            f"model_error_variance: needs 2 or more starts and members, got {n} and {m}."
+        )
+    err2 = (x.mean(1) - y) ** 2
+    var = x.var(1, ddof=1)
+    d = err2 - (1.0 + 1.0 / m) * var
+    return ModelErrorVariance(d.mean(0), d.std(0, ddof=1) / np.sqrt(n), err2.mean(0), var.mean(0))
 
 
 @dataclasses.dataclass(frozen=True)
