@@ -163,26 +163,14 @@ def test_one_noise_has_no_areas(paper):
     """With one noise nothing changes: levy_area=True and False give the same paths."""
     model, y0 = paper
     key = jax.random.key(2)
-    a = sj.simulate(
-        model,
-        y0,
-        t1=0.25,
-        dt=1 / 32,
-        n_samples=2,
-        key=key,
-        method=sj.Midpoint(),
-        driver=sj.BrownianMotion(levy_area=True),
-    )
-    b = sj.simulate(
-        model,
-        y0,
-        t1=0.25,
-        dt=1 / 32,
-        n_samples=2,
-        key=key,
-        method=sj.Midpoint(),
-        driver=sj.BrownianMotion(levy_area=False),
-    )
+
+    def run(areas):
+        driver = sj.BrownianMotion(levy_area=areas)
+        return sj.simulate(
+            model, y0, t1=0.25, dt=1 / 32, n_samples=2, key=key, method=sj.Midpoint(), driver=driver
+        )
+
+    a, b = run(True), run(False)
     np.testing.assert_array_equal(a.ys, b.ys)
     dW, A = sj.brownian_increments(key, 8, 1 / 32, n_noises=1, levy_area=True)
     assert A.shape == (8, 1, 1) and not np.any(A)

@@ -293,6 +293,21 @@ class AbstractAlgebra(eqx.Module):
         return self.name
 
 
+class SquareMatrixAlgebra(AbstractAlgebra):
+    """An algebra of `(n, n)` matrices given by their size: its one field, `n`, is static
+    (so(n), su(N))."""
+
+    n: int = eqx.field(static=True)
+
+    @property
+    def matrix_size(self):
+        return self.n
+
+    @property
+    def shape(self):
+        return (self.n, self.n)
+
+
 def _commutator(a, b):
     return a @ b - b @ a
 

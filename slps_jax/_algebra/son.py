@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import functools
 
-import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from .base import AbstractAlgebra, adjoint, skew_from_upper, upper_indices
+from .base import SquareMatrixAlgebra, adjoint, skew_from_upper, upper_indices
 
 
-class SOnAlgebra(AbstractAlgebra):
+class SOnAlgebra(SquareMatrixAlgebra):
     r"""so(n)* for $n \ge 3$: states are skew-symmetric `(n, n)` matrices $Y$.
 
     - Pairing $\langle X, Y\rangle = \tfrac12\operatorname{tr}(X^TY) = \sum_{i<j}X_{ij}Y_{ij}$
@@ -24,20 +23,11 @@ class SOnAlgebra(AbstractAlgebra):
     `so(n)` returns it (static data of a system: its one field, `n`, is static).
     """
 
-    n: int = eqx.field(static=True)
     condition = "skew-symmetric"
-
-    @property
-    def matrix_size(self):
-        return self.n
 
     @property
     def dim(self):
         return self.n * (self.n - 1) // 2
-
-    @property
-    def shape(self):
-        return (self.n, self.n)
 
     @property
     def name(self):

@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import functools
 
-import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from .base import AbstractAlgebra, adjoint, skew_from_upper, upper_indices
+from .base import SquareMatrixAlgebra, adjoint, skew_from_upper, upper_indices
 
 
-class SUnAlgebra(AbstractAlgebra):
+class SUnAlgebra(SquareMatrixAlgebra):
     r"""su(N)* for $N \ge 2$: states are traceless skew-Hermitian `(N, N)` complex matrices
     $W$ (complex64 or complex128, following the system's real dtype).
 
@@ -30,21 +29,12 @@ class SUnAlgebra(AbstractAlgebra):
     `su(N)` returns the one instance for each `N`.
     """
 
-    n: int = eqx.field(static=True)
     is_complex = True
     condition = "traceless and skew-Hermitian"
 
     @property
-    def matrix_size(self):
-        return self.n
-
-    @property
     def dim(self):
         return self.n * self.n - 1
-
-    @property
-    def shape(self):
-        return (self.n, self.n)
 
     @property
     def name(self):
