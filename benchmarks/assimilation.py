@@ -4,14 +4,14 @@ spin-up, the degrees 1..3 observed every `every` steps with errors of 10 % of ea
 standard deviation (over the training run; degree 1, conserved by the truth, gets that of degrees
 2..3), `n` particles at the truth's first time: the noisy model run for one interval from the
 truth an interval before (not from the first state, which would leave them an interval ahead of
-the truth). Against a free ensemble of the same model from the truth's first state: the RMSE of
+the truth). Against the free ensemble, the same particles run on without observations: the RMSE of
 the ensemble mean and the spread on the observed and the unobserved coefficients, the least
 stage ESS, the tempering stages,
 pCN's acceptance, a rank histogram of the truth among the particles with its chi-square p-value,
 every particle's Casimir drift, and the time.
 
     python benchmarks/assimilation.py            # M = 32, N = 8, 64 particles, 20 observations
-    python benchmarks/assimilation.py --fast     # M = 12, N = 5, 8 particles, 2 observations
+    python benchmarks/assimilation.py --fast     # M = 10, N = 5, 8 particles, 2 observations
     python benchmarks/assimilation.py --no-model-error   # the observation errors alone
 
 Forecasts of one observation interval, 16 members from each of 24 starts of the training run
@@ -37,6 +37,10 @@ jax.config.update("jax_enable_x64", True)
 import slps_jax as sj  # noqa: E402
 from slps_jax import zeitlin as z  # noqa: E402
 
+FULL = dict(M=32, N=8, n=64, n_obs=20)
+# (the notebook's small size: compiling dominates, so it skips the tuning and the model error)
+SMALL = dict(M=10, N=5, n=8, n_obs=2, every=25, spin=100, train=200, tune=False, model_error=False)
+
 
 def experiment(
     M,
@@ -51,6 +55,8 @@ def experiment(
     model_error=True,
     tune=True,
     starts=24,
+    lag=1,
+    perfect=False,
 ):
     start = time.perf_counter()
     rng = np.random.default_rng(seed)
@@ -82,6 +88,17 @@ def experiment(
         ).factor
     model = sj.EulerZeitlin(N, noise=sj.scaled_noise(fit.noise, factor))
     truth = z.truncate(fine[spin + train :: every][: n_obs + 1], N)
+    if perfect:  # (a perfect-model twin: the truth one more run of the model)
+        truth = sj.simulate(
+            model,
+            truth[0],
+            t1=every * h * n_obs,
+            dt=h,
+            n_samples=1,
+            key=jax.random.key(seed + 102),
+            save_every=every,
+            driver=sj.BrownianMotion(levy_area=False),
+        ).ys[0]
     c_truth = np.asarray(z.mat2shr(truth)).real
     obs = np.arange(1, min(16, N * N))  # degrees 1..3
     unobs = np.arange(obs[-1] + 1, N * N)
@@ -92,12 +109,22 @@ def experiment(
     ys = c_truth[1:, obs] + obs_std * rng.normal(size=(n_obs, obs.size))
     observe = lambda w: jnp.real(z.mat2shr(w))[..., obs]
     # (the model's error beyond its spread: the filter adds its variance to the observations')
-    forecasts = sj.forecast_ensembles(
-        model, starts_n, lead=every, dt=h, every=every, members=16, key=jax.random.key(seed + 101)
-    )
-    budget = sj.model_error_variance(forecasts, after_n, observe)
-    excess = np.maximum(budget.variance[0], 0.0)
-    filter_std = np.sqrt(obs_std**2 + excess) if model_error else obs_std
+    filter_std, share, z_score = obs_std, None, None
+    if model_error:
+        forecasts = sj.forecast_ensembles(
+            model,
+            starts_n,
+            lead=every,
+            dt=h,
+            every=every,
+            members=16,
+            key=jax.random.key(seed + 101),
+        )
+        budget = sj.model_error_variance(forecasts, after_n, observe)
+        excess = np.maximum(budget.variance[0], 0.0)
+        filter_std = np.sqrt(obs_std**2 + excess)
+        share = float(np.mean(excess / (obs_std**2 + excess)))
+        z_score = float(np.mean(budget.variance[0] / budget.stderr[0]))
     # (the particles at the truth's first time: the noisy model run for one interval from the
     # truth an interval before it, so that their spread costs no lag behind the truth)
     init = sj.simulate(
@@ -119,26 +146,25 @@ def experiment(
         obs_std=filter_std,
         dt=h,
         key=jax.random.key(seed),
+        jitter_lag=lag,
     )
     filter_s = time.perf_counter() - t0
-    free = sj.simulate(
-        model,
-        truth[0],
-        t1=every * h * n_obs,
-        dt=h,
-        n_samples=n,
-        key=jax.random.key(1),
-        save_every=every,
-        driver=sj.BrownianMotion(levy_area=False),
-    ).ys[:, 1:]
+    # (the free ensemble: the filter's initial particles run on without observations)
+    free = sj.forecast_ensembles(
+        model, init, lead=every * n_obs, dt=h, every=every, members=1, key=jax.random.key(1)
+    )[:, 0]
     ca = np.asarray(z.mat2shr(res.particles)).real
     cf = np.asarray(z.mat2shr(free)).real.transpose(1, 0, 2)
 
-    def rmse(c, idx):
-        return float(np.sqrt(((c[:, :, idx].mean(1) - c_truth[1:, idx]) ** 2).mean()))
+    def rmse(c, idx, axis=None):  # (over times and coefficients, or per time: axis=1)
+        return np.sqrt(((c[:, :, idx].mean(1) - c_truth[1:, idx]) ** 2).mean(axis))
 
-    def spread(c, idx):  # (beside the RMSE: sqrt((1 + 1/n) spread^2) for a calibrated one)
-        return float(np.sqrt((1 + 1 / n) * c[:, :, idx].var(1, ddof=1).mean()))
+    def spread(c, idx, axis=None):  # (sqrt((1 + 1/n) spread^2): the RMSE of a calibrated one)
+        return np.sqrt((1 + 1 / n) * c[:, :, idx].var(1, ddof=1).mean(axis))
+
+    def paired(c1, c2, idx):
+        d = rmse(c1, idx, 1) ** 2 - rmse(c2, idx, 1) ** 2
+        return [float(d.mean()), float(d.std(ddof=1) / np.sqrt(d.size))]
 
     ranks = (ca[:, :, obs] < c_truth[1:, None, obs]).sum(1).ravel()
     bins = np.add.reduceat(
@@ -146,20 +172,42 @@ def experiment(
     )
     c0 = np.asarray(sj.su(N).casimirs(init))[:, None, ::2]  # tr W^2, tr W^4, ...
     cs = np.asarray(sj.su(N).casimirs(res.particles)).transpose(1, 0, 2)[..., ::2]
-    return dict(
+    drift = np.abs(cs / c0.mean(0) - 1).max(axis=(1, 2))  # (per particle slot, all times)
+    series = dict(
+        times=every * h * np.arange(1, n_obs + 1),
+        rmse=dict(
+            observed=(rmse(ca, obs, 1), rmse(cf, obs, 1)),
+            unobserved=(rmse(ca, unobs, 1), rmse(cf, unobs, 1)),
+        ),
+        spread=dict(
+            observed=(spread(ca, obs, 1), spread(cf, obs, 1)),
+            unobserved=(spread(ca, unobs, 1), spread(cf, unobs, 1)),
+        ),
+        ess_share=np.asarray(res.ess) / n,
+        stages=np.array([len(t) for t in res.temperatures]),
+        ranks=np.bincount(ranks, minlength=n + 1),
+        casimir_drift=drift,
+    )
+    row = dict(
         M=M,
         N=N,
         particles=n,
         observations=n_obs,
+        jitter_lag=lag,
+        perfect_model=perfect,
         eofs=len(fit.std),
         noise_factor=factor,
         model_error=model_error,
-        model_error_share=float(np.mean(excess / (obs_std**2 + excess))),
-        model_error_z=float(np.mean(budget.variance[0] / budget.stderr[0])),
+        model_error_share=share,
+        model_error_z=z_score,
         rmse_observed=rmse(ca, obs),
         rmse_observed_free=rmse(cf, obs),
         rmse_unobserved=rmse(ca, unobs),
         rmse_unobserved_free=rmse(cf, unobs),
+        # (free minus filter squared error, mean and standard error over the observation
+        # times; the times are correlated, so the error bar is optimistic)
+        gain_observed=paired(cf, ca, obs),
+        gain_unobserved=paired(cf, ca, unobs),
         spread_observed=spread(ca, obs),
         spread_unobserved=spread(ca, unobs),
         spread_unobserved_free=spread(cf, unobs),
@@ -168,14 +216,15 @@ def experiment(
         acceptance=float(np.mean([a.mean() for a in res.acceptance])),
         rank_bins=bins.tolist(),
         rank_chi2_p=float(stats.chisquare(bins).pvalue),
-        casimir_drift=float(np.max(np.abs(cs / c0.mean(0) - 1))),
+        casimir_drift=float(drift.max()),
         filter_s=filter_s,
         total_s=time.perf_counter() - start,
     )
+    return {k: float(v) if isinstance(v, np.floating) else v for k, v in row.items()}, series
 
 
 def main(argv=None):
-    p = _common.parser(__doc__, "M = 12, N = 5, 8 particles, 2 observations")
+    p = _common.parser(__doc__, "M = 10, N = 5, 8 particles, 2 observations, no tuning")
     p.add_argument(
         "--no-tune",
         action="store_true",
@@ -186,15 +235,30 @@ def main(argv=None):
         action="store_true",
         help="the filter with the observation errors alone, not the model's estimated error",
     )
+    p.add_argument(
+        "--lag",
+        type=int,
+        default=1,
+        help="pCN's window in observation intervals (particle_filter's jitter_lag)",
+    )
+    p.add_argument(
+        "--perfect-model",
+        action="store_true",
+        help="a perfect-model twin: the truth one more run of the model, not the fine run",
+    )
     args = p.parse_args(argv)
     os.makedirs(args.out, exist_ok=True)
     info = _common.machine_info()
-    sizes = (
-        dict(M=12, N=5, n=8, n_obs=2, spin=200, train=300)
-        if args.fast
-        else dict(M=32, N=8, n=64, n_obs=20)
+    sizes = dict(SMALL if args.fast else FULL)
+    if args.no_model_error:
+        sizes["model_error"] = False
+    if args.no_tune:
+        sizes["tune"] = False
+    row, _ = experiment(
+        **sizes,
+        lag=args.lag,
+        perfect=args.perfect_model,
     )
-    row = experiment(**sizes, model_error=not args.no_model_error, tune=not args.no_tune)
     for k, v in row.items():
         print(f"{k}: {v}", flush=True)
     _common.write_json(os.path.join(args.out, "assimilation.json"), dict(machine=info, rows=[row]))

@@ -96,7 +96,10 @@ def _ou_model(theta=1.0, sigma=0.5, m=8, h=0.05):
     return forecast, a, q
 
 
-def test_a_linear_gaussian_model_gives_the_kalman_filter_within_monte_carlo_error():
+@pytest.mark.parametrize("lag", [1, 3])
+def test_a_linear_gaussian_model_gives_the_kalman_filter_within_monte_carlo_error(lag):
+    # (with lag 3, pCN moves each particle's increments over the last three intervals, re-run
+    # from its state three observations back: the same filtering distributions)
     forecast, a, q = _ou_model()
     r, m0, p0, n, n_obs = 0.2**2, 0.5, 0.3**2, 2000, 5
     rng = np.random.default_rng(5)
@@ -118,6 +121,7 @@ def test_a_linear_gaussian_model_gives_the_kalman_filter_within_monte_carlo_erro
         ess_threshold=0.5,
         jitter_steps=5,
         jitter_rho=0.8,
+        jitter_lag=lag,
     )
     m, p, log_z = m0, p0, 0.0
     for k in range(n_obs):
@@ -150,6 +154,8 @@ def test_assimilate_refuses_bad_input_by_name():
         da.assimilate(forecast, good, ys, **{**kw, "obs_std": 0.0})
     with pytest.raises(ValueError, match="observe"):
         da.assimilate(forecast, good, ys, **{**kw, "observe": lambda s: jnp.concatenate([s, s])})
+    with pytest.raises(ValueError, match="jitter_lag"):
+        da.assimilate(forecast, good, ys, **kw, jitter_lag=0)
 
 
 def _so4_setup():
@@ -192,16 +198,16 @@ def _so4_filter(system, y0, ys, n, obs_times, *, key, **options):
 
 def test_every_analysis_particle_stays_on_its_coadjoint_orbit():
     # so(4) with three transport noises, IsospectralMidpoint (the default there): resampling
-    # copies states and jittering re-runs a parent's state, so every particle keeps the
-    # initial Casimirs
+    # copies states and jittering re-runs a parent's state (over two intervals here), so every
+    # particle keeps the initial Casimirs
     sj, system, y0 = _so4_setup()
     n = 16
     truth = sj.integrate(system, y0, 0.1 * np.ones((16, 3)), _H)
-    ys = np.stack([_observe(truth), _observe(truth)]) + 0.01
-    res = _so4_filter(system, y0, ys, n, [0.25, 0.5], key=3, jitter_steps=2)
+    ys = np.stack([_observe(truth)] * 3) + 0.01
+    res = _so4_filter(system, y0, ys, n, [0.25, 0.5, 0.75], key=3, jitter_steps=2, jitter_lag=2)
     c0 = np.asarray(sj.so(4).casimirs(y0))
     cs = np.asarray(sj.so(4).casimirs(res.particles))
-    assert res.particles.shape == (2, n, 4, 4) and cs.shape == (2, n, 2)
+    assert res.particles.shape == (3, n, 4, 4) and cs.shape == (3, n, 2)
     assert np.max(np.abs(cs / c0 - 1)) < 1e-12
     assert np.all(np.asarray(res.ess) >= 0.5 * n * (1 - 1e-9))
 
@@ -222,6 +228,11 @@ def test_particle_filter_refuses_bad_times_and_particles_by_name():
         sj.particle_filter(system, x[:1], ys, obs_times=[0.5, 1.0], **kw)
     with pytest.raises(ValueError, match="y0"):  # a particle that is not a state
         sj.particle_filter(system, np.ones((4, 4, 4)), ys, obs_times=[0.5, 1.0], **kw)
+    one = jax.sharding.SingleDeviceSharding(jax.devices()[0])
+    with pytest.raises(ValueError, match="chunk_size or sharding"):
+        sj.particle_filter(system, x, ys, obs_times=[0.5, 1.0], chunk_size=2, sharding=one, **kw)
+    with pytest.raises(ValueError, match="jitter_lag"):
+        sj.particle_filter(system, x, ys, obs_times=[0.5, 1.0], jitter_lag=0, **kw)
 
 
 def test_complex_states_get_real_increments_and_keep_their_orbit():
@@ -261,6 +272,15 @@ def test_chunking_the_particles_does_not_change_the_filter():
         system, y0, ys, 8, [0.125, 0.25], key=5, jitter_steps=1, chunk_size=chunk
     )
     whole, chunked = run(None), run(3)
+    # another filter of the same configuration (other observations) compiles nothing again
+    events = []
+    listener = lambda name, seconds, **kw: events.append(kw) if "backend_compile" in name else None
+    jax.monitoring.register_event_duration_secs_listener(listener)
+    try:
+        _so4_filter(system, y0, ys + 0.01, 8, [0.125, 0.25], key=6, jitter_steps=1)
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listener)
+    assert events == []
     assert np.ptp(np.asarray(whole.particles[-1]), axis=0).max() > 1e-4  # (distinct particles)
     np.testing.assert_allclose(chunked.particles, whole.particles, rtol=0, atol=1e-13)
     np.testing.assert_allclose(chunked.ess, whole.ess, rtol=1e-12)

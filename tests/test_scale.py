@@ -80,6 +80,16 @@ SHARDED = textwrap.dedent("""
         st = sj.ensemble_statistics(body, w0, chunk_size=4, sharding=sh, progress=False,
                                     observable=lambda ws: body.energy(ws), **zk)
         assert np.allclose(st.mean[-1], e[:, -1].mean(), rtol=1e-13)
+    # particle_filter: every device forecasts its own particles; the same filter
+    obs = 0.1 + np.asarray(y0)[None, :2]
+    pf = dict(obs_times=[0.25], observe=lambda y: y[:2], obs_std=0.05, dt=2.0 ** -5,
+              key=jax.random.key(3), jitter_steps=1)
+    parts = np.broadcast_to(y0, (8, 3))
+    pref = sj.particle_filter(model, parts, obs, **pf)
+    got = sj.particle_filter(model, parts, obs, sharding="auto", **pf)
+    assert len(got.particles.sharding.device_set) == 4, got.particles.sharding
+    assert np.allclose(got.particles, pref.particles, rtol=0, atol=1e-13)
+    assert np.allclose(got.ess, pref.ess, rtol=1e-12)
     # Under the caller's context mesh of explicit axes (jax.set_mesh), with the system, y0
     # and key made there, with and without a sharding, and a study.
     study = dict(t1=0.25, dts=[2.0 ** -3, 2.0 ** -4], n_samples=4, key=jax.random.key(1),

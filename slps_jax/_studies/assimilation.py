@@ -11,6 +11,7 @@ and `particle_filter` for the library's systems with its integrators as the fore
 
 from __future__ import annotations
 
+import functools
 from typing import Any, NamedTuple
 
 import jax
@@ -20,6 +21,7 @@ import numpy as np
 from .._brownian import BrownianStep
 from .._driver.integrate import _integrate_jit
 from .._driver.plan import check_method, check_retry, check_y0
+from .._driver.sharding import as_given, automatic, check_sharding
 from .._support.checks import check_count
 from .._support.solution import RESULTS
 
@@ -37,6 +39,7 @@ def effective_sample_size(log_weights):
     return jnp.sum(w) ** 2 / jnp.sum(w * w)
 
 
+@functools.partial(jax.jit, static_argnames="bisections")
 def next_temperature(log_likelihood, beta, threshold, *, bisections=50):
     r"""The next exponent $\beta' \in (\beta, 1]$ of adaptive tempering: the largest for which
     the incremental weights $\exp((\beta' - \beta)\,\ell_i)$ keep
@@ -161,6 +164,7 @@ def assimilate(
     ess_threshold=0.5,
     jitter_steps=5,
     jitter_rho=0.9,
+    jitter_lag=1,
 ):
     r"""A bootstrap particle filter with adaptive tempering, systematic resampling and pCN
     jittering of each particle's Brownian increments (Cotter, Crisan, Holm, Pan & Shevchenko
@@ -173,12 +177,14 @@ def assimilate(
     (`next_temperature`); at each stage the particles are resampled (`systematic_resample`)
     and moved by `jitter_steps` pCN steps on their increments, re-run from the parent's state
     and accepted at the stage's exponent (`pcn_proposal`, `pcn_accept`), which leave the
-    tempered posterior invariant. States are only ever produced by `forecast` from a parent's
+    tempered posterior invariant (`jitter_lag` widens the moves' window to several
+    intervals). States are only ever produced by `forecast` from a parent's
     state: a structure-preserving forecast keeps every particle on its parent's orbit.
 
     **Arguments:**
 
-    - `forecast(states, increments) -> states`: one batch, states `(n, *state)` and standard
+    - `forecast(states, increments) -> states` (jitted here unless it is, or is a
+      `functools.partial` of, a jitted function): one batch, states `(n, *state)` and standard
       Brownian increments `(n, *increments_shape)` of step `dt`, to the next observation time;
       or `-> (states, ok)`, `ok` a boolean per particle: a failed forecast gets likelihood 0
       (it is never resampled, and a pCN move to it is rejected).
@@ -191,6 +197,12 @@ def assimilate(
     - `key`: a JAX key.
     - `ess_threshold`, `jitter_steps`, `jitter_rho`: the tempering's least ESS share, the
       pCN steps per stage, and pCN's $\rho$.
+    - `jitter_lag`: the pCN moves' window, in observation intervals (1: the increments since
+      the last observation). With $L > 1$ a move changes a particle's increments over the
+      last $L$ intervals (fewer at the start) and re-runs it from its state $L$ observations
+      back, accepted by the window's earlier likelihoods whole and the current one tempered:
+      the same filtering distributions, with resampled copies that diverge from further
+      back, at $L$ times the cost of a move.
 
     **Returns:** a `FilterResult`.
     """
@@ -205,6 +217,7 @@ def assimilate(
     std = jnp.asarray(obs_std, real)
     if not bool(jnp.all(std > 0)):
         raise ValueError(f"assimilate: obs_std must be positive, got {obs_std!r}.")
+    lag = check_count("jitter_lag", jitter_lag)
     observe_all = jax.vmap(observe)
     got = jax.eval_shape(observe_all, x).shape
     if got != (n, ys.shape[1]):
@@ -212,14 +225,13 @@ def assimilate(
             f"assimilate: observe(state) must return shape ({ys.shape[1]},), the observations' "
             f"n_y; got {got[1:]}."
         )
-    forecast = jax.jit(forecast)
-    # the Gaussian log-density, its normalising constant included (the evidence needs it)
-    const = -jnp.sum(jnp.log(std * jnp.ones(ys.shape[1], real))) - 0.5 * ys.shape[1] * jnp.log(
-        2 * jnp.pi
-    )
-    loglik = jax.jit(
-        lambda states, y: const - 0.5 * jnp.sum(((observe_all(states) - y) / std) ** 2, axis=-1)
-    )
+    # (a function jitted already, or a partial of one, keeps its own cache of programs)
+    if not hasattr(getattr(forecast, "func", forecast), "lower"):
+        forecast = jax.jit(forecast)
+    std = std * jnp.ones(ys.shape[1], real)
+
+    def loglik(states, y):
+        return _log_likelihood(observe, states, y, std)
 
     def run(states, dw, y):
         """The forecast's states and their log-likelihoods (`-inf` where it failed)."""
@@ -230,13 +242,36 @@ def assimilate(
 
     shape = (n, *increments_shape)
     sqrt_dt = jnp.sqrt(jnp.asarray(dt, real))
+    # Each particle's window: its state `anchor` at the window's start (`lag` observations
+    # back, or the initial particles), its increments `dws` and states `xs` over the window's
+    # intervals, and their log-likelihoods `ells` (the last at the current observation).
+    anchor = x
+    dws = jnp.zeros((n, 0, *increments_shape), real)
+    xs = jnp.zeros((n, 0, *x.shape[1:]), x.dtype)
+    ells = jnp.zeros((n, 0), real)
+
+    def run_window(start, dw, k):
+        """The states and log-likelihoods over a window of `dw.shape[1]` intervals ending at
+        observation `k`, from `start`."""
+        width = dw.shape[1]
+        states, lls = [], []
+        for j in range(width):
+            start, ell = run(start, dw[:, j], ys[k - width + 1 + j])
+            states.append(start)
+            lls.append(ell)
+        return jnp.stack(states, 1), jnp.stack(lls, 1)
+
     analyses, esses, temperatures, acceptance, evidence = [], [], [], [], []
     log_z = 0.0
     for k in range(ys.shape[0]):
+        if dws.shape[1] == lag:  # (the window moves on by one observation)
+            anchor, dws, xs, ells = xs[:, 0], dws[:, 1:], xs[:, 1:], ells[:, 1:]
         key, draw = jax.random.split(key)
-        parents = x
         dw = sqrt_dt * jax.random.normal(draw, shape, real)
-        x, ell = run(parents, dw, ys[k])
+        x, ell = run(xs[:, -1] if xs.shape[1] else anchor, dw, ys[k])
+        dws = jnp.concatenate([dws, dw[:, None]], 1)
+        xs = jnp.concatenate([xs, x[:, None]], 1)
+        ells = jnp.concatenate([ells, ell[:, None]], 1)
         if not bool(jnp.any(jnp.isfinite(ell))):
             raise RuntimeError(
                 f"assimilate: every particle's forecast to observation {k} failed; a smaller "
@@ -245,32 +280,33 @@ def assimilate(
         if not bool(jnp.all(jnp.isfinite(ell))):  # failed forecasts leave first, unweighted
             key, pick = jax.random.split(key)
             idx = systematic_resample(pick, jnp.where(jnp.isfinite(ell), 0.0, -jnp.inf))
-            parents, dw, x, ell = parents[idx], dw[idx], x[idx], ell[idx]
+            anchor, dws, xs, ells = anchor[idx], dws[idx], xs[idx], ells[idx]
         beta, betas, rates, least = 0.0, [], [], float(n)
         while beta < 1.0:
-            new = float(next_temperature(ell, beta, ess_threshold))
+            new = float(next_temperature(ells[:, -1], beta, ess_threshold))
             if len(betas) >= MAX_STAGES:
                 raise RuntimeError(
                     f"assimilate: observation {k} needs more than {MAX_STAGES} tempering stages "
                     "(a likelihood too sharp for the ensemble): raise obs_std or the particles."
                 )
-            logw = (new - beta) * ell
+            logw = (new - beta) * ells[:, -1]
             least = min(least, float(effective_sample_size(logw)))
             log_z += float(jax.scipy.special.logsumexp(logw) - jnp.log(n))
             key, pick = jax.random.split(key)
             idx = systematic_resample(pick, logw)
-            parents, dw, x, ell = parents[idx], dw[idx], x[idx], ell[idx]
+            anchor, dws, xs, ells = anchor[idx], dws[idx], xs[idx], ells[idx]
             for _ in range(jitter_steps):
                 key, propose, test = jax.random.split(key, 3)
-                dw_new = pcn_proposal(propose, dw, jitter_rho, dt)
-                x_new, ell_new = run(parents, dw_new, ys[k])
-                ok = pcn_accept(test, ell_new, ell, new)
-                dw, x = _where_rows(ok, dw_new, dw), _where_rows(ok, x_new, x)
-                ell = jnp.where(ok, ell_new, ell)
+                dws_new = pcn_proposal(propose, dws, jitter_rho, dt)
+                xs_new, ells_new = run_window(anchor, dws_new, k)
+                # (the window's earlier observations count whole, the current one at `new`)
+                ok = pcn_accept(test, _tempered(ells_new, new), _tempered(ells, new), 1.0)
+                dws, xs = _where_rows(ok, dws_new, dws), _where_rows(ok, xs_new, xs)
+                ells = _where_rows(ok, ells_new, ells)
                 rates.append(float(jnp.mean(ok)))
             beta = new
             betas.append(new)
-        analyses.append(x)
+        analyses.append(xs[:, -1])
         esses.append(least)
         temperatures.append(jnp.asarray(betas))
         acceptance.append(jnp.asarray(rates))
@@ -284,6 +320,38 @@ def assimilate(
         acceptance,
         jnp.asarray(evidence),
     )
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _log_likelihood(observe, states, y, std):
+    """Each state's Gaussian log-density of the observation `y`, its normalising constant
+    included (the evidence needs it); compiled once per `observe` and shapes."""
+    const = -jnp.sum(jnp.log(std)) - 0.5 * y.shape[0] * jnp.log(2 * jnp.pi)
+    return const - 0.5 * jnp.sum(((jax.vmap(observe)(states) - y) / std) ** 2, axis=-1)
+
+
+@functools.partial(jax.jit, static_argnames=("method", "m", "retry", "chunk_size", "auto"))
+def _forecast(method, system, states, dws, step, *, m, retry, chunk_size, auto):
+    """`particle_filter`'s forecast: every particle `m` steps of `method` with its own
+    increments, and whether it succeeded; compiled once per method, system structure,
+    shapes and layout."""
+
+    def one(y, dw):
+        ys, _, result, _, _ = _integrate_jit(
+            method, system, y, BrownianStep(dw, None), step, m, False, retry
+        )
+        return ys[-1], result == RESULTS.successful
+
+    if chunk_size is not None:
+        return jax.lax.map(lambda a: one(*a), (states, dws), batch_size=chunk_size)
+    if auto is not None:
+        states, dws = jax.lax.with_sharding_constraint((states, dws), auto)
+    return jax.vmap(one)(states, dws)
+
+
+def _tempered(ells, beta):
+    """A window's log-likelihood: its earlier observations' whole, the last one's times `beta`."""
+    return jnp.sum(ells[:, :-1], axis=1) + beta * ells[:, -1]
 
 
 def _where_rows(mask, a, b):
@@ -305,9 +373,11 @@ def particle_filter(
     ess_threshold=0.5,
     jitter_steps=5,
     jitter_rho=0.9,
+    jitter_lag=1,
     method: Any = "auto",
     retry_substeps: int | None = 4,
     chunk_size: int | None = None,
+    sharding=None,
 ):
     r"""Assimilate observations into an ensemble of a stochastic Lie–Poisson system: the
     filter of `assimilate` (adaptive tempering, systematic resampling, pCN jittering of each
@@ -331,12 +401,17 @@ def particle_filter(
     - `obs_std`: the Gaussian observation errors' standard deviation, a positive scalar or
       `(n_y,)`.
     - `dt`: the integrator's step; `key`: a JAX key; `t0`: the particles' time (0).
-    - `ess_threshold`, `jitter_steps`, `jitter_rho`: as for `assimilate`.
+    - `ess_threshold`, `jitter_steps`, `jitter_rho`, `jitter_lag`: as for `assimilate`.
     - `method`, `retry_substeps`: as for `integrate`.
     - `chunk_size`: `None` (default): every forecast runs all particles at once (`vmap`);
       `k`: `k` particles at a time (`jax.lax.map` in batches), so that the memory of a
       forecast is that of `k` particles. Each particle's forecast is its own, so the
       result is the same (`tests/test_assimilation.py`).
+    - `sharding`: `None` (default), `"auto"` or a `jax.sharding.Sharding` of the particle
+      axis, as for `simulate`: each forecast runs every device's particles on that device
+      (JAX's SPMD partitioner), and the tempering and resampling, which need all the
+      weights, gather them. The result is that of the unsharded filter, to round-off
+      (`tests/test_scale.py`). One process only; not with `chunk_size`.
 
     **Returns:** a `FilterResult`.
     """
@@ -366,30 +441,30 @@ def particle_filter(
     retry = check_retry(retry_substeps)
     if chunk_size is not None:
         chunk_size = min(check_count("chunk_size", chunk_size), x.shape[0])
+    sharding = check_sharding(sharding, x.shape[0], name="the number of particles")
+    if sharding is not None and chunk_size is not None:
+        raise ValueError(
+            "particle_filter: give chunk_size or sharding, not both (the chunks would run "
+            "one after another across the devices)."
+        )
+    check_count("jitter_lag", jitter_lag)
     dtype = x.real.dtype
     step = jnp.asarray(h, dtype)
 
-    def one(y, dw):
-        ys, _, result, _, _ = _integrate_jit(
-            method, system, y, BrownianStep(dw, None), step, m, False, retry
+    with automatic(sharding, (system, x)) as (auto, (system, x)):
+        options = dict(m=m, retry=retry, chunk_size=chunk_size, auto=auto)
+        result = assimilate(
+            functools.partial(_forecast, method, system, step=step, **options),
+            x,
+            observations,
+            observe=observe,
+            obs_std=obs_std,
+            increments_shape=(m, system.n_noises),
+            dt=h,
+            key=key,
+            ess_threshold=ess_threshold,
+            jitter_steps=jitter_steps,
+            jitter_rho=jitter_rho,
+            jitter_lag=jitter_lag,
         )
-        return ys[-1], result == RESULTS.successful
-
-    def forecast(states, dws):
-        if chunk_size is None:
-            return jax.vmap(one)(states, dws)
-        return jax.lax.map(lambda a: one(*a), (states, dws), batch_size=chunk_size)
-
-    return assimilate(
-        forecast,
-        x,
-        observations,
-        observe=observe,
-        obs_std=obs_std,
-        increments_shape=(m, system.n_noises),
-        dt=h,
-        key=key,
-        ess_threshold=ess_threshold,
-        jitter_steps=jitter_steps,
-        jitter_rho=jitter_rho,
-    )
+    return as_given(result, sharding)
