@@ -64,7 +64,6 @@ from ._methods.strang import Strang4 as Strang4
 
 # Studies
 from ._studies.assimilation import FilterResult as FilterResult
-from ._studies.assimilation import particle_filter as particle_filter
 from ._studies.calibrate import CalibrationResult as CalibrationResult
 from ._studies.calibrate import calibrate as calibrate
 from ._studies.calibrate import moments as moments
@@ -72,6 +71,8 @@ from ._studies.convergence import ConvergenceResult as ConvergenceResult
 from ._studies.convergence import WeakConvergenceResult as WeakConvergenceResult
 from ._studies.convergence import strong_convergence as strong_convergence
 from ._studies.convergence import weak_convergence as weak_convergence
+from ._studies.particle_filter import particle_filter as particle_filter
+from ._studies.particle_filter import particle_filter_to_store as particle_filter_to_store
 from ._studies.scores import ForecastScores as ForecastScores
 from ._studies.scores import PairedComparison as PairedComparison
 from ._studies.scores import crps_ensemble as crps_ensemble

@@ -196,20 +196,57 @@ def _so4_filter(system, y0, ys, n, obs_times, *, key, **options):
     )
 
 
-def test_every_analysis_particle_stays_on_its_coadjoint_orbit():
+_STORED = dict(obs_times=[0.25, 0.5, 0.75], key=3, jitter_steps=2, jitter_lag=2)
+
+
+@pytest.fixture(scope="module")
+def so4_run():
+    """so(4), 16 particles, three observations, pCN over two intervals: in memory."""
+    sj, system, y0 = _so4_setup()
+    truth = sj.integrate(system, y0, 0.1 * np.ones((16, 3)), _H)
+    ys = np.stack([_observe(truth)] * 3) + 0.01
+    opts = {k: v for k, v in _STORED.items() if k != "obs_times"}
+    return sj, system, y0, ys, _so4_filter(system, y0, ys, 16, _STORED["obs_times"], **opts)
+
+
+def test_every_analysis_particle_stays_on_its_coadjoint_orbit(so4_run):
     # so(4) with three transport noises, IsospectralMidpoint (the default there): resampling
     # copies states and jittering re-runs a parent's state (over two intervals here), so every
     # particle keeps the initial Casimirs
-    sj, system, y0 = _so4_setup()
+    sj, _, y0, _, res = so4_run
     n = 16
-    truth = sj.integrate(system, y0, 0.1 * np.ones((16, 3)), _H)
-    ys = np.stack([_observe(truth)] * 3) + 0.01
-    res = _so4_filter(system, y0, ys, n, [0.25, 0.5, 0.75], key=3, jitter_steps=2, jitter_lag=2)
     c0 = np.asarray(sj.so(4).casimirs(y0))
     cs = np.asarray(sj.so(4).casimirs(res.particles))
     assert res.particles.shape == (3, n, 4, 4) and cs.shape == (3, n, 2)
     assert np.max(np.abs(cs / c0 - 1)) < 1e-12
     assert np.all(np.asarray(res.ess) >= 0.5 * n * (1 - 1e-9))
+
+
+def test_the_filter_on_disk_resumes_and_extends_bit_for_bit(so4_run, tmp_path):
+    # two observations to a store, then all three resumed from it: the analyses, ESS and
+    # evidence of the filter run in memory, bit for bit (the windows, key and evidence are
+    # the store's carry); other observations or options are refused
+    sj, system, y0, ys, res = so4_run
+    path = tmp_path / "filter"
+    times, kw = _STORED["obs_times"], dict(_STORED, key=jax.random.key(_STORED["key"]))
+    kw.update(observe=_observe, obs_std=0.05, dt=_H, progress=False)
+    del kw["obs_times"]
+    x = np.broadcast_to(y0, (16, 4, 4))
+    first = sj.particle_filter_to_store(system, x, ys[:2], path, obs_times=times[:2], **kw)
+    assert len(first) == 2
+    run = sj.particle_filter_to_store(system, x, ys, path, obs_times=times, resume=True, **kw)
+    assert np.array_equal(run.read("state"), np.asarray(res.particles))
+    assert np.array_equal(run.read("ess"), np.asarray(res.ess))
+    assert np.array_equal(run.read("log_evidence"), np.asarray(res.log_evidence))
+    assert np.array_equal(run.read("observation"), ys) and np.allclose(run.times, times)
+    with pytest.raises(ValueError, match="observations differ"):
+        sj.particle_filter_to_store(system, x, ys + 1e-3, path, obs_times=times, resume=True, **kw)
+    with pytest.raises(ValueError, match="options"):
+        sj.particle_filter_to_store(
+            system, x, ys, path, obs_times=times, resume=True, **{**kw, "jitter_steps": 1}
+        )
+    with pytest.raises(FileExistsError):
+        sj.particle_filter_to_store(system, x, ys, path, obs_times=times, **kw)
 
 
 def test_particle_filter_refuses_bad_times_and_particles_by_name():

@@ -28,6 +28,7 @@ def test_there_are_notebooks():
         "05_so_n.ipynb",
         "06_euler_sphere.ipynb",
         "07_data_driven_noise.ipynb",
+        "08_assimilation.ipynb",
     ]
 
 

@@ -5,8 +5,8 @@ particle's Brownian increments. Each acts on weights or on increments only, neve
 resampling copies states, and a pCN move re-runs a particle from its parent's state with new
 increments, so that a filter built from them moves particles only along coadjoint orbits.
 
-`assimilate` composes them for any forecast that is a function of a state and its increments,
-and `particle_filter` for the library's systems with its integrators as the forecast.
+`assimilate` composes them for any forecast that is a function of a state and its increments;
+`particle_filter.py` for the library's systems with its integrators as the forecast.
 """
 
 from __future__ import annotations
@@ -16,14 +16,8 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
-from .._brownian import BrownianStep
-from .._driver.integrate import _integrate_jit
-from .._driver.plan import check_method, check_retry, check_y0
-from .._driver.sharding import as_given, automatic, check_sharding
 from .._support.checks import check_count
-from .._support.solution import RESULTS
 
 
 def effective_sample_size(log_weights):
@@ -206,6 +200,77 @@ def assimilate(
 
     **Returns:** a `FilterResult`.
     """
+    run = _prepare(forecast, particles, observations, observe, obs_std, jitter_lag)
+    analyses, esses, temperatures, acceptance, evidence = [], [], [], [], []
+    for cycle in run.cycles(
+        _start(run, key),
+        increments_shape=increments_shape,
+        dt=dt,
+        ess_threshold=ess_threshold,
+        jitter_steps=jitter_steps,
+        jitter_rho=jitter_rho,
+    ):
+        analyses.append(cycle.analysis)
+        esses.append(cycle.ess)
+        temperatures.append(jnp.asarray(cycle.temperatures))
+        acceptance.append(jnp.asarray(cycle.acceptance))
+        evidence.append(cycle.state.log_z)
+    analyses = jnp.stack(analyses)
+    return FilterResult(
+        analyses,
+        jnp.mean(analyses, axis=1),
+        jnp.asarray(esses),
+        temperatures,
+        acceptance,
+        jnp.asarray(evidence),
+    )
+
+
+class _State(NamedTuple):
+    """Where a filter stands after `k` observations: each particle's window (its state
+    `anchor` at the window's start, `lag` observations back or the initial particles; its
+    increments `dws`, states `xs` and log-likelihoods `ells` over the window's intervals, the
+    last at observation `k - 1`), the random key, and the log evidence so far."""
+
+    k: int
+    anchor: Any
+    dws: Any
+    xs: Any
+    ells: Any
+    key: Any
+    log_z: float
+
+
+class _Cycle(NamedTuple):
+    """One observation's assimilation: the analysis ensemble, the least stage ESS, the
+    tempering exponents, pCN's acceptance rates, and the filter's state after it."""
+
+    analysis: Any
+    ess: float
+    temperatures: list
+    acceptance: list
+    state: _State
+
+
+class _Run(NamedTuple):
+    """A filter's checked inputs (`_prepare`): the particles, observations, errors, window
+    length, and the jitted forecast with its likelihoods."""
+
+    x: Any
+    ys: Any
+    std: Any
+    lag: int
+    real: Any
+    run: Any
+
+    def cycles(self, state, *, increments_shape, dt, ess_threshold, jitter_steps, jitter_rho):
+        """The assimilation of observations `state.k`, `state.k + 1`, ... (a generator of
+        `_Cycle`s)."""
+        return _cycles(self, state, increments_shape, dt, ess_threshold, jitter_steps, jitter_rho)
+
+
+def _prepare(forecast, particles, observations, observe, obs_std, jitter_lag):
+    """`assimilate`'s inputs checked, by name, before any work (`_Run`)."""
     x = jnp.asarray(particles)
     ys = jnp.asarray(observations)
     n = x.shape[0]
@@ -218,8 +283,7 @@ def assimilate(
     if not bool(jnp.all(std > 0)):
         raise ValueError(f"assimilate: obs_std must be positive, got {obs_std!r}.")
     lag = check_count("jitter_lag", jitter_lag)
-    observe_all = jax.vmap(observe)
-    got = jax.eval_shape(observe_all, x).shape
+    got = jax.eval_shape(jax.vmap(observe), x).shape
     if got != (n, ys.shape[1]):
         raise ValueError(
             f"assimilate: observe(state) must return shape ({ys.shape[1]},), the observations' "
@@ -230,25 +294,39 @@ def assimilate(
         forecast = jax.jit(forecast)
     std = std * jnp.ones(ys.shape[1], real)
 
-    def loglik(states, y):
-        return _log_likelihood(observe, states, y, std)
-
     def run(states, dw, y):
         """The forecast's states and their log-likelihoods (`-inf` where it failed)."""
         out = forecast(states, dw)
         states, ok = out if isinstance(out, tuple) else (out, None)
-        ell = loglik(states, y)
+        ell = _log_likelihood(observe, states, y, std)
         return states, ell if ok is None else jnp.where(ok, ell, -jnp.inf)
 
+    return _Run(x, ys, std, lag, real, run)
+
+
+def _start(run, key):
+    """The state of a filter before its first observation: every window empty."""
+    n = run.x.shape[0]
+    return _State(
+        0,
+        run.x,
+        None,
+        jnp.zeros((n, 0, *run.x.shape[1:]), run.x.dtype),
+        jnp.zeros((n, 0), run.real),
+        key,
+        0.0,
+    )
+
+
+def _cycles(run, state, increments_shape, dt, ess_threshold, jitter_steps, jitter_rho):
+    """`_Run.cycles`."""
+    ys, lag, real = run.ys, run.lag, run.real
+    n = run.x.shape[0]
     shape = (n, *increments_shape)
     sqrt_dt = jnp.sqrt(jnp.asarray(dt, real))
-    # Each particle's window: its state `anchor` at the window's start (`lag` observations
-    # back, or the initial particles), its increments `dws` and states `xs` over the window's
-    # intervals, and their log-likelihoods `ells` (the last at the current observation).
-    anchor = x
-    dws = jnp.zeros((n, 0, *increments_shape), real)
-    xs = jnp.zeros((n, 0, *x.shape[1:]), x.dtype)
-    ells = jnp.zeros((n, 0), real)
+    _, anchor, dws, xs, ells, key, log_z = state
+    if dws is None:
+        dws = jnp.zeros((n, 0, *increments_shape), real)
 
     def run_window(start, dw, k):
         """The states and log-likelihoods over a window of `dw.shape[1]` intervals ending at
@@ -256,19 +334,17 @@ def assimilate(
         width = dw.shape[1]
         states, lls = [], []
         for j in range(width):
-            start, ell = run(start, dw[:, j], ys[k - width + 1 + j])
+            start, ell = run.run(start, dw[:, j], ys[k - width + 1 + j])
             states.append(start)
             lls.append(ell)
         return jnp.stack(states, 1), jnp.stack(lls, 1)
 
-    analyses, esses, temperatures, acceptance, evidence = [], [], [], [], []
-    log_z = 0.0
-    for k in range(ys.shape[0]):
+    for k in range(state.k, ys.shape[0]):
         if dws.shape[1] == lag:  # (the window moves on by one observation)
             anchor, dws, xs, ells = xs[:, 0], dws[:, 1:], xs[:, 1:], ells[:, 1:]
         key, draw = jax.random.split(key)
         dw = sqrt_dt * jax.random.normal(draw, shape, real)
-        x, ell = run(xs[:, -1] if xs.shape[1] else anchor, dw, ys[k])
+        x, ell = run.run(xs[:, -1] if xs.shape[1] else anchor, dw, ys[k])
         dws = jnp.concatenate([dws, dw[:, None]], 1)
         xs = jnp.concatenate([xs, x[:, None]], 1)
         ells = jnp.concatenate([ells, ell[:, None]], 1)
@@ -306,20 +382,8 @@ def assimilate(
                 rates.append(float(jnp.mean(ok)))
             beta = new
             betas.append(new)
-        analyses.append(xs[:, -1])
-        esses.append(least)
-        temperatures.append(jnp.asarray(betas))
-        acceptance.append(jnp.asarray(rates))
-        evidence.append(log_z)
-    analyses = jnp.stack(analyses)
-    return FilterResult(
-        analyses,
-        jnp.mean(analyses, axis=1),
-        jnp.asarray(esses),
-        temperatures,
-        acceptance,
-        jnp.asarray(evidence),
-    )
+        state = _State(k + 1, anchor, dws, xs, ells, key, log_z)
+        yield _Cycle(xs[:, -1], least, betas, rates, state)
 
 
 @functools.partial(jax.jit, static_argnums=0)
@@ -330,25 +394,6 @@ def _log_likelihood(observe, states, y, std):
     return const - 0.5 * jnp.sum(((jax.vmap(observe)(states) - y) / std) ** 2, axis=-1)
 
 
-@functools.partial(jax.jit, static_argnames=("method", "m", "retry", "chunk_size", "auto"))
-def _forecast(method, system, states, dws, step, *, m, retry, chunk_size, auto):
-    """`particle_filter`'s forecast: every particle `m` steps of `method` with its own
-    increments, and whether it succeeded; compiled once per method, system structure,
-    shapes and layout."""
-
-    def one(y, dw):
-        ys, _, result, _, _ = _integrate_jit(
-            method, system, y, BrownianStep(dw, None), step, m, False, retry
-        )
-        return ys[-1], result == RESULTS.successful
-
-    if chunk_size is not None:
-        return jax.lax.map(lambda a: one(*a), (states, dws), batch_size=chunk_size)
-    if auto is not None:
-        states, dws = jax.lax.with_sharding_constraint((states, dws), auto)
-    return jax.vmap(one)(states, dws)
-
-
 def _tempered(ells, beta):
     """A window's log-likelihood: its earlier observations' whole, the last one's times `beta`."""
     return jnp.sum(ells[:, :-1], axis=1) + beta * ells[:, -1]
@@ -357,114 +402,3 @@ def _tempered(ells, beta):
 def _where_rows(mask, a, b):
     """`a` where `mask` (one entry per row), else `b`."""
     return jnp.where(mask.reshape(mask.shape + (1,) * (a.ndim - 1)), a, b)
-
-
-def particle_filter(
-    system,
-    particles,
-    observations,
-    *,
-    obs_times,
-    observe,
-    obs_std,
-    dt,
-    key,
-    t0=0.0,
-    ess_threshold=0.5,
-    jitter_steps=5,
-    jitter_rho=0.9,
-    jitter_lag=1,
-    method: Any = "auto",
-    retry_substeps: int | None = 4,
-    chunk_size: int | None = None,
-    sharding=None,
-):
-    r"""Assimilate observations into an ensemble of a stochastic Lie–Poisson system: the
-    filter of `assimilate` (adaptive tempering, systematic resampling, pCN jittering of each
-    particle's Brownian increments; Cotter, Crisan, Holm, Pan & Shevchenko 2020) with the
-    library's integrators as the forecast. Every state a particle takes is a step of
-    `method` from its parent's state: with a Poisson method (`IsospectralMidpoint` on so(n)*
-    and su(N)*, the default there) every particle stays on its initial coadjoint orbit.
-
-    The increments are Gaussian, not truncated, and drawn without Lévy areas (the methods'
-    strong order ½ with several noises). A particle whose forecast fails (a step the method
-    cannot solve, after `retry_substeps`) gets likelihood 0.
-
-    **Arguments:**
-
-    - `system`: the model, any system of the library.
-    - `particles`: the initial ensemble, `(n, *state)`, `n >= 2`, each a state of the system.
-    - `observations`: `(n_obs, n_y)`, finite, at `obs_times`.
-    - `obs_times`: `(n_obs,)`, increasing, equally spaced, after `t0`, each on the grid of
-      `dt` from `t0`.
-    - `observe(state) -> (n_y,)`: one state's observed quantities (JAX-traceable).
-    - `obs_std`: the Gaussian observation errors' standard deviation, a positive scalar or
-      `(n_y,)`.
-    - `dt`: the integrator's step; `key`: a JAX key; `t0`: the particles' time (0).
-    - `ess_threshold`, `jitter_steps`, `jitter_rho`, `jitter_lag`: as for `assimilate`.
-    - `method`, `retry_substeps`: as for `integrate`.
-    - `chunk_size`: `None` (default): every forecast runs all particles at once (`vmap`);
-      `k`: `k` particles at a time (`jax.lax.map` in batches), so that the memory of a
-      forecast is that of `k` particles. Each particle's forecast is its own, so the
-      result is the same (`tests/test_assimilation.py`).
-    - `sharding`: `None` (default), `"auto"` or a `jax.sharding.Sharding` of the particle
-      axis, as for `simulate`: each forecast runs every device's particles on that device
-      (JAX's SPMD partitioner), and the tempering and resampling, which need all the
-      weights, gather them. The result is that of the unsharded filter, to round-off
-      (`tests/test_scale.py`). One process only; not with `chunk_size`.
-
-    **Returns:** a `FilterResult`.
-    """
-    method = check_method(method, system)
-    x = jnp.asarray(particles)
-    if x.ndim < 1 or x.shape[0] < 2:
-        raise ValueError(
-            f"particle_filter: particles must be (n, *state) with n >= 2, got {x.shape}."
-        )
-    x = jnp.stack([check_y0(p, method, system) for p in np.asarray(x)])
-    times = np.asarray(obs_times, dtype=float)
-    h = float(dt)
-    if not h > 0:
-        raise ValueError(f"particle_filter: dt must be positive, got {dt!r}.")
-    gaps = np.diff(np.concatenate([[float(t0)], times]))
-    if times.ndim != 1 or times.size == 0 or np.any(gaps <= 0):
-        raise ValueError(
-            f"particle_filter: obs_times must be increasing and after t0 = {t0}, got {obs_times!r}."
-        )
-    steps = gaps / h
-    m = int(round(steps[0]))
-    if m < 1 or np.any(np.abs(steps - m) > 1e-6 * m):
-        raise ValueError(
-            "particle_filter: obs_times must be equally spaced on the grid of dt from t0 "
-            f"(dt = {h}); their gaps are {gaps.tolist()} s."
-        )
-    retry = check_retry(retry_substeps)
-    if chunk_size is not None:
-        chunk_size = min(check_count("chunk_size", chunk_size), x.shape[0])
-    sharding = check_sharding(sharding, x.shape[0], name="the number of particles")
-    if sharding is not None and chunk_size is not None:
-        raise ValueError(
-            "particle_filter: give chunk_size or sharding, not both (the chunks would run "
-            "one after another across the devices)."
-        )
-    check_count("jitter_lag", jitter_lag)
-    dtype = x.real.dtype
-    step = jnp.asarray(h, dtype)
-
-    with automatic(sharding, (system, x)) as (auto, (system, x)):
-        options = dict(m=m, retry=retry, chunk_size=chunk_size, auto=auto)
-        result = assimilate(
-            functools.partial(_forecast, method, system, step=step, **options),
-            x,
-            observations,
-            observe=observe,
-            obs_std=obs_std,
-            increments_shape=(m, system.n_noises),
-            dt=h,
-            key=key,
-            ess_threshold=ess_threshold,
-            jitter_steps=jitter_steps,
-            jitter_rho=jitter_rho,
-            jitter_lag=jitter_lag,
-        )
-    return as_given(result, sharding)

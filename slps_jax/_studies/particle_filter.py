@@ -1,0 +1,392 @@
+r"""`particle_filter`: the filter of `assimilation.py` with the library's integrators as the
+forecast, in memory or written to a run store on disk as it goes (`particle_filter_to_store`,
+resumable, and extendable with later observations)."""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._brownian import BrownianStep
+from .._driver.integrate import _integrate_jit
+from .._driver.plan import check_method, check_retry, check_y0
+from .._driver.sharding import as_given, automatic, check_sharding
+from .._support.checks import check_count
+from .._support.progress import progress_bar
+from .._support.solution import RESULTS
+from .._support.store import RunStore, open_run
+from .assimilation import _prepare, _start, _State, assimilate
+
+
+@functools.partial(jax.jit, static_argnames=("method", "m", "retry", "chunk_size", "auto"))
+def _forecast(method, system, states, dws, step, *, m, retry, chunk_size, auto):
+    """`particle_filter`'s forecast: every particle `m` steps of `method` with its own
+    increments, and whether it succeeded; compiled once per method, system structure,
+    shapes and layout."""
+
+    def one(y, dw):
+        ys, _, result, _, _ = _integrate_jit(
+            method, system, y, BrownianStep(dw, None), step, m, False, retry
+        )
+        return ys[-1], result == RESULTS.successful
+
+    if chunk_size is not None:
+        return jax.lax.map(lambda a: one(*a), (states, dws), batch_size=chunk_size)
+    if auto is not None:
+        states, dws = jax.lax.with_sharding_constraint((states, dws), auto)
+    return jax.vmap(one)(states, dws)
+
+
+def particle_filter(
+    system,
+    particles,
+    observations,
+    *,
+    obs_times,
+    observe,
+    obs_std,
+    dt,
+    key,
+    t0=0.0,
+    ess_threshold=0.5,
+    jitter_steps=5,
+    jitter_rho=0.9,
+    jitter_lag=1,
+    method: Any = "auto",
+    retry_substeps: int | None = 4,
+    chunk_size: int | None = None,
+    sharding=None,
+):
+    r"""Assimilate observations into an ensemble of a stochastic Lie–Poisson system: the
+    filter of `assimilate` (adaptive tempering, systematic resampling, pCN jittering of each
+    particle's Brownian increments; Cotter, Crisan, Holm, Pan & Shevchenko 2020) with the
+    library's integrators as the forecast. Every state a particle takes is a step of
+    `method` from its parent's state: with a Poisson method (`IsospectralMidpoint` on so(n)*
+    and su(N)*, the default there) every particle stays on its initial coadjoint orbit.
+
+    The increments are Gaussian, not truncated, and drawn without Lévy areas (the methods'
+    strong order ½ with several noises). A particle whose forecast fails (a step the method
+    cannot solve, after `retry_substeps`) gets likelihood 0.
+
+    **Arguments:**
+
+    - `system`: the model, any system of the library.
+    - `particles`: the initial ensemble, `(n, *state)`, `n >= 2`, each a state of the system.
+    - `observations`: `(n_obs, n_y)`, finite, at `obs_times`.
+    - `obs_times`: `(n_obs,)`, increasing, equally spaced, after `t0`, each on the grid of
+      `dt` from `t0`.
+    - `observe(state) -> (n_y,)`: one state's observed quantities (JAX-traceable).
+    - `obs_std`: the Gaussian observation errors' standard deviation, a positive scalar or
+      `(n_y,)`.
+    - `dt`: the integrator's step; `key`: a JAX key; `t0`: the particles' time (0).
+    - `ess_threshold`, `jitter_steps`, `jitter_rho`, `jitter_lag`: as for `assimilate`.
+    - `method`, `retry_substeps`: as for `integrate`.
+    - `chunk_size`: `None` (default): every forecast runs all particles at once (`vmap`);
+      `k`: `k` particles at a time (`jax.lax.map` in batches), so that the memory of a
+      forecast is that of `k` particles. Each particle's forecast is its own, so the
+      result is the same (`tests/test_assimilation.py`).
+    - `sharding`: `None` (default), `"auto"` or a `jax.sharding.Sharding` of the particle
+      axis, as for `simulate`: each forecast runs every device's particles on that device
+      (JAX's SPMD partitioner), and the tempering and resampling, which need all the
+      weights, gather them. The result is that of the unsharded filter, to round-off
+      (`tests/test_scale.py`). One process only; not with `chunk_size`.
+
+    **Returns:** a `FilterResult`.
+    """
+    setup = _setup(
+        "particle_filter",
+        system,
+        particles,
+        obs_times,
+        dt,
+        t0,
+        method,
+        retry_substeps,
+        chunk_size,
+        sharding,
+        jitter_lag,
+    )
+    with automatic(setup.sharding, (system, setup.x)) as (auto, (system, x)):
+        result = assimilate(
+            setup.forecast(system, auto),
+            x,
+            observations,
+            observe=observe,
+            obs_std=obs_std,
+            increments_shape=(setup.m, system.n_noises),
+            dt=setup.h,
+            key=key,
+            ess_threshold=ess_threshold,
+            jitter_steps=jitter_steps,
+            jitter_rho=jitter_rho,
+            jitter_lag=jitter_lag,
+        )
+    return as_given(result, setup.sharding)
+
+
+def particle_filter_to_store(
+    system,
+    particles,
+    observations,
+    path,
+    *,
+    obs_times,
+    observe,
+    obs_std,
+    dt,
+    key,
+    t0=0.0,
+    ess_threshold=0.5,
+    jitter_steps=5,
+    jitter_rho=0.9,
+    jitter_lag=1,
+    method: Any = "auto",
+    retry_substeps: int | None = 4,
+    chunk_size: int | None = None,
+    resume=False,
+    progress=True,
+):
+    r"""`particle_filter`, written to a run store on disk as it goes: each observation's
+    analysis is appended to the store with the filter's state (every particle's pCN window,
+    the random key, the log evidence) and committed together, so that memory stays flat in the
+    number of observations, and a run killed at any point goes on from its last complete
+    observation with `resume=True`, giving the same analyses, bit for bit, as a run never
+    stopped. Resuming with more observations than the store holds extends the run: a filter
+    kept up to date as observations arrive.
+
+    **Arguments:** as `particle_filter`'s (without `sharding`), and
+
+    - `path`: the store's directory (`RunStore`; it must not exist unless `resume=True`).
+    - `resume`: `False` (default): a new store (an existing one is an error); `True`: go on
+      from the store's last complete observation, or start one if there is none. A store of
+      another filter (system, particles, step, key, method, options, `observe` on the
+      particles) is refused, naming what differs, and so are observations that differ from
+      those already assimilated. `observations` and `obs_times` may run further than the
+      store's.
+    - `progress`: a progress bar with the time left, where someone watches.
+
+    **Returns:** the store opened for reading (`open_run(path)`), one record per
+    observation: `"state"` the analysis ensemble `(n_obs, n, *state)`, `"mean"` its mean,
+    `"observation"` what was assimilated, `"ess"` the least stage ESS, `"stages"` the
+    tempering stages, `"acceptance"` pCN's mean acceptance, `"log_evidence"` the log
+    evidence so far; its `.times` are the observation times less `t0`.
+    """
+    setup = _setup(
+        "particle_filter_to_store",
+        system,
+        particles,
+        obs_times,
+        dt,
+        t0,
+        method,
+        retry_substeps,
+        chunk_size,
+        None,
+        jitter_lag,
+    )
+    if not isinstance(resume, bool):
+        raise TypeError(f"resume must be True or False, got {resume!r}.")
+    x, m, lag = setup.x, setup.m, check_count("jitter_lag", jitter_lag)
+    run = _prepare(setup.forecast(system, None), x, observations, observe, obs_std, lag)
+    n, ys, real = x.shape[0], run.ys, run.real
+    increments = (m, system.n_noises)
+    key_data = np.asarray(jax.random.key_data(key))
+    snapshots = {
+        "state": (x.shape, x.dtype),
+        "mean": (x.shape[1:], x.dtype),
+        "observation": (ys.shape[1:], real),
+        "ess": ((), real),
+        "stages": ((), np.int64),
+        "acceptance": ((), real),
+        "log_evidence": ((), np.float64),
+    }
+    carry = {
+        "anchor": (x.shape, x.dtype),
+        "dws": ((n, lag, *increments), real),
+        "xs": ((n, lag, *x.shape[1:]), x.dtype),
+        "ells": ((n, lag), real),
+        "width": ((), np.int64),
+        "key": (key_data.shape, key_data.dtype),
+        "log_z": ((), np.float64),
+        "observations": ((32,), np.uint8),  # (a digest of those assimilated)
+    }
+    fingerprint = {
+        "dt": setup.h,
+        "save_every": m,
+        "t0": float(t0),
+        "system": repr(system),
+        "system_numbers": _digest(*jax.tree_util.tree_leaves(system)),
+        "particles": _digest(x),
+        "observe": _digest(jax.vmap(observe)(x)),
+        "obs_std": _digest(run.std),
+        "dtype": str(x.dtype),
+        "method": repr(setup.method),
+        "key": _digest(key_data),
+        "key_impl": str(jax.random.key_impl(key)),
+        "options": [ess_threshold, jitter_steps, jitter_rho, lag, setup.retry],
+    }
+    store = RunStore(path, fingerprint, snapshots, carry, mode="resume" if resume else "create")
+    with store:
+        state = _start(run, key)
+        if store.checkpoint is not None:
+            state = _restore(store.checkpoint, key, ys, m)
+        filtering = run.cycles(
+            state,
+            increments_shape=increments,
+            dt=setup.h,
+            ess_threshold=ess_threshold,
+            jitter_steps=jitter_steps,
+            jitter_rho=jitter_rho,
+        )
+        bar = progress_bar(ys.shape[0] - state.k, "particle_filter_to_store", unit="observation")
+        for cycle in filtering:
+            k = cycle.state.k
+            record = {
+                "state": cycle.analysis[None],
+                "mean": jnp.mean(cycle.analysis, axis=0)[None],
+                "observation": ys[k - 1][None],
+                "ess": np.asarray([cycle.ess]),
+                "stages": np.asarray([len(cycle.temperatures)]),
+                "acceptance": np.asarray([np.mean(cycle.acceptance)]),
+                "log_evidence": np.asarray([cycle.state.log_z]),
+            }
+            store.append(
+                {name: np.asarray(v) for name, v in record.items()},
+                _carry(cycle.state, lag, np.frombuffer(_digest_bytes(ys[:k]), np.uint8)),
+                k * m,
+            )
+            bar.update(1)
+        bar.close()
+    return open_run(path)
+
+
+class _Setup(NamedTuple):
+    """`particle_filter`'s checked inputs: the method, the particles, the steps between
+    observations `m` of `h`, the retry, and the layout."""
+
+    method: Any
+    x: Any
+    m: int
+    h: float
+    retry: Any
+    chunk_size: Any
+    sharding: Any
+
+    def forecast(self, system, auto):
+        """The forecast of a batch of particles to the next observation (jitted, shared)."""
+        options = dict(m=self.m, retry=self.retry, chunk_size=self.chunk_size, auto=auto)
+        step = jnp.asarray(self.h, self.x.real.dtype)
+        return functools.partial(_forecast, self.method, system, step=step, **options)
+
+
+def _setup(
+    name,
+    system,
+    particles,
+    obs_times,
+    dt,
+    t0,
+    method,
+    retry_substeps,
+    chunk_size,
+    sharding,
+    jitter_lag,
+):
+    """The inputs of `particle_filter` (`name`) checked, by name, before any work."""
+    method = check_method(method, system)
+    x = jnp.asarray(particles)
+    if x.ndim < 1 or x.shape[0] < 2:
+        raise ValueError(f"{name}: particles must be (n, *state) with n >= 2, got {x.shape}.")
+    x = jnp.stack([check_y0(p, method, system) for p in np.asarray(x)])
+    times = np.asarray(obs_times, dtype=float)
+    h = float(dt)
+    if not h > 0:
+        raise ValueError(f"{name}: dt must be positive, got {dt!r}.")
+    gaps = np.diff(np.concatenate([[float(t0)], times]))
+    if times.ndim != 1 or times.size == 0 or np.any(gaps <= 0):
+        raise ValueError(
+            f"{name}: obs_times must be increasing and after t0 = {t0}, got {obs_times!r}."
+        )
+    steps = gaps / h
+    m = int(round(steps[0]))
+    if m < 1 or np.any(np.abs(steps - m) > 1e-6 * m):
+        raise ValueError(
+            f"{name}: obs_times must be equally spaced on the grid of dt from t0 "
+            f"(dt = {h}); their gaps are {gaps.tolist()} s."
+        )
+    retry = check_retry(retry_substeps)
+    if chunk_size is not None:
+        chunk_size = min(check_count("chunk_size", chunk_size), x.shape[0])
+    sharding = check_sharding(sharding, x.shape[0], name="the number of particles")
+    if sharding is not None and chunk_size is not None:
+        raise ValueError(
+            f"{name}: give chunk_size or sharding, not both (the chunks would run one after "
+            "another across the devices)."
+        )
+    check_count("jitter_lag", jitter_lag)
+    return _Setup(method, x, m, h, retry, chunk_size, sharding)
+
+
+def _digest_bytes(*arrays):
+    digest = hashlib.sha256()
+    for a in arrays:
+        digest.update(np.ascontiguousarray(np.asarray(a)).tobytes())
+    return digest.digest()
+
+
+def _digest(*arrays):
+    """A hash of arrays' bytes, stable across processes (a store's fingerprint)."""
+    return _digest_bytes(*arrays).hex()
+
+
+def _carry(state, lag, observations):
+    """A filter's `_State` as the store's carry: the windows padded to `lag` intervals."""
+    width = state.xs.shape[1]
+
+    def pad(a):
+        a = np.asarray(a)
+        return np.concatenate([a, np.zeros((a.shape[0], lag - width, *a.shape[2:]), a.dtype)], 1)
+
+    return {
+        "anchor": np.asarray(state.anchor),
+        "dws": pad(state.dws),
+        "xs": pad(state.xs),
+        "ells": pad(state.ells),
+        "width": np.asarray(width),
+        "key": np.asarray(jax.random.key_data(state.key)),
+        "log_z": np.asarray(state.log_z, np.float64),
+        "observations": observations,
+    }
+
+
+def _restore(checkpoint, key, ys, m):
+    """The `_State` a store's last record left (`_carry`), once the observations it
+    assimilated are found equal to the first ones of `ys`."""
+    c = checkpoint.carry
+    k = checkpoint.step // m
+    if k > ys.shape[0]:
+        raise ValueError(
+            f"particle_filter_to_store: the store holds {k} observations, more than the "
+            f"{ys.shape[0]} given: resume with all of them."
+        )
+    if _digest_bytes(ys[:k]) != np.asarray(c["observations"]).tobytes():
+        raise ValueError(
+            f"particle_filter_to_store: the observations differ from the {k} the store has "
+            "assimilated."
+        )
+    width = int(c["width"])
+    impl = jax.random.key_impl(key)
+    return _State(
+        k,
+        jnp.asarray(c["anchor"]),
+        jnp.asarray(c["dws"][:, :width]),
+        jnp.asarray(c["xs"][:, :width]),
+        jnp.asarray(c["ells"][:, :width]),
+        jax.random.wrap_key_data(jnp.asarray(c["key"]), impl=impl),
+        float(c["log_z"]),
+    )
