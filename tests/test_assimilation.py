@@ -222,19 +222,25 @@ def test_every_analysis_particle_stays_on_its_coadjoint_orbit(so4_run):
     assert np.all(np.asarray(res.ess) >= 0.5 * n * (1 - 1e-9))
 
 
-def test_the_filter_on_disk_resumes_and_extends_bit_for_bit(so4_run, tmp_path):
+def test_the_filter_on_disk_resumes_and_extends_bit_for_bit(so4_run, tmp_path, monkeypatch, capsys):
     # two observations to a store, then all three resumed from it: the analyses, ESS and
     # evidence of the filter run in memory, bit for bit (the windows, key and evidence are
-    # the store's carry); other observations or options are refused
+    # the store's carry); other observations or options are refused. Watched (as on a
+    # terminal), the first shows its progress and the second, progress=False, does not.
+    from slps_jax._support import progress as _progress
+
+    monkeypatch.setattr(_progress, "interactive", lambda: True)
     sj, system, y0, ys, res = so4_run
     path = tmp_path / "filter"
     times, kw = _STORED["obs_times"], dict(_STORED, key=jax.random.key(_STORED["key"]))
-    kw.update(observe=_observe, obs_std=0.05, dt=_H, progress=False)
+    kw.update(observe=_observe, obs_std=0.05, dt=_H)
     del kw["obs_times"]
     x = np.broadcast_to(y0, (16, 4, 4))
     first = sj.particle_filter_to_store(system, x, ys[:2], path, obs_times=times[:2], **kw)
-    assert len(first) == 2
+    assert len(first) == 2 and "2/2" in capsys.readouterr().err
+    kw["progress"] = False
     run = sj.particle_filter_to_store(system, x, ys, path, obs_times=times, resume=True, **kw)
+    assert capsys.readouterr().err == ""
     assert np.array_equal(run.read("state"), np.asarray(res.particles))
     assert np.array_equal(run.read("ess"), np.asarray(res.ess))
     assert np.array_equal(run.read("log_evidence"), np.asarray(res.log_evidence))

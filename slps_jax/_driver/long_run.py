@@ -146,7 +146,9 @@ def simulate_to_store(
             )
         carry = jax.tree_util.tree_unflatten(treedef, leaves)
         steps = per_record * p.save_every
-        bar = progress_bar((p.n_steps - start) // steps, "simulate_to_store", unit="record")
+        bar = progress_bar(
+            (p.n_steps - start) // steps, "simulate_to_store", unit="record", enabled=progress
+        )
         for first in range(start, p.n_steps, steps):
             carry, ys = _record(
                 p.method, p.system, p.dt, p.path, keys, carry, per_record, p.save_every, p.retry

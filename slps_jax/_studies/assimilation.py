@@ -254,14 +254,14 @@ class _Cycle(NamedTuple):
 
 class _Run(NamedTuple):
     """A filter's checked inputs (`_prepare`): the particles, observations, errors, window
-    length, and the jitted forecast with its likelihoods."""
+    length, the real dtype, and `advance`: the jitted forecast with its likelihoods."""
 
     x: Any
     ys: Any
     std: Any
     lag: int
     real: Any
-    run: Any
+    advance: Any
 
     def cycles(self, state, *, increments_shape, dt, ess_threshold, jitter_steps, jitter_rho):
         """The assimilation of observations `state.k`, `state.k + 1`, ... (a generator of
@@ -294,14 +294,14 @@ def _prepare(forecast, particles, observations, observe, obs_std, jitter_lag):
         forecast = jax.jit(forecast)
     std = std * jnp.ones(ys.shape[1], real)
 
-    def run(states, dw, y):
+    def advance(states, dw, y):
         """The forecast's states and their log-likelihoods (`-inf` where it failed)."""
         out = forecast(states, dw)
         states, ok = out if isinstance(out, tuple) else (out, None)
         ell = _log_likelihood(observe, states, y, std)
         return states, ell if ok is None else jnp.where(ok, ell, -jnp.inf)
 
-    return _Run(x, ys, std, lag, real, run)
+    return _Run(x, ys, std, lag, real, advance)
 
 
 def _start(run, key):
@@ -334,7 +334,7 @@ def _cycles(run, state, increments_shape, dt, ess_threshold, jitter_steps, jitte
         width = dw.shape[1]
         states, lls = [], []
         for j in range(width):
-            start, ell = run.run(start, dw[:, j], ys[k - width + 1 + j])
+            start, ell = run.advance(start, dw[:, j], ys[k - width + 1 + j])
             states.append(start)
             lls.append(ell)
         return jnp.stack(states, 1), jnp.stack(lls, 1)
@@ -344,7 +344,7 @@ def _cycles(run, state, increments_shape, dt, ess_threshold, jitter_steps, jitte
             anchor, dws, xs, ells = xs[:, 0], dws[:, 1:], xs[:, 1:], ells[:, 1:]
         key, draw = jax.random.split(key)
         dw = sqrt_dt * jax.random.normal(draw, shape, real)
-        x, ell = run.run(xs[:, -1] if xs.shape[1] else anchor, dw, ys[k])
+        x, ell = run.advance(xs[:, -1] if xs.shape[1] else anchor, dw, ys[k])
         dws = jnp.concatenate([dws, dw[:, None]], 1)
         xs = jnp.concatenate([xs, x[:, None]], 1)
         ells = jnp.concatenate([ells, ell[:, None]], 1)

@@ -243,7 +243,9 @@ def particle_filter_to_store(
             jitter_steps=jitter_steps,
             jitter_rho=jitter_rho,
         )
-        bar = progress_bar(ys.shape[0] - state.k, "particle_filter_to_store", unit="observation")
+        bar = progress_bar(
+            ys.shape[0] - state.k, "particle_filter_to_store", unit="observation", enabled=progress
+        )
         for cycle in filtering:
             k = cycle.state.k
             record = {

@@ -17,9 +17,9 @@ def interactive():
     return bool(getattr(sys.stderr, "isatty", lambda: False)())
 
 
-def progress_bar(total, desc, unit="it"):
+def progress_bar(total, desc, unit="it", enabled=True):
     """A tqdm bar of `total` steps (`.update(n)`, `.set_postfix_str(s)`, `.close()`),
-    disabled when not `interactive()`."""
+    disabled when not `enabled` (a caller's `progress=False`) or not `interactive()`."""
     with warnings.catch_warnings():
         # without ipywidgets, tqdm.auto warns in a notebook and falls back to text
         warnings.simplefilter("ignore")
@@ -28,7 +28,7 @@ def progress_bar(total, desc, unit="it"):
         total=total,
         desc=desc,
         unit=unit,
-        disable=not interactive(),
+        disable=not (enabled and interactive()),
         file=sys.stderr,
         dynamic_ncols=True,
     )
