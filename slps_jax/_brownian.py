@@ -594,7 +594,7 @@ class StatefulDraws:
         self.init = jax.random.normal(k0, (path.n_noises,), dtype)
 
     def block(self, eta, n0, length, n_live):
-        a, b, l11, l21, l22 = self.path.consts
+        a = self.path.consts[0]
         s, dtype = a.shape[0], a.dtype
         z = jax.vmap(
             lambda j: jax.random.normal(jax.random.fold_in(self.key, n0 + j), (2, s), dtype)
@@ -602,11 +602,20 @@ class StatefulDraws:
 
         def step(eta, zj):
             z, live = zj
-            nxt = a * eta + l11 * z[0]
-            return jnp.where(live, nxt, eta), b * eta + l21 * z[0] + l22 * z[1]
+            nxt, increment = ou_step(self.path.consts, eta, z)
+            return jnp.where(live, nxt, eta), increment
 
         eta, dW = jax.lax.scan(step, eta, (z, jnp.arange(length) < n_live))
         return eta, BrownianStep(dW, None)
+
+
+def ou_step(consts, eta, z):
+    r"""One exact step of unit Ornstein–Uhlenbeck traces (`OrnsteinUhlenbeck.path`'s
+    `consts`): from $\eta_n$ and standard normal numbers `z`, shape `(2, s)`, the traces
+    $\eta_{n+1}$ and the step's increment $\int \eta\,dt$, jointly Gaussian given
+    $\eta_n$."""
+    a, b, l11, l21, l22 = consts
+    return a * eta + l11 * z[0], b * eta + l21 * z[0] + l22 * z[1]
 
 
 def ou_increments(key, n_steps, dt, correlation_time, *, n_samples=None, dtype=None):

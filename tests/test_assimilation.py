@@ -96,44 +96,86 @@ def _ou_model(theta=1.0, sigma=0.5, m=8, h=0.05):
     return forecast, a, q
 
 
-@pytest.mark.parametrize("lag", [1, 3])
-def test_a_linear_gaussian_model_gives_the_kalman_filter_within_monte_carlo_error(lag):
+def _ou_driven_model(theta=1.0, sigma=0.5, m=8, h=0.05, T=0.3):
+    """The same process driven by a smooth Ornstein-Uhlenbeck trace (correlation time T)
+    instead of white noise: a particle is a pytree (x, eta), its random numbers the trace's
+    exact steps' standard normals (`ou_step`), and the augmented state is still linear-
+    Gaussian. Returns the forecast and the interval's transition F and noise covariance Q."""
+    from slps_jax._brownian import OrnsteinUhlenbeck, ou_step
+
+    consts = OrnsteinUhlenbeck(T).path(h, 1, jnp.float64).consts
+    e = float(np.exp(-theta * h))
+
+    def forecast(states, z):  # states (x (n, 1), eta (n, 1)); z (n, m, 2, 1)
+        def one(x, eta, zz):
+            def step(c, zj):
+                x, eta = c
+                eta, increment = ou_step(consts, eta, zj)
+                return (e * x + sigma * increment, eta), None
+
+            return jax.lax.scan(step, (x, eta), zz)[0]
+
+        return jax.vmap(one)(states[0], states[1], z)
+
+    a, b, l11, l21, l22 = (float(np.asarray(c)[0]) for c in consts)
+    f_step = np.array([[e, sigma * b], [0.0, a]])
+    g_step = np.array([[sigma * l21, sigma * l22], [l11, 0.0]])
+    big_f, big_q = np.eye(2), np.zeros((2, 2))
+    for _ in range(m):
+        big_f, big_q = f_step @ big_f, f_step @ big_q @ f_step.T + g_step @ g_step.T
+    return forecast, big_f, big_q
+
+
+@pytest.mark.parametrize("lag, driven", [(1, False), (3, False), (1, True)])
+def test_a_linear_gaussian_model_gives_the_kalman_filter_within_monte_carlo_error(lag, driven):
     # (with lag 3, pCN moves each particle's increments over the last three intervals, re-run
-    # from its state three observations back: the same filtering distributions)
-    forecast, a, q = _ou_model()
-    r, m0, p0, n, n_obs = 0.2**2, 0.5, 0.3**2, 2000, 5
+    # from its state three observations back; driven by an Ornstein-Uhlenbeck trace, each
+    # particle is a pytree of its state and the trace: the same filtering distributions)
+    r, n, n_obs = 0.2**2, 2000, 5
+    key0 = jax.random.key(1)
+    if driven:
+        forecast, f, q = _ou_driven_model()
+        m0, p0, shape, dt = np.array([0.5, 0.0]), np.diag([0.3**2, 1.0]), (8, 2, 1), 1.0
+        draws = np.asarray(jax.random.normal(key0, (n, 2)))
+        x0 = (m0[0] + 0.3 * draws[:, :1], draws[:, 1:])
+    else:
+        forecast, a, q1 = _ou_model()
+        f, q = np.array([[a]]), np.array([[q1]])
+        m0, p0, shape, dt = np.array([0.5]), np.array([[0.3**2]]), (8,), 0.05
+        x0 = 0.5 + 0.3 * np.asarray(jax.random.normal(key0, (n, 1)))
     rng = np.random.default_rng(5)
-    truth, ys = rng.normal(m0, np.sqrt(p0)), []
+    truth, ys = rng.multivariate_normal(m0, p0), []
     for _ in range(n_obs):
-        truth = a * truth + rng.normal(0.0, np.sqrt(q))
-        ys.append([truth + rng.normal(0.0, np.sqrt(r))])
+        truth = f @ truth + rng.multivariate_normal(np.zeros(len(m0)), q)
+        ys.append([truth[0] + rng.normal(0.0, np.sqrt(r))])
     ys = np.asarray(ys)
-    x0 = m0 + np.sqrt(p0) * np.asarray(jax.random.normal(jax.random.key(1), (n, 1)))
     res = da.assimilate(
         forecast,
         x0,
         ys,
-        observe=lambda s: s,
+        observe=(lambda s: s[0]) if driven else (lambda s: s),
         obs_std=np.sqrt(r),
-        increments_shape=(8,),
-        dt=0.05,
+        increments_shape=shape,
+        dt=dt,
         key=jax.random.key(2),
         ess_threshold=0.5,
         jitter_steps=5,
         jitter_rho=0.8,
         jitter_lag=lag,
     )
+    particles = res.particles[0] if driven else res.particles
     m, p, log_z = m0, p0, 0.0
     for k in range(n_obs):
-        m, p = a * m, a * a * p + q
-        s = p + r
-        log_z += -0.5 * (np.log(2 * np.pi * s) + (ys[k, 0] - m) ** 2 / s)
-        gain = p / s
-        m, p = m + gain * (ys[k, 0] - m), (1 - gain) * p
-        xs = np.asarray(res.particles[k, :, 0])
+        m, p = f @ m, f @ p @ f.T + q
+        s = p[0, 0] + r
+        log_z += -0.5 * (np.log(2 * np.pi * s) + (ys[k, 0] - m[0]) ** 2 / s)
+        gain = p[:, 0] / s
+        m, p = m + gain * (ys[k, 0] - m[0]), p - np.outer(gain, p[0])
+        xs = np.asarray(particles[k, :, 0])
         # resampling and jittering correlate the particles: allow an effective size of n/4
-        assert abs(xs.mean() - m) <= 4 * np.sqrt(p / (n / 4)), (k, xs.mean(), m)
-        assert abs(xs.var(ddof=1) / p - 1) <= 4 * np.sqrt(2 / (n / 4)), (k, xs.var(), p)
+        sd = np.sqrt(p[0, 0] / (n / 4))
+        assert abs(xs.mean() - m[0]) <= 4 * sd, (k, xs.mean(), m[0])
+        assert abs(xs.var(ddof=1) / p[0, 0] - 1) <= 4 * np.sqrt(2 / (n / 4)), (k, xs.var(), p)
         assert float(res.ess[k]) >= 0.5 * n * (1 - 1e-9)
         assert float(res.temperatures[k][-1]) == 1.0
         assert 0.0 < float(jnp.mean(res.acceptance[k])) <= 1.0
@@ -330,3 +372,38 @@ def test_chunking_the_particles_does_not_change_the_filter():
     np.testing.assert_allclose(chunked.log_evidence, whole.log_evidence, rtol=1e-12)
     with pytest.raises(ValueError, match="chunk_size"):
         run(0)
+
+
+def test_an_ornstein_uhlenbeck_driver_keeps_orbits_and_resumes_from_disk(tmp_path):
+    # so(4) driven by smooth Ornstein-Uhlenbeck traces: each particle carries its traces
+    # (started from their stationary law), pCN moves the standard normals of their exact
+    # steps; the particles keep their Casimirs, and the filter on disk, one observation then
+    # both resumed, is the filter in memory bit for bit
+    sj, system, y0 = _so4_setup()
+    ys = np.stack([np.asarray(_observe(y0))] * 2) + 0.01
+    x = np.broadcast_to(y0, (8, 4, 4))
+    kw = dict(observe=_observe, obs_std=0.05, dt=_H, key=jax.random.key(4), jitter_steps=1)
+    driver = sj.OrnsteinUhlenbeck([0.2, 0.3, 0.5])
+    res = sj.particle_filter(system, x, ys, obs_times=[0.125, 0.25], driver=driver, **kw)
+    assert res.particles.shape == (2, 8, 4, 4) and res.mean.shape == (2, 4, 4)
+    c0 = np.asarray(sj.so(4).casimirs(y0))
+    assert np.max(np.abs(np.asarray(sj.so(4).casimirs(res.particles)) / c0 - 1)) < 1e-12
+    assert np.ptp(np.asarray(res.particles[-1]), axis=0).max() > 1e-4  # (the traces drive)
+    path, disk = tmp_path / "ou", dict(kw, driver=driver, progress=False)
+    sj.particle_filter_to_store(system, x, ys[:1], path, obs_times=[0.125], **disk)
+    run = sj.particle_filter_to_store(
+        system, x, ys, path, obs_times=[0.125, 0.25], resume=True, **disk
+    )
+    assert np.array_equal(run.read("state"), np.asarray(res.particles))
+    with pytest.raises(ValueError, match="4 correlation times"):
+        sj.particle_filter(
+            system,
+            x,
+            ys,
+            obs_times=[0.125, 0.25],
+            **{**kw, "driver": sj.OrnsteinUhlenbeck([1.0, 2.0, 3.0, 4.0])},
+        )
+    with pytest.raises(TypeError, match="driver"):
+        sj.particle_filter(
+            system, x, ys, obs_times=[0.125, 0.25], **{**kw, "driver": sj.BrownianMotion()}
+        )

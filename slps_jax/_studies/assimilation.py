@@ -180,9 +180,10 @@ def assimilate(
     - `forecast(states, increments) -> states` (jitted here unless it is, or is a
       `functools.partial` of, a jitted function): one batch, states `(n, *state)` and standard
       Brownian increments `(n, *increments_shape)` of step `dt`, to the next observation time;
-      or `-> (states, ok)`, `ok` a boolean per particle: a failed forecast gets likelihood 0
-      (it is never resampled, and a pCN move to it is rejected).
-    - `particles`: the initial ensemble, `(n, *state)`, `n >= 2`.
+      or `-> (states, ok)`, `ok` a boolean array `(n,)`: a failed forecast gets likelihood 0
+      (it is never resampled, and a pCN move to it is rejected). A state may be a pytree of
+      arrays with the particles first, such as a system's state and a driver's traces.
+    - `particles`: the initial ensemble, `(n, *state)` (or a pytree of such arrays), `n >= 2`.
     - `observations`: `(n_obs, n_y)`, finite.
     - `observe(state) -> (n_y,)`: one state's observed quantities.
     - `obs_std`: the Gaussian observation error, a positive scalar or `(n_y,)`.
@@ -215,10 +216,10 @@ def assimilate(
         temperatures.append(jnp.asarray(cycle.temperatures))
         acceptance.append(jnp.asarray(cycle.acceptance))
         evidence.append(cycle.state.log_z)
-    analyses = jnp.stack(analyses)
+    analyses = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *analyses)
     return FilterResult(
         analyses,
-        jnp.mean(analyses, axis=1),
+        _map(lambda a: jnp.mean(a, axis=1), analyses),
         jnp.asarray(esses),
         temperatures,
         acceptance,
@@ -271,14 +272,15 @@ class _Run(NamedTuple):
 
 def _prepare(forecast, particles, observations, observe, obs_std, jitter_lag):
     """`assimilate`'s inputs checked, by name, before any work (`_Run`)."""
-    x = jnp.asarray(particles)
+    x = _map(jnp.asarray, particles)
     ys = jnp.asarray(observations)
-    n = x.shape[0]
+    first = jax.tree_util.tree_leaves(x)[0]
+    n = first.shape[0]
     if n < 2:
         raise ValueError(f"assimilate: particles must hold at least 2 particles, got {n}.")
     if ys.ndim != 2 or not bool(jnp.all(jnp.isfinite(ys))):
         raise ValueError("assimilate: observations must be a finite (n_obs, n_y) array.")
-    real = jnp.zeros((), x.dtype).real.dtype  # (complex states: real increments, weights)
+    real = jnp.zeros((), first.dtype).real.dtype  # (complex states: real increments, weights)
     std = jnp.asarray(obs_std, real)
     if not bool(jnp.all(std > 0)):
         raise ValueError(f"assimilate: obs_std must be positive, got {obs_std!r}.")
@@ -296,8 +298,7 @@ def _prepare(forecast, particles, observations, observe, obs_std, jitter_lag):
 
     def advance(states, dw, y):
         """The forecast's states and their log-likelihoods (`-inf` where it failed)."""
-        out = forecast(states, dw)
-        states, ok = out if isinstance(out, tuple) else (out, None)
+        states, ok = _states_and_ok(forecast(states, dw), n)
         ell = _log_likelihood(observe, states, y, std)
         return states, ell if ok is None else jnp.where(ok, ell, -jnp.inf)
 
@@ -306,12 +307,12 @@ def _prepare(forecast, particles, observations, observe, obs_std, jitter_lag):
 
 def _start(run, key):
     """The state of a filter before its first observation: every window empty."""
-    n = run.x.shape[0]
+    n = _count(run.x)
     return _State(
         0,
         run.x,
         None,
-        jnp.zeros((n, 0, *run.x.shape[1:]), run.x.dtype),
+        _map(lambda a: jnp.zeros((n, 0, *a.shape[1:]), a.dtype), run.x),
         jnp.zeros((n, 0), run.real),
         key,
         0.0,
@@ -321,7 +322,7 @@ def _start(run, key):
 def _cycles(run, state, increments_shape, dt, ess_threshold, jitter_steps, jitter_rho):
     """`_Run.cycles`."""
     ys, lag, real = run.ys, run.lag, run.real
-    n = run.x.shape[0]
+    n = _count(run.x)
     shape = (n, *increments_shape)
     sqrt_dt = jnp.sqrt(jnp.asarray(dt, real))
     _, anchor, dws, xs, ells, key, log_z = state
@@ -337,16 +338,17 @@ def _cycles(run, state, increments_shape, dt, ess_threshold, jitter_steps, jitte
             start, ell = run.advance(start, dw[:, j], ys[k - width + 1 + j])
             states.append(start)
             lls.append(ell)
-        return jnp.stack(states, 1), jnp.stack(lls, 1)
+        return jax.tree_util.tree_map(lambda *a: jnp.stack(a, 1), *states), jnp.stack(lls, 1)
 
     for k in range(state.k, ys.shape[0]):
         if dws.shape[1] == lag:  # (the window moves on by one observation)
-            anchor, dws, xs, ells = xs[:, 0], dws[:, 1:], xs[:, 1:], ells[:, 1:]
+            anchor, xs = _map(lambda a: a[:, 0], xs), _map(lambda a: a[:, 1:], xs)
+            dws, ells = dws[:, 1:], ells[:, 1:]
         key, draw = jax.random.split(key)
         dw = sqrt_dt * jax.random.normal(draw, shape, real)
-        x, ell = run.advance(xs[:, -1] if xs.shape[1] else anchor, dw, ys[k])
+        x, ell = run.advance(_map(lambda a: a[:, -1], xs) if dws.shape[1] else anchor, dw, ys[k])
         dws = jnp.concatenate([dws, dw[:, None]], 1)
-        xs = jnp.concatenate([xs, x[:, None]], 1)
+        xs = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b[:, None]], 1), xs, x)
         ells = jnp.concatenate([ells, ell[:, None]], 1)
         if not bool(jnp.any(jnp.isfinite(ell))):
             raise RuntimeError(
@@ -356,7 +358,7 @@ def _cycles(run, state, increments_shape, dt, ess_threshold, jitter_steps, jitte
         if not bool(jnp.all(jnp.isfinite(ell))):  # failed forecasts leave first, unweighted
             key, pick = jax.random.split(key)
             idx = systematic_resample(pick, jnp.where(jnp.isfinite(ell), 0.0, -jnp.inf))
-            anchor, dws, xs, ells = anchor[idx], dws[idx], xs[idx], ells[idx]
+            anchor, dws, xs, ells = _take((anchor, dws, xs, ells), idx)
         beta, betas, rates, least = 0.0, [], [], float(n)
         while beta < 1.0:
             new = float(next_temperature(ells[:, -1], beta, ess_threshold))
@@ -370,20 +372,19 @@ def _cycles(run, state, increments_shape, dt, ess_threshold, jitter_steps, jitte
             log_z += float(jax.scipy.special.logsumexp(logw) - jnp.log(n))
             key, pick = jax.random.split(key)
             idx = systematic_resample(pick, logw)
-            anchor, dws, xs, ells = anchor[idx], dws[idx], xs[idx], ells[idx]
+            anchor, dws, xs, ells = _take((anchor, dws, xs, ells), idx)
             for _ in range(jitter_steps):
                 key, propose, test = jax.random.split(key, 3)
                 dws_new = pcn_proposal(propose, dws, jitter_rho, dt)
                 xs_new, ells_new = run_window(anchor, dws_new, k)
                 # (the window's earlier observations count whole, the current one at `new`)
                 ok = pcn_accept(test, _tempered(ells_new, new), _tempered(ells, new), 1.0)
-                dws, xs = _where_rows(ok, dws_new, dws), _where_rows(ok, xs_new, xs)
-                ells = _where_rows(ok, ells_new, ells)
+                dws, xs, ells = _where_rows(ok, (dws_new, xs_new, ells_new), (dws, xs, ells))
                 rates.append(float(jnp.mean(ok)))
             beta = new
             betas.append(new)
         state = _State(k + 1, anchor, dws, xs, ells, key, log_z)
-        yield _Cycle(xs[:, -1], least, betas, rates, state)
+        yield _Cycle(_map(lambda a: a[:, -1], xs), least, betas, rates, state)
 
 
 @functools.partial(jax.jit, static_argnums=0)
@@ -400,5 +401,32 @@ def _tempered(ells, beta):
 
 
 def _where_rows(mask, a, b):
-    """`a` where `mask` (one entry per row), else `b`."""
-    return jnp.where(mask.reshape(mask.shape + (1,) * (a.ndim - 1)), a, b)
+    """`a` where `mask` (one entry per row), else `b`: arrays, or pytrees of them alike."""
+    return jax.tree_util.tree_map(
+        lambda a, b: jnp.where(mask.reshape(mask.shape + (1,) * (a.ndim - 1)), a, b), a, b
+    )
+
+
+def _map(fn, tree):
+    """`fn` on every array of a state's pytree (a state may be an array or a pytree)."""
+    return jax.tree_util.tree_map(fn, tree)
+
+
+def _states_and_ok(out, n):
+    """A forecast's `(states, ok)`: its output as it is when that is a pair whose second part
+    is a boolean array `(n,)`, else the output as the states, all successful (`ok` `None`)."""
+    if isinstance(out, tuple) and len(out) == 2:
+        ok = out[1]
+        if getattr(ok, "dtype", None) == jnp.bool_ and getattr(ok, "shape", None) == (n,):
+            return out
+    return out, None
+
+
+def _take(tree, idx):
+    """The particles `idx` of every array of a pytree (resampling)."""
+    return jax.tree_util.tree_map(lambda a: a[idx], tree)
+
+
+def _count(tree):
+    """The number of particles: the leading axis of a state's arrays."""
+    return jax.tree_util.tree_leaves(tree)[0].shape[0]

@@ -4,6 +4,7 @@ resumable, and extendable with later observations)."""
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import hashlib
 from typing import Any, NamedTuple
@@ -12,7 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._brownian import BrownianStep
+from .._brownian import BrownianStep, OrnsteinUhlenbeck, ou_step
 from .._driver.integrate import _integrate_jit
 from .._driver.plan import check_method, check_retry, check_y0
 from .._driver.sharding import as_given, automatic, check_sharding
@@ -24,22 +25,39 @@ from .assimilation import _prepare, _start, _State, assimilate
 
 
 @functools.partial(jax.jit, static_argnames=("method", "m", "retry", "chunk_size", "auto"))
-def _forecast(method, system, states, dws, step, *, m, retry, chunk_size, auto):
+def _forecast(method, system, states, dws, step, path, *, m, retry, chunk_size, auto):
     """`particle_filter`'s forecast: every particle `m` steps of `method` with its own
     increments, and whether it succeeded; compiled once per method, system structure,
-    shapes and layout."""
+    shapes and layout. With an Ornstein–Uhlenbeck `path` a particle is its state and its
+    traces, and `dws` are the standard normal numbers the traces' exact steps take
+    (`ou_step`); `None`: Brownian increments."""
 
-    def one(y, dw):
+    def one(state, dw):
+        y, eta = state if path is not None else (state, None)
+        if path is not None:
+            eta, dw = jax.lax.scan(lambda e, z: ou_step(path.consts, e, z), eta, dw)
         ys, _, result, _, _ = _integrate_jit(
             method, system, y, BrownianStep(dw, None), step, m, False, retry
         )
-        return ys[-1], result == RESULTS.successful
+        ok = result == RESULTS.successful
+        return ((ys[-1], eta) if path is not None else ys[-1]), ok
 
     if chunk_size is not None:
         return jax.lax.map(lambda a: one(*a), (states, dws), batch_size=chunk_size)
     if auto is not None:
         states, dws = jax.lax.with_sharding_constraint((states, dws), auto)
     return jax.vmap(one)(states, dws)
+
+
+@dataclasses.dataclass(frozen=True)
+class _OnState:
+    """`observe` of a particle that carries its driver's traces beside its state: of the
+    state alone (equal, and hashed alike, for the same `observe`: compiled once)."""
+
+    observe: Any
+
+    def __call__(self, particle):
+        return self.observe(particle[0])
 
 
 def particle_filter(
@@ -61,6 +79,7 @@ def particle_filter(
     retry_substeps: int | None = 4,
     chunk_size: int | None = None,
     sharding=None,
+    driver: OrnsteinUhlenbeck | None = None,
 ):
     r"""Assimilate observations into an ensemble of a stochastic Lie–Poisson system: the
     filter of `assimilate` (adaptive tempering, systematic resampling, pCN jittering of each
@@ -70,7 +89,8 @@ def particle_filter(
     and su(N)*, the default there) every particle stays on its initial coadjoint orbit.
 
     The increments are Gaussian, not truncated, and drawn without Lévy areas (the methods'
-    strong order ½ with several noises). A particle whose forecast fails (a step the method
+    strong order ½ with several noises), or the integrals of Ornstein–Uhlenbeck traces
+    (`driver`). A particle whose forecast fails (a step the method
     cannot solve, after `retry_substeps`) gets likelihood 0.
 
     **Arguments:**
@@ -95,8 +115,13 @@ def particle_filter(
       (JAX's SPMD partitioner), and the tempering and resampling, which need all the
       weights, gather them. The result is that of the unsharded filter, to round-off
       (`tests/test_scale.py`). One process only; not with `chunk_size`.
+    - `driver`: `None` (default): Brownian increments; `sj.OrnsteinUhlenbeck(T)`: smooth
+      Ornstein–Uhlenbeck traces, one per noise (the driver of a noise fitted with
+      `time_model="ou"`). Each particle then carries its traces beside its state, drawn from
+      their stationary law at the start and copied with it when resampled, and pCN moves the
+      standard normal numbers of the traces' exact steps.
 
-    **Returns:** a `FilterResult`.
+    **Returns:** a `FilterResult` (its `particles` and `mean` the system's states alone).
     """
     setup = _setup(
         "particle_filter",
@@ -110,22 +135,26 @@ def particle_filter(
         chunk_size,
         sharding,
         jitter_lag,
+        driver,
     )
-    with automatic(setup.sharding, (system, setup.x)) as (auto, (system, x)):
+    key, x = setup.initial(key)
+    with automatic(setup.sharding, (system, x)) as (auto, (system, x)):
         result = assimilate(
             setup.forecast(system, auto),
             x,
             observations,
-            observe=observe,
+            observe=setup.observing(observe),
             obs_std=obs_std,
-            increments_shape=(setup.m, system.n_noises),
-            dt=setup.h,
+            increments_shape=setup.increments(system),
+            dt=setup.increments_dt,
             key=key,
             ess_threshold=ess_threshold,
             jitter_steps=jitter_steps,
             jitter_rho=jitter_rho,
             jitter_lag=jitter_lag,
         )
+    if setup.path is not None:  # (the analyses' states, without the traces)
+        result = result._replace(particles=result.particles[0], mean=result.mean[0])
     return as_given(result, setup.sharding)
 
 
@@ -150,6 +179,7 @@ def particle_filter_to_store(
     chunk_size: int | None = None,
     resume=False,
     progress=True,
+    driver: OrnsteinUhlenbeck | None = None,
 ):
     r"""`particle_filter`, written to a run store on disk as it goes: each observation's
     analysis is appended to the store with the filter's state (every particle's pCN window,
@@ -188,14 +218,19 @@ def particle_filter_to_store(
         chunk_size,
         None,
         jitter_lag,
+        driver,
     )
     if not isinstance(resume, bool):
         raise TypeError(f"resume must be True or False, got {resume!r}.")
     x, m, lag = setup.x, setup.m, check_count("jitter_lag", jitter_lag)
-    run = _prepare(setup.forecast(system, None), x, observations, observe, obs_std, lag)
-    n, ys, real = x.shape[0], run.ys, run.real
-    increments = (m, system.n_noises)
     key_data = np.asarray(jax.random.key_data(key))
+    key, x0 = setup.initial(key)
+    run = _prepare(
+        setup.forecast(system, None), x0, observations, setup.observing(observe), obs_std, lag
+    )
+    n, ys, real = x.shape[0], run.ys, run.real
+    increments = setup.increments(system)
+    leaves = jax.tree_util.tree_leaves(x0)
     snapshots = {
         "state": (x.shape, x.dtype),
         "mean": (x.shape[1:], x.dtype),
@@ -206,9 +241,9 @@ def particle_filter_to_store(
         "log_evidence": ((), np.float64),
     }
     carry = {
-        "anchor": (x.shape, x.dtype),
+        **{f"anchor_{i}": (a.shape, a.dtype) for i, a in enumerate(leaves)},
+        **{f"xs_{i}": ((n, lag, *a.shape[1:]), a.dtype) for i, a in enumerate(leaves)},
         "dws": ((n, lag, *increments), real),
-        "xs": ((n, lag, *x.shape[1:]), x.dtype),
         "ells": ((n, lag), real),
         "width": ((), np.int64),
         "key": (key_data.shape, key_data.dtype),
@@ -229,16 +264,17 @@ def particle_filter_to_store(
         "key": _digest(key_data),
         "key_impl": str(jax.random.key_impl(key)),
         "options": [ess_threshold, jitter_steps, jitter_rho, lag, setup.retry],
+        "driver": repr(driver),
     }
     store = RunStore(path, fingerprint, snapshots, carry, mode="resume" if resume else "create")
     with store:
         state = _start(run, key)
         if store.checkpoint is not None:
-            state = _restore(store.checkpoint, key, ys, m)
+            state = _restore(store.checkpoint, key, ys, m, x0)
         filtering = run.cycles(
             state,
             increments_shape=increments,
-            dt=setup.h,
+            dt=setup.increments_dt,
             ess_threshold=ess_threshold,
             jitter_steps=jitter_steps,
             jitter_rho=jitter_rho,
@@ -248,9 +284,10 @@ def particle_filter_to_store(
         )
         for cycle in filtering:
             k = cycle.state.k
+            analysis = cycle.analysis if setup.path is None else cycle.analysis[0]
             record = {
-                "state": cycle.analysis[None],
-                "mean": jnp.mean(cycle.analysis, axis=0)[None],
+                "state": analysis[None],
+                "mean": jnp.mean(analysis, axis=0)[None],
                 "observation": ys[k - 1][None],
                 "ess": np.asarray([cycle.ess]),
                 "stages": np.asarray([len(cycle.temperatures)]),
@@ -269,7 +306,8 @@ def particle_filter_to_store(
 
 class _Setup(NamedTuple):
     """`particle_filter`'s checked inputs: the method, the particles, the steps between
-    observations `m` of `h`, the retry, and the layout."""
+    observations `m` of `h`, the retry, the layout, and the driver's path (`None`:
+    Brownian; an Ornstein–Uhlenbeck path: each particle carries its traces)."""
 
     method: Any
     x: Any
@@ -278,12 +316,39 @@ class _Setup(NamedTuple):
     retry: Any
     chunk_size: Any
     sharding: Any
+    path: Any
 
     def forecast(self, system, auto):
         """The forecast of a batch of particles to the next observation (jitted, shared)."""
         options = dict(m=self.m, retry=self.retry, chunk_size=self.chunk_size, auto=auto)
         step = jnp.asarray(self.h, self.x.real.dtype)
-        return functools.partial(_forecast, self.method, system, step=step, **options)
+        return functools.partial(
+            _forecast, self.method, system, step=step, path=self.path, **options
+        )
+
+    def initial(self, key):
+        """`(key, particles)`: with an Ornstein–Uhlenbeck driver each particle's traces
+        drawn from their stationary law (standard normal) beside its state."""
+        if self.path is None:
+            return key, self.x
+        key, draw = jax.random.split(key)
+        n, s = self.x.shape[0], self.path.n_noises
+        return key, (self.x, jax.random.normal(draw, (n, s), self.x.real.dtype))
+
+    def observing(self, observe):
+        """What the filter observes of a particle."""
+        return observe if self.path is None else _OnState(observe)
+
+    def increments(self, system):
+        """The shape of one particle's random numbers between observations: Brownian
+        increments `(m, s)`, or the traces' standard normal numbers `(m, 2, s)`."""
+        s = system.n_noises
+        return (self.m, s) if self.path is None else (self.m, 2, s)
+
+    @property
+    def increments_dt(self):
+        """Their variance: the step, or 1 for standard normal numbers."""
+        return self.h if self.path is None else 1.0
 
 
 def _setup(
@@ -298,6 +363,7 @@ def _setup(
     chunk_size,
     sharding,
     jitter_lag,
+    driver=None,
 ):
     """The inputs of `particle_filter` (`name`) checked, by name, before any work."""
     method = check_method(method, system)
@@ -331,7 +397,18 @@ def _setup(
             "another across the devices)."
         )
     check_count("jitter_lag", jitter_lag)
-    return _Setup(method, x, m, h, retry, chunk_size, sharding)
+    path = None
+    if driver is not None:
+        if not isinstance(driver, OrnsteinUhlenbeck):
+            raise TypeError(
+                f"{name}: driver must be None (Brownian increments) or sj.OrnsteinUhlenbeck(T), "
+                f"got {type(driver).__name__}."
+            )
+        try:
+            path = driver.path(h, system.n_noises, x.real.dtype)
+        except ValueError as err:
+            raise ValueError(f"{name}: {err}") from None
+    return _Setup(method, x, m, h, retry, chunk_size, sharding, path)
 
 
 def _digest_bytes(*arrays):
@@ -347,17 +424,19 @@ def _digest(*arrays):
 
 
 def _carry(state, lag, observations):
-    """A filter's `_State` as the store's carry: the windows padded to `lag` intervals."""
-    width = state.xs.shape[1]
+    """A filter's `_State` as the store's carry: the windows padded to `lag` intervals, a
+    particle's parts (its state, a driver's traces) one field each."""
+    width = state.dws.shape[1]
 
     def pad(a):
         a = np.asarray(a)
         return np.concatenate([a, np.zeros((a.shape[0], lag - width, *a.shape[2:]), a.dtype)], 1)
 
+    anchors, xs = jax.tree_util.tree_leaves(state.anchor), jax.tree_util.tree_leaves(state.xs)
     return {
-        "anchor": np.asarray(state.anchor),
+        **{f"anchor_{i}": np.asarray(a) for i, a in enumerate(anchors)},
+        **{f"xs_{i}": pad(a) for i, a in enumerate(xs)},
         "dws": pad(state.dws),
-        "xs": pad(state.xs),
         "ells": pad(state.ells),
         "width": np.asarray(width),
         "key": np.asarray(jax.random.key_data(state.key)),
@@ -366,9 +445,9 @@ def _carry(state, lag, observations):
     }
 
 
-def _restore(checkpoint, key, ys, m):
-    """The `_State` a store's last record left (`_carry`), once the observations it
-    assimilated are found equal to the first ones of `ys`."""
+def _restore(checkpoint, key, ys, m, like):
+    """The `_State` a store's last record left (`_carry`; a particle's parts as in `like`),
+    once the observations it assimilated are found equal to the first ones of `ys`."""
     c = checkpoint.carry
     k = checkpoint.step // m
     if k > ys.shape[0]:
@@ -382,13 +461,21 @@ def _restore(checkpoint, key, ys, m):
             "assimilated."
         )
     width = int(c["width"])
-    impl = jax.random.key_impl(key)
+    treedef = jax.tree_util.tree_structure(like)
+    parts = range(treedef.num_leaves)
+
+    def tree(name, window):
+        leaves = [
+            jnp.asarray(c[f"{name}_{i}"][:, :width] if window else c[f"{name}_{i}"]) for i in parts
+        ]
+        return jax.tree_util.tree_unflatten(treedef, leaves)
+
     return _State(
         k,
-        jnp.asarray(c["anchor"]),
+        tree("anchor", False),
         jnp.asarray(c["dws"][:, :width]),
-        jnp.asarray(c["xs"][:, :width]),
+        tree("xs", True),
         jnp.asarray(c["ells"][:, :width]),
-        jax.random.wrap_key_data(jnp.asarray(c["key"]), impl=impl),
+        jax.random.wrap_key_data(jnp.asarray(c["key"]), impl=jax.random.key_impl(key)),
         float(c["log_z"]),
     )
