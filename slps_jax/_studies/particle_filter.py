@@ -127,15 +127,15 @@ def particle_filter(
         "particle_filter",
         system,
         particles,
-        obs_times,
-        dt,
-        t0,
-        method,
-        retry_substeps,
-        chunk_size,
-        sharding,
-        jitter_lag,
-        driver,
+        obs_times=obs_times,
+        dt=dt,
+        t0=t0,
+        method=method,
+        retry_substeps=retry_substeps,
+        chunk_size=chunk_size,
+        sharding=sharding,
+        jitter_lag=jitter_lag,
+        driver=driver,
     )
     key, x = setup.initial(key)
     with automatic(setup.sharding, (system, x)) as (auto, (system, x)):
@@ -210,19 +210,19 @@ def particle_filter_to_store(
         "particle_filter_to_store",
         system,
         particles,
-        obs_times,
-        dt,
-        t0,
-        method,
-        retry_substeps,
-        chunk_size,
-        None,
-        jitter_lag,
-        driver,
+        obs_times=obs_times,
+        dt=dt,
+        t0=t0,
+        method=method,
+        retry_substeps=retry_substeps,
+        chunk_size=chunk_size,
+        sharding=None,
+        jitter_lag=jitter_lag,
+        driver=driver,
     )
     if not isinstance(resume, bool):
         raise TypeError(f"resume must be True or False, got {resume!r}.")
-    x, m, lag = setup.x, setup.m, check_count("jitter_lag", jitter_lag)
+    x, m, lag = setup.x, setup.m, setup.lag
     key_data = np.asarray(jax.random.key_data(key))
     key, x0 = setup.initial(key)
     run = _prepare(
@@ -306,7 +306,7 @@ def particle_filter_to_store(
 
 class _Setup(NamedTuple):
     """`particle_filter`'s checked inputs: the method, the particles, the steps between
-    observations `m` of `h`, the retry, the layout, and the driver's path (`None`:
+    observations `m` of `h`, the retry, the layout, the pCN window, and the driver's path (`None`:
     Brownian; an Ornstein–Uhlenbeck path: each particle carries its traces)."""
 
     method: Any
@@ -316,6 +316,7 @@ class _Setup(NamedTuple):
     retry: Any
     chunk_size: Any
     sharding: Any
+    lag: int
     path: Any
 
     def forecast(self, system, auto):
@@ -355,6 +356,7 @@ def _setup(
     name,
     system,
     particles,
+    *,
     obs_times,
     dt,
     t0,
@@ -363,7 +365,7 @@ def _setup(
     chunk_size,
     sharding,
     jitter_lag,
-    driver=None,
+    driver,
 ):
     """The inputs of `particle_filter` (`name`) checked, by name, before any work."""
     method = check_method(method, system)
@@ -396,7 +398,7 @@ def _setup(
             f"{name}: give chunk_size or sharding, not both (the chunks would run one after "
             "another across the devices)."
         )
-    check_count("jitter_lag", jitter_lag)
+    lag = check_count("jitter_lag", jitter_lag)
     path = None
     if driver is not None:
         if not isinstance(driver, OrnsteinUhlenbeck):
@@ -408,7 +410,7 @@ def _setup(
             path = driver.path(h, system.n_noises, x.real.dtype)
         except ValueError as err:
             raise ValueError(f"{name}: {err}") from None
-    return _Setup(method, x, m, h, retry, chunk_size, sharding, path)
+    return _Setup(method, x, m, h, retry, chunk_size, sharding, lag, path)
 
 
 def _digest_bytes(*arrays):
