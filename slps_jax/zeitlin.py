@@ -136,24 +136,56 @@ def _route(route):
 
 
 @functools.cache
-def _poisson_blocks(N):
-    """The Laplacian's blocks with the trace fix (`solve_poisson`): `(d, e)` of `_tridiagonal`
-    with `d[0, 0]` lowered by 1/2."""
+def _height(N):
+    r"""$z_i = \hbar(i - s)$, $s = (N-1)/2$: the quantised height $x_3 = \cos\theta$ is the
+    diagonal matrix $Z = i\operatorname{diag}(z)$ ($T_{10} = \sqrt3 Z$; quflow's
+    `cartesian_generators(N)[2]`)."""
+    return hbar(N) * (np.arange(N) - (N - 1) / 2)
+
+
+def planetary_vorticity(N, omega, dtype=jnp.complex128):
+    r"""The planetary vorticity $f = 2\Omega\cos\theta$ of a sphere rotating at `omega`
+    (radians per second) about the axis $x_3$, quantised: $f = 2\Omega Z$ with
+    $Z = T_{10}/\sqrt3$ diagonal, `shr2mat` of $\omega_{10} = 2\Omega/\sqrt3$.
+
+    **Arguments:** `N`, the matrix size; `omega`, the rotation rate (a number, or a traced
+    scalar); `dtype`, the complex dtype (default complex128).
+
+    **Returns:** $f$, `(N, N)`, diagonal, traceless and skew-Hermitian.
+    """
+    z = jnp.asarray(_height(N), jnp.finfo(dtype).dtype)
+    return jnp.diag((2j * omega * z).astype(dtype))
+
+
+@functools.cache
+def _poisson_blocks(N, gamma=0.0):
+    r"""The blocks of the Poisson solve (`solve_poisson`): `(d, e)` of `_tridiagonal`, with
+    `d[0, 0]` lowered by 1/2 (the trace fix) for `gamma = 0`, and for `gamma > 0` the
+    quasi-geostrophic term: `d[m, t]` lowered by $\tfrac\gamma2(z_{t+m}^2 + z_t^2)$ (the
+    entries $-\tfrac\gamma2(z_i^2 + z_j^2)P_{ij}$ of $\tfrac\gamma2(Z^2P + PZ^2)$), which
+    makes every block definite."""
     d, e = _tridiagonal(N)
     d = d.copy()
-    d[0, 0] -= 0.5
+    if gamma:
+        z2 = _height(N) ** 2
+        t = np.arange(N)[None, :]
+        m = np.arange(N)[:, None]
+        i = np.minimum(t + m, N - 1)
+        d = np.where(t + m < N, d - 0.5 * gamma * (z2[i] + z2[t]), d)
+    else:
+        d[0, 0] -= 0.5
     return d, e
 
 
 @functools.cache
-def _elimination(N):
+def _elimination(N, gamma=0.0):
     r"""The Thomas algorithm's coefficients for the `N` blocks, computed once per `N` in
     float64: the forward sweep $y_t = a_t y_{t-1} + b_t r_t$, the back substitution
     $x_t = y_t - c_t x_{t+1}$, each `(m, t)`. The blocks are symmetric and definite (the
     trace-fixed $m = 0$ one too), so elimination without pivoting is stable ($|c_t| < 1$);
     both routes agree with LAPACK's tridiagonal solver to 2e-15 relative at N = 64 ... 1024,
     and in single precision err by 7e-7 (LAPACK's float32 elimination: 1e-4)."""
-    d, e = _poisson_blocks(N)
+    d, e = _poisson_blocks(N, gamma)
     den = np.empty_like(d)
     c = np.zeros_like(d)
     for t in range(N):
@@ -165,13 +197,13 @@ def _elimination(N):
 
 
 @functools.cache
-def _elimination_by_entry(N):
+def _elimination_by_entry(N, gamma=0.0):
     """`_elimination`'s coefficients at each entry `(i, j)` of a matrix: those of the
     position `min(i, j)` on the diagonal `|i - j|` (the block of the upper diagonal `-m` is
     that of the lower diagonal `m`)."""
     i, j = np.indices((N, N))
     m, t = np.abs(i - j), np.minimum(i, j)
-    return tuple(x[m, t] for x in _elimination(N))
+    return tuple(x[m, t] for x in _elimination(N, gamma))
 
 
 def _linear_recurrence(a, b):
@@ -184,23 +216,23 @@ def _linear_recurrence(a, b):
     return jax.lax.associative_scan(combine, (jnp.broadcast_to(a, b.shape), b), axis=-1)[1]
 
 
-def _solve_by_scans(W):
+def _solve_by_scans(W, gamma=0.0):
     """Route `"scan"`: the lower diagonals' systems, both sweeps by associative scans."""
     N = W.shape[-1]
     real = jnp.finfo(W.dtype).dtype
-    a, inv, c = (jnp.asarray(x, real) for x in _elimination(N))
+    a, inv, c = (jnp.asarray(x, real) for x in _elimination(N, gamma))
     y = _linear_recurrence(a, inv * _lower_diagonals(W))
     x = _linear_recurrence(-c[..., ::-1], y[..., ::-1])[..., ::-1]
     return _from_lower_diagonals(x, N)
 
 
-def _solve_by_sweeps(W):
+def _solve_by_sweeps(W, gamma=0.0):
     """Route `"sweep"`: every diagonal's system at once, row by row in the matrix's own
     layout (entry `(i, j)` follows `(i - 1, j - 1)`: the previous row shifted by one), as
     two sequential `lax.scan`s over the `N` rows; no gather, no per-system solver call."""
     N = W.shape[-1]
     real = jnp.finfo(W.dtype).dtype
-    a, inv, c = (jnp.asarray(x, real) for x in _elimination_by_entry(N))
+    a, inv, c = (jnp.asarray(x, real) for x in _elimination_by_entry(N, gamma))
     rows = jnp.moveaxis(W, -2, 0)
     zero = jnp.zeros_like(rows[0, ..., :1])
 
@@ -282,9 +314,162 @@ def poisson_eigenbasis(N, dtype=jnp.float64):
     return _eigenbasis_table(int(N), jnp.dtype(dtype).name)
 
 
-@functools.partial(jax.jit, static_argnames="route")
-def _solve_tridiagonal(W, route):
-    return _solve_by_sweeps(W) if route == "sweep" else _solve_by_scans(W)
+@functools.partial(jax.jit, static_argnames=("route", "gamma"))
+def _solve_tridiagonal(W, route, gamma=0.0):
+    return _solve_by_sweeps(W, gamma) if route == "sweep" else _solve_by_scans(W, gamma)
+
+
+@functools.cache
+def _cyclic_degrees(N):
+    r"""The degree $\ell$ of each eigenvector of $\Delta_N$ in `poisson_eigenbasis(N)`:
+    `ell[m, k]` for the eigenvector `V[m, :, k]` of the cyclic diagonal `m`, whose
+    eigenvalue is $-\ell(\ell+1)$ (`N - 1` down to `m` on the lower diagonal `m`, then
+    `N - 1` down to `N - m` on the upper diagonal `N - m`). A function of the Laplacian,
+    $g(\Delta_N)$, multiplies the coefficient `k` of the cyclic diagonal `m` by
+    $g(-\ell(\ell+1))$ (`LinearTerms.rates`)."""
+    ell = np.empty((N, N), dtype=np.int64)
+    for m in range(N):
+        n = N - m
+        ell[m, :n] = np.arange(N - 1, m - 1, -1)
+        if m:
+            ell[m, n:] = np.arange(N - 1, n - 1, -1)
+    return ell
+
+
+def _to_eigenbasis(W, V):
+    r"""The coefficients of `W` in the eigenbasis `V` of $\Delta_N$ (`poisson_eigenbasis`),
+    cyclic diagonal by diagonal: `(..., N, N, 2)` (real and imaginary parts; `(..., N, N, 1)`
+    for a real `W`); one gather and one batched product."""
+    N = W.shape[-1]
+    rows, cols = _cyclic_indices(N)
+    C = W[..., rows, cols]
+    parts = jnp.stack([jnp.real(C), jnp.imag(C)], -1) if jnp.iscomplexobj(W) else C[..., None]
+    return jnp.einsum("mtk,...mtc->...mkc", V.astype(parts.dtype), parts, precision="highest")
+
+
+def _from_eigenbasis(Y, V, complex_=True):
+    """`_to_eigenbasis`'s inverse: the matrix of the coefficients `Y` (one batched product and
+    one gather)."""
+    N = Y.shape[-2]
+    X = jnp.einsum("mtk,...mkc->...mtc", V.astype(Y.dtype), Y, precision="highest")
+    X = jax.lax.complex(X[..., 0], X[..., 1]) if complex_ else X[..., 0]
+    i, j = np.indices((N, N))
+    return X[..., (i - j) % N, j]
+
+
+@functools.cache
+def _skew_gather(N):
+    """How a skew-Hermitian matrix is rebuilt from its cyclic diagonals `m < N // 2 + 1`:
+    the entry `(i, j)` lies on the cyclic diagonal `(i - j) % N` at position `j`; where that
+    diagonal is not kept, it is `-conj` of the entry `(j, i)`, on the kept diagonal
+    `(j - i) % N` at position `i`. **Returns** `(rows, cols, neg)`, `(N, N)` each."""
+    i, j = np.indices((N, N))
+    m = (i - j) % N
+    keep = m < N // 2 + 1
+    return np.where(keep, m, (j - i) % N), np.where(keep, j, i), ~keep
+
+
+@functools.lru_cache(maxsize=2)
+def _folded_eigenbasis(N):
+    r"""The eigenvectors of $\Delta_N$ on the cyclic diagonals `m < H = N // 2 + 1`, folded
+    by their symmetry: each block of a diagonal is persymmetric (unchanged when its order is
+    reversed), so each eigenvector is even or odd under the reversal $\sigma$ of its block.
+    With representatives $r_j$ of the pairs $\{t, \sigma(t)\}$ (`P = N // 2 + 1` at most),
+    an even eigenvector's coefficient is $\sum_j E_{jk}(x_{r_j} + x_{\sigma r_j})$ (once for a
+    fixed point) and an odd one's $\sum_j O_{jk}(x_{r_j} - x_{\sigma r_j})$: two tables of
+    $HP^2$ numbers, half the table's $HN^2$. NumPy, float64.
+
+    **Returns:** `(E, Od, deg_even, deg_odd, rep, mirror, fixed, slot, sign)`: the tables
+    `(H, P, P)`, the degrees of their columns `(H, P)` (0 for padding), the representatives
+    and their mirrors `(H, P)` (positions on the cyclic diagonal), `fixed` `(H, P)` (a fixed
+    point, or padding), and for each position `t` its pair `slot[m, t]` and `sign[m, t]`
+    (+1 for the representative, -1 for the mirror)."""
+    V = _eigenbasis(N)[0]
+    ell = _cyclic_degrees(N)
+    H = P = N // 2 + 1
+    E, Od = np.zeros((H, P, P)), np.zeros((H, P, P))
+    deg_e, deg_o = np.zeros((H, P), np.int64), np.zeros((H, P), np.int64)
+    rep, mirror = np.zeros((H, P), np.int64), np.zeros((H, P), np.int64)
+    fixed = np.ones((H, P), bool)
+    slot, sign = np.zeros((H, N), np.int64), np.ones((H, N))
+    for m in range(H):
+        n = N - m
+        sigma = np.where(np.arange(N) < n, n - 1 - np.arange(N), N + n - 1 - np.arange(N))
+        reps = [t for t in range(N) if t <= sigma[t]]
+        for j, t in enumerate(reps):
+            rep[m, j], mirror[m, j], fixed[m, j] = t, sigma[t], t == sigma[t]
+            slot[m, t] = slot[m, sigma[t]] = j
+            if sigma[t] != t:
+                sign[m, sigma[t]] = -1.0
+        parity = np.sum(V[m] * V[m][sigma], axis=0)  # +1 even, -1 odd (orthonormal columns)
+        assert np.all(np.abs(np.abs(parity) - 1) < 1e-8), "eigenvectors of mixed parity"
+        even, odd = np.flatnonzero(parity > 0), np.flatnonzero(parity < 0)
+        # in the orthonormal bases (e_t +- e_sigma(t))/sqrt 2 (e_t at a fixed point) of the
+        # even and odd vectors: the averaged components, made exactly orthogonal (the
+        # nearest orthogonal matrix, by an SVD): the computed eigenvectors are symmetric
+        # only to their own accuracy, eps |Delta_N| / gap
+        pairs = np.asarray([t != sigma[t] for t in reps])
+        scale = np.where(pairs, np.sqrt(2.0), 1.0)[:, None]
+        for cols, sgn, table in ((even, 1.0, E), (odd, -1.0, Od)):
+            rows = [j for j, t in enumerate(reps) if sgn > 0 or t != sigma[t]]
+            mirrored = sigma[np.asarray(reps)]
+            block = 0.5 * (V[m][reps][:, cols] + sgn * V[m][mirrored][:, cols])
+            block = (block * scale)[rows]
+            u, _, vt = np.linalg.svd(block, full_matrices=False)
+            table[m, rows, : cols.size] = (u @ vt) / scale[rows]
+        deg_e[m, : even.size], deg_o[m, : odd.size] = ell[m, even], ell[m, odd]
+    return E, Od, deg_e, deg_o, rep, mirror, fixed, slot, sign
+
+
+def _folded_tables(N, dtype=jnp.float64):
+    """`_folded_eigenbasis`'s tables `(E, Od)` as JAX arrays in `dtype` (for
+    `_to_skew_eigenbasis`)."""
+    E, Od = _folded_eigenbasis(N)[:2]
+    return jnp.asarray(E, dtype), jnp.asarray(Od, dtype)
+
+
+def _real_einsum(spec, table, x):
+    """`einsum(spec, table, x)` for a real table and a complex `x`, as two real products
+    (each a batched matrix-vector product that reads the table once)."""
+    table = table.astype(jnp.real(x).dtype)
+    return jax.lax.complex(
+        jnp.einsum(spec, table, jnp.real(x), precision="highest"),
+        jnp.einsum(spec, table, jnp.imag(x), precision="highest"),
+    )
+
+
+def _to_skew_eigenbasis(W, tables):
+    r"""The coefficients of a skew-Hermitian `W` in the eigenbasis of $\Delta_N$ on its cyclic
+    diagonals `m < H = N // 2 + 1` (the others are their conjugates), folded by parity
+    (`_folded_eigenbasis`; `tables = (E, Od)`): complex `(..., 2, H, P)`, the even
+    eigenvectors' coefficients then the odd ones' (their degrees: `_folded_eigenbasis`).
+    Four batched matrix-vector products over tables of $2HP^2 \approx N^3/4$ numbers: a
+    single state's transform is bound by reading them."""
+    E, Od = tables
+    N = W.shape[-1]
+    H = E.shape[0]
+    *_, rep, mirror, fixed, _, _ = _folded_eigenbasis(N)
+    rows, cols = _cyclic_indices(N)
+    C = W[..., rows[:H], cols[:H]]
+    m = np.arange(H)[:, None]
+    xr, xm = C[..., m, rep], C[..., m, mirror]
+    plus = xr + jnp.where(jnp.asarray(fixed), 0.0, xm)
+    even = _real_einsum("mjk,...mj->...mk", E, plus)
+    odd = _real_einsum("mjk,...mj->...mk", Od, xr - xm)
+    return jnp.stack([even, odd], axis=-3)
+
+
+def _from_skew_eigenbasis(Y, tables, N):
+    """`_to_skew_eigenbasis`'s inverse: the skew-Hermitian `(..., N, N)` matrix of the
+    coefficients `Y`."""
+    E, Od = tables
+    a = _real_einsum("mjk,...mk->...mj", E, Y[..., 0, :, :])
+    b = _real_einsum("mjk,...mk->...mj", Od, Y[..., 1, :, :])
+    *_, slot, sign = _folded_eigenbasis(N)
+    rows, cols, neg = _skew_gather(N)
+    s = slot[rows, cols]
+    X = a[..., rows, s] + jnp.asarray(sign[rows, cols], a.real.dtype) * b[..., rows, s]
+    return jnp.where(jnp.asarray(neg), -jnp.conj(X), X)
 
 
 @jax.jit
@@ -292,26 +477,26 @@ def _solve_by_eigenbasis(W, V, inv):
     """Route `"eigenbasis"`: the cyclic diagonals (one gather), into each one's eigenbasis,
     divided by the eigenvalues and back (two batched products: a matrix product per
     diagonal for a batch of states or under `vmap`), and the matrix (one gather)."""
-    N = W.shape[-1]
-    rows, cols = _cyclic_indices(N)
-    C = W[..., rows, cols]
-    complex_ = jnp.iscomplexobj(W)
-    parts = jnp.stack([jnp.real(C), jnp.imag(C)], -1) if complex_ else C[..., None]
-    V = V.astype(parts.dtype)
-    Y = jnp.einsum("mtk,...mtc->...mkc", V, parts, precision="highest")
-    Y = Y * inv.astype(parts.dtype)[..., None]
-    X = jnp.einsum("mtk,...mkc->...mtc", V, Y, precision="highest")
-    X = jax.lax.complex(X[..., 0], X[..., 1]) if complex_ else X[..., 0]
-    i, j = np.indices((N, N))
-    return X[..., (i - j) % N, j]
+    Y = _to_eigenbasis(W, V)
+    return _from_eigenbasis(Y * inv.astype(Y.dtype)[..., None], V, jnp.iscomplexobj(W))
 
 
-def solve_poisson(W, route="auto", eigenbasis=None):
+def solve_poisson(W, route="auto", eigenbasis=None, gamma=0.0):
     r"""$P = \Delta_N^{-1}W$, the traceless solution (for a skew-Hermitian $W$: the stream
     matrix of the vorticity $W$). $\Delta_N$ maps each diagonal to itself tridiagonally;
     on the main diagonal it is singular (the identity): there the first diagonal entry is
     lowered by $\tfrac12$, which leaves the solution exact for a traceless right-hand
     side, and the trace is removed afterwards.
+
+    With `gamma` $= \gamma > 0$, the global quasi-geostrophic model's stream instead:
+    $\Delta_N P + \tfrac\gamma2(Z^2P + PZ^2) = W$, $Z = T_{10}/\sqrt3$ the quantised
+    height (diagonal, skew-Hermitian): entry by entry
+    $(\Delta_N P)_{ij} - \tfrac\gamma2(z_i^2 + z_j^2)P_{ij} = W_{ij}$, tridiagonal on each
+    diagonal again and definite, so the solution is unique; its trace is then removed (a
+    multiple of the identity in the stream moves nothing). This is what quflow's
+    `solve_globalqg(W, gamma)` computes (its docstring writes the term $\gamma ZPZ$, whose
+    entries $-\gamma z_iz_jP_{ij}$ differ by $\tfrac\gamma2[Z, [Z, P]]$); both quantise
+    $-\gamma x_3^2\psi$.
 
     **Arguments:**
 
@@ -329,17 +514,34 @@ def solve_poisson(W, route="auto", eigenbasis=None):
     - `eigenbasis`: route `"eigenbasis"`'s tables `(V, inv)` (`poisson_eigenbasis`), or
       `None` (default: `poisson_eigenbasis(N)` in the real dtype of `W`); the other
       routes ignore it.
+    - `gamma`: the quasi-geostrophic parameter $\gamma \ge 0$, a Python number (default 0:
+      the Poisson equation); the routes `"sweep"` and `"scan"` only.
 
     **Returns:** $P$, traceless, the shape of `W`.
     """
     W = jnp.asarray(W)
     N = W.shape[-1]
     route = _route(route)
+    gamma = _check_gamma(gamma)
+    if gamma:
+        if route == "eigenbasis":
+            raise ValueError("solve_poisson: gamma > 0 takes the routes 'sweep' or 'scan'.")
+        return _traceless(_solve_tridiagonal(W, route, gamma))
     if route == "eigenbasis":  # (traceless already: the identity's inverse eigenvalue is 0)
         if eigenbasis is None:
             eigenbasis = poisson_eigenbasis(N, jnp.finfo(W.dtype).dtype)
         return _solve_by_eigenbasis(W, *eigenbasis)
     return _traceless(_solve_tridiagonal(W, route))
+
+
+def _check_gamma(gamma):
+    r"""The quasi-geostrophic parameter as a Python float, refused unless a finite number
+    $\ge 0$ (it sets the solver's tables, so it cannot be traced)."""
+    if isinstance(gamma, (bool, np.bool_)) or not isinstance(gamma, (int, float, np.number)):
+        raise ValueError(f"gamma must be a finite number >= 0 (a Python number), got {gamma!r}.")
+    if not (math.isfinite(gamma) and gamma >= 0):
+        raise ValueError(f"gamma must be a finite number >= 0, got {gamma!r}.")
+    return float(gamma)
 
 
 @jax.jit

@@ -39,17 +39,18 @@ from .._support.batching import batched_like
 from .._support.checks import real_dtype
 from .._support.solution import RESULTS
 from .._systems.system import differentiable_leaves
+from .splitting import system_step
 
 # A failed step is split into k, k^2, ..., k^RETRY_LEVELS equal parts before giving up.
 RETRY_LEVELS = 3
 
 
 def step_with_history(method, system, y, dt, dW, history):
-    """`method.step`, given the method's `history` where it keeps one
-    (`AbstractMethod.initial_history`)."""
+    """The system's step by `method` (`system_step`), given the method's `history` where it
+    keeps one (`AbstractMethod.initial_history`)."""
     if not jax.tree_util.tree_leaves(history):
-        return method.step(system, y, dt, dW)
-    return method.step(system, y, dt, dW, history=history)
+        history = ()
+    return system_step(method, system, y, dt, dW, history)
 
 
 def _attempts(method, system, y, dt, dW, act, k, m0, history=(), jacobians=False):
@@ -169,7 +170,7 @@ def _jacobian_tools(method, system, y, dW):
         full = list(leaves)
         for i, leaf in zip(idx, pr):
             full[i] = _unreal(leaf, leaves[i])
-        y2, info = method.step(treedef.unflatten(full), _unreal(yr, y), h, unravel(w))
+        y2, info = system_step(method, treedef.unflatten(full), _unreal(yr, y), h, unravel(w))
         return _real(y2), (y2, info)
 
     def substep(ys, h, w, history=()):  # (substeps start without the method's history)

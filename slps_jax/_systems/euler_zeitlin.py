@@ -9,15 +9,30 @@ import numpy as np
 
 from .. import zeitlin
 from .._algebra import su
+from .._support.checks import concrete, is_int
+from .linear_terms import LinearTerms
 from .noise import noise_or_c
 from .system import LiePoissonSystem, Tables
 
 
 def _euler_hamiltonian(w, params):
     r"""$H_0 = N E(W) / (2\hbar)$, $E$ quflow's energy (its gradient is in closed form:
-    `EulerZeitlin.gradient`)."""
+    `EulerZeitlin.gradient`; `EulerZeitlin._h` evaluates it with the system's own stream)."""
     n = w.shape[-1]
     return n * zeitlin.energy(w) / (2.0 * zeitlin.hbar(n))
+
+
+def _cast(tree, dtype):
+    """The inexact leaves of `tree` in the complex `dtype` (complex ones) or its real one."""
+    real = jnp.finfo(dtype).dtype
+    return jax.tree_util.tree_map(
+        lambda x: (
+            x.astype(dtype if jnp.iscomplexobj(x) else real)
+            if hasattr(x, "dtype") and jnp.issubdtype(x.dtype, jnp.inexact)
+            else x
+        ),
+        tree,
+    )
 
 
 class EulerZeitlin(LiePoissonSystem):
@@ -50,6 +65,29 @@ class EulerZeitlin(LiePoissonSystem):
       here; jitted functions must take the system as an argument, not close over it, and
       derivatives with respect to the system's parameters do not see the table.
 
+    - `nu`, `p`, `alpha`, `forcing`: the linear terms
+      $-\nu(-\Delta_N - 2)^pW - \alpha W + F$, per second (default: none). `nu >= 0` the
+      viscosity, `p` a positive integer (1: Navier–Stokes on the sphere, which spares the
+      rigid rotations $\ell = 1$; above: hyperviscosity), `alpha >= 0` the linear (Ekman)
+      damping, `forcing` a constant element $F$ of su(N) (`(N, N)`, traceless and
+      skew-Hermitian). quflow's viscosity `solve_viscdamp(h, W, nu, alpha)` is
+      $\nu\Delta W$, which damps $\ell = 1$ too: ours with `p=1` and `alpha + 2 nu` is
+      the same model.
+    - `omega`: the sphere's rotation rate $\Omega$ (radians per second, default `None`: not
+      rotating). The planetary vorticity $f = 2\Omega\cos\theta$, quantised
+      (`zeitlin.planetary_vorticity`), enters the bracket: $\dot W = [P, W + f]/\hbar$.
+      The state stays the relative vorticity $W$; the Casimirs kept are those of the
+      absolute vorticity $W + f$.
+    - `gamma`: the global quasi-geostrophic model's $\gamma \ge 0$, a Python number
+      (default 0: Euler). The stream solves
+      $\Delta_NP + \tfrac\gamma2(Z^2P + PZ^2) = W$, as quflow's `solve_globalqg`
+      (`zeitlin.solve_poisson`); routes `"sweep"` and `"scan"`.
+
+    With linear terms, every method's step is the Strang splitting
+    $L_{h/2}\circ\Phi_h\circ L_{h/2}$: $L$ the exact flow of the linear terms
+    (`LinearTerms`), $\Phi_h$ the method's step of the bracket part (with its noise). The
+    Casimirs change only in $L$. With no new term the step is the inviscid one, bit for bit.
+
     `system.stream(W)` ($P = \Delta_N^{-1}W$), `system.energy(W)`, `system.enstrophy(W)`
     (quflow's normalisation), `system.algebra.casimirs(W)` ($\operatorname{tr}W^k$). All
     computations are $O(N^2)$ except the methods' matrix products.
@@ -61,8 +99,26 @@ class EulerZeitlin(LiePoissonSystem):
 
     poisson: str = eqx.field(static=True)
     tables: Tables | None
+    linear: LinearTerms | None
+    omega: jax.Array | None
+    gamma: float = eqx.field(static=True)
+    shift: jax.Array | None  # (the bracket's view: `bracket_view`)
 
-    def __init__(self, N, *, c=None, noise=None, dtype=None, poisson="auto"):
+    def __init__(
+        self,
+        N,
+        *,
+        c=None,
+        noise=None,
+        dtype=None,
+        poisson="auto",
+        nu=0.0,
+        p=1,
+        alpha=0.0,
+        forcing=None,
+        omega=None,
+        gamma=0.0,
+    ):
         if isinstance(N, (bool, np.bool_)) or not isinstance(N, (int, np.integer)) or N < 2:
             raise ValueError(f"EulerZeitlin needs an integer N >= 2, got {N!r}.")
         if dtype is not None:
@@ -73,19 +129,31 @@ class EulerZeitlin(LiePoissonSystem):
         algebra = su(int(N))
         noise = noise_or_c(c, noise, None, [], algebra)
         if dtype is not None:  # (the family's leaves: c, or its matrices)
-            real = jnp.finfo(dtype).dtype
-            noise = jax.tree_util.tree_map(
-                lambda x: (
-                    x.astype(dtype if jnp.iscomplexobj(x) else real)
-                    if hasattr(x, "dtype") and jnp.issubdtype(x.dtype, jnp.inexact)
-                    else x
-                ),
-                noise,
-            )
+            noise = _cast(noise, dtype)
         super().__init__(_euler_hamiltonian, None, noise=noise, algebra=algebra)
         zeitlin._route(poisson)  # (refuses an unknown route)
         self.poisson = poisson
+        self.gamma = zeitlin._check_gamma(gamma)
+        if self.gamma and poisson == "eigenbasis":
+            raise ValueError("EulerZeitlin: gamma > 0 takes poisson='auto', 'sweep' or 'scan'.")
         complex_ = jnp.result_type(1j if dtype is None else dtype)
+        if LinearTerms.present(nu, alpha, forcing):
+            self.linear = LinearTerms(int(N), jnp.finfo(complex_).dtype, nu, p, alpha, forcing)
+        else:
+            if not is_int(p) or p < 1:
+                raise ValueError(f"EulerZeitlin: p must be a positive integer, got {p!r}.")
+            self.linear = None
+        if omega is not None:
+            if isinstance(omega, (bool, np.bool_, str)):
+                raise ValueError(f"EulerZeitlin: omega must be a real number, got {omega!r}.")
+            value = concrete(jnp.asarray(omega))
+            if value is not None and (np.shape(value) != () or not np.isfinite(value)):
+                raise ValueError(f"EulerZeitlin: omega must be a finite scalar, got {omega!r}.")
+            omega = jnp.asarray(omega, jnp.finfo(complex_).dtype)
+        self.omega = omega
+        if dtype is not None:  # (the new terms' leaves too)
+            self.linear, self.omega = _cast((self.linear, self.omega), dtype)
+        self.shift = None
         self.tables = (
             Tables(zeitlin.poisson_eigenbasis(int(N), jnp.finfo(complex_).dtype))
             if poisson == "eigenbasis"
@@ -93,8 +161,40 @@ class EulerZeitlin(LiePoissonSystem):
         )
 
     def _solve_poisson(self, w):
+        if self.gamma:
+            return zeitlin.solve_poisson(w, route=self.poisson, gamma=self.gamma)
         tables = None if self.tables is None else self.tables.arrays
         return zeitlin.solve_poisson(w, route=self.poisson, eigenbasis=tables)
+
+    def _relative(self, w):
+        """The relative vorticity of a state of this view (`bracket_view`)."""
+        return w if self.shift is None else w - self.shift.astype(w.dtype)
+
+    def _h(self, y):
+        if not self.gamma and self.shift is None:
+            return super()._h(y)
+        return self.N * self.energy(y) / (2.0 * self.hbar)
+
+    @property
+    def planetary_vorticity(self):
+        r"""$f = 2\Omega\cos\theta$ quantised (`zeitlin.planetary_vorticity`), or `None`."""
+        if self.omega is None:
+            return None
+        return zeitlin.planetary_vorticity(self.N, self.omega, jnp.result_type(self.omega, 1j))
+
+    def bracket_view(self):
+        """The system whose state is the absolute vorticity $q = W + f$, with the Hamiltonian
+        $H_0(q - f)$: the Lie–Poisson system that a method steps on the rotating sphere
+        (`slps_jax._driver.splitting`), and `(view, f)`; `(self, None)` without rotation."""
+        f = self.planetary_vorticity
+        if f is None:
+            return self, None
+        return eqx.tree_at(lambda s: s.shift, self, f, is_leaf=lambda x: x is None), f
+
+    def linear_flow(self, w, tau):
+        """The exact flow of the linear terms for the time `tau` (`LinearTerms.flow`)."""
+        assert self.linear is not None
+        return self.linear.flow(w, tau)
 
     @property
     def N(self):
@@ -107,22 +207,38 @@ class EulerZeitlin(LiePoissonSystem):
 
     def __repr__(self):
         if self.c is None:  # (the noise's matrices are N x N: their count only)
-            return f"EulerZeitlin({self.N}, noise={type(self.noise).__name__} of {self.n_noises})"
-        return f"EulerZeitlin({self.N}, c={self.c!r})"
+            parts = [f"noise={type(self.noise).__name__} of {self.n_noises}"]
+        else:
+            parts = [f"c={self.c!r}"]
+        if self.linear is not None:
+            parts.append(repr(self.linear))
+        omega = None if self.omega is None else concrete(self.omega)
+        if self.omega is not None:
+            parts.append(f"omega={self.omega!r}" if omega is None else f"omega={float(omega):g}")
+        if self.gamma:
+            parts.append(f"gamma={self.gamma:g}")
+        return f"EulerZeitlin({self.N}, {', '.join(parts)})"
 
-    quadratic_hamiltonian = True
+    @property
+    def quadratic_hamiltonian(self):
+        """$H_0$ is a quadratic form, except on the rotating sphere's view (`bracket_view`)."""
+        return self.shift is None
 
     def stream(self, w):
-        r"""The stream matrix $P = \Delta_N^{-1}W$ (traceless), over leading axes."""
-        return self._solve_poisson(w)
+        r"""The stream matrix $P = \Delta_N^{-1}W$ (traceless; with `gamma`, the
+        quasi-geostrophic one), over leading axes."""
+        return self._solve_poisson(self._relative(w))
 
     def energy(self, w):
-        r"""quflow's energy $-\tfrac12\langle W, P\rangle_{L^2}$, over leading axes."""
-        return zeitlin.energy(w)
+        r"""quflow's energy $-\tfrac12\langle W, P\rangle_{L^2}$, over leading axes (with
+        `gamma`, $P$ the quasi-geostrophic stream)."""
+        if not self.gamma and self.shift is None:
+            return zeitlin.energy(w)
+        return -0.5 * zeitlin.inner(self._relative(w), self.stream(w))
 
     def enstrophy(self, w):
         r"""quflow's enstrophy $\tfrac12\langle W, W\rangle_{L^2}$, over leading axes."""
         return zeitlin.enstrophy(w)
 
     def gradient(self, y):
-        return -self._solve_poisson(y) / self.hbar
+        return -self.stream(y) / self.hbar

@@ -1,0 +1,190 @@
+#!/usr/bin/env python
+"""Forced-dissipative Euler–Zeitlin: its cost against the inviscid step, and quflow beside us.
+
+- Cost (one state, complex128, h = 0.64/N s, 16 steps from the smooth state of
+  `benchmarks/zeitlin.py`): ms per step of `EulerZeitlin(N)` and of the forced-dissipative
+  `EulerZeitlin(N, nu, p=2, alpha, forcing=F)` (a Strang splitting around the same
+  isospectral step, the linear substep exact in the quantised harmonics), median of >= 3
+  calls of `simulate` after one that compiles, and their ratio; with quflow installed,
+  its `isomp` at its defaults with its Strang splitting of `solve_viscdamp` (theta = 1/2,
+  in the same seconds as ours, its viscosity nu Delta with p = 1: the same work per step
+  whatever p) on the same state, and our ratio to it.
+- Against quflow (where it is installed by hand from its sources; never a dependency):
+  - the quasi-geostrophic stream against `solve_globalqg` (N = 64, 128; gamma 0.5, 10),
+    the largest difference relative to the largest entry;
+  - 100 steps of the same forced-dissipative model (N = 64, 128) at h, h/2, h/4: the
+    largest difference of the final states (quflow solved to 1e-13). Its linear substep is
+    Crank–Nicolson, ours exact: the difference is theirs, O(h^2), and shrinks by about 4
+    per halving.
+
+Writes `zeitlin_forced.json` and `zeitlin_forced.md` into --out (default benchmarks/results).
+
+    python benchmarks/zeitlin_forced.py [--fast] [--out DIR]
+"""
+
+from __future__ import annotations
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import os
+import sys
+import time
+
+import jax.numpy as jnp
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import _common
+from zeitlin import initial
+
+import slps_jax as sj
+from slps_jax import zeitlin as z
+
+try:  # quflow is measured beside us where it is installed; never a dependency
+    import quflow as qf
+except ImportError:
+    qf = None
+
+NU, P, ALPHA = 1e-7, 2, 0.05  # per second: hyperviscosity and damping
+
+
+def _forcing(N):
+    """A forcing on degrees 8..10, coefficients N(0, 1) (seed 1)."""
+    rng = np.random.default_rng(1)
+    om = np.zeros(11 * 11)
+    for el in range(8, 11):
+        for m in range(-el, el + 1):
+            om[z.elm2ind(el, m)] = rng.normal()
+    return z.shr2mat(om, N)
+
+
+def _model(N, **kwargs):
+    return sj.EulerZeitlin(N, nu=NU, p=P, alpha=ALPHA, forcing=_forcing(N), **kwargs)
+
+
+def _quflow_splitting(N, nu_q, alpha_q, force_q):
+    """quflow's Strang splitting of its viscosity nu_q Delta, damping and forcing (theta =
+    1/2; its `isomp` and `solve_viscdamp` take seconds, as ours). Its viscosity damps
+    l = 1 too (the rate nu_q l(l+1)): ours with p = 1 and alpha + 2 nu is the same model."""
+
+    def split(dt, w):
+        return qf.laplacian.solve_viscdamp(dt, w, nu_q, alpha_q, force_q, theta=0.5).copy()
+
+    return split
+
+
+def _ms_per_step(system, w0, h, n_steps):
+    run = lambda: (
+        sj.simulate(
+            system, w0, t1=n_steps * h, dt=h, n_samples=1, key=jax.random.key(0), throw=False
+        ).ys
+    )
+    start = time.perf_counter()
+    jax.block_until_ready(run())
+    first = time.perf_counter() - start
+    med = _common.time_call(run, repeats=3, warmup=False)[0]
+    return 1e3 * med / n_steps, first - med
+
+
+def cost(ns, n_steps=16):
+    rows = []
+    for N in ns:
+        h = 0.64 / N
+        w0 = initial(N)
+        plain, c_plain = _ms_per_step(sj.EulerZeitlin(N), w0, h, n_steps)
+        forced, c_forced = _ms_per_step(_model(N), w0, h, n_steps)
+        flow = jax.jit(lambda system, w: system.linear_flow(w, 0.5 * h))
+        substep = 1e3 * _common.time_call(flow, _model(N), w0)[0]
+        row = dict(
+            N=N,
+            inviscid_ms=plain,
+            forced_ms=forced,
+            forced_vs_inviscid=forced / plain,
+            linear_substep_ms=substep,
+            compile_s_inviscid=c_plain,
+            compile_s_forced=c_forced,
+        )
+        if qf is not None:
+            split = _quflow_splitting(N, NU, ALPHA, np.asarray(_forcing(N)))
+            qf.isomp(np.array(w0), h, steps=1, strang_splitting=split)
+            times = []
+            for _ in range(3):
+                w = np.array(w0)
+                start = time.perf_counter()
+                qf.isomp(w, h, steps=n_steps, strang_splitting=split)
+                times.append(time.perf_counter() - start)
+            row["quflow_forced_ms"] = 1e3 * float(np.median(times)) / n_steps
+            row["forced_vs_quflow"] = forced / row["quflow_forced_ms"]
+        print(row, flush=True)
+        rows.append(row)
+    return rows
+
+
+def qg(ns=(64, 128), gammas=(0.5, 10.0)):
+    rows = []
+    for N in ns:
+        rng = np.random.default_rng(0)
+        om = rng.normal(size=N * N)
+        om[0] = 0.0
+        w = np.asarray(z.shr2mat(om, N))
+        for gamma in gammas:
+            theirs = np.array(qf.laplacian.solve_globalqg(w.copy(), gamma))
+            ours = np.asarray(z.solve_poisson(w, gamma=gamma))
+            rel = float(np.max(np.abs(ours - theirs)) / np.max(np.abs(theirs)))
+            rows.append(dict(N=N, gamma=gamma, qg_rel_difference=rel))
+            print(rows[-1], flush=True)
+    return rows
+
+
+def agreement(ns=(64, 128), n_steps=100):
+    """Ours (p = 1, damping alpha + 2 nu: quflow's nu Delta + alpha) against quflow's
+    splitting at h, h/2, h/4 over the same time."""
+    rows = []
+    nu = 1e-3
+    for N in ns:
+        w0 = initial(N)
+        F = np.asarray(_forcing(N))
+        system = sj.EulerZeitlin(N, nu=nu, p=1, alpha=ALPHA + 2 * nu, forcing=F)
+        split = _quflow_splitting(N, nu, ALPHA, F)
+        h0 = 0.64 / N
+        for k in range(3):
+            h, n = h0 / 2**k, n_steps * 2**k
+            ours = np.asarray(sj.integrate(system, w0, jnp.zeros((n, 1)), h, save_every=n))[-1]
+            w = np.array(w0)
+            w = qf.isomp(w, h, steps=n, strang_splitting=split, tol=1e-13, maxit=100)
+            diff = float(np.max(np.abs(ours - w)) / np.max(np.abs(w)))
+            rows.append(dict(N=N, h=h, steps=n, rel_difference=diff))
+            print(rows[-1], flush=True)
+    return rows
+
+
+def main(argv=None):
+    p = _common.parser(__doc__, "N = 16 and 32 only, no quflow")
+    args = p.parse_args(argv)
+    info = _common.machine_info()
+    ns = (16, 32) if args.fast else (128, 256)
+    out = dict(machine=info, cost=cost(ns))
+    if qf is not None and not args.fast:
+        out["qg"] = qg()
+        out["agreement"] = agreement()
+    os.makedirs(args.out, exist_ok=True)
+    _common.write_json(os.path.join(args.out, "zeitlin_forced.json"), out)
+    device = _common.device_name(info)
+    with open(os.path.join(args.out, "zeitlin_forced.md"), "w") as fh:
+        fh.write(
+            f"Measured on {device}, jax {info['jax']}, {info['date'][:10]}; one state, "
+            f"complex128, h = 0.64/N s; nu = {NU:g}, p = {P}, alpha = {ALPHA:g}, a forcing "
+            "on degrees 8-10.\n"
+        )
+        for key in ("cost", "qg", "agreement"):
+            if key in out:
+                cols = list(out[key][0])
+                formats = {c: ".3g" for c in cols if c not in ("N", "steps")}
+                fh.write("\n\n" + _common.markdown_table(out[key], cols, formats))
+        fh.write("\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,223 @@
+"""Forced-dissipative Euler–Zeitlin, the rotating sphere and the quasi-geostrophic model, each
+against an exact fact: the decay of one degree, the Rossby–Haurwitz wave's exact phase (and
+its order of convergence), the Casimirs of the bracket part, the inviscid step bit for bit,
+the forcing's steady state, and the quasi-geostrophic operator applied densely."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.linalg
+
+import slps_jax as sj
+from slps_jax import zeitlin as z
+from slps_jax._driver.splitting import system_step
+
+
+def _degree(N, ell, seed=0, scale=1.0):
+    """A random state of one degree `ell`."""
+    rng = np.random.default_rng(seed)
+    om = np.zeros(N * N)
+    for m in range(-ell, ell + 1):
+        om[z.elm2ind(ell, m)] = scale * rng.normal()
+    return z.shr2mat(om, N)
+
+
+def _rough(N, seed=0):
+    """A state with energy at every degree, coefficients N(0, 1)/l."""
+    rng = np.random.default_rng(seed)
+    om = rng.normal(size=N * N) / np.sqrt(np.repeat(np.arange(N), 2 * np.arange(N) + 1) + 1.0)
+    om[0] = 0.0
+    return z.shr2mat(om, N)
+
+
+def _decay(h, ell, nu, p, alpha):
+    return np.exp(-h * (nu * (ell * (ell + 1.0) - 2.0) ** p + alpha))
+
+
+@pytest.mark.parametrize("nu, p, alpha", [(2e-3, 1, 0.0), (1e-6, 3, 0.0), (1e-3, 2, 0.3)])
+def test_one_degree_decays_exactly_and_rigid_rotations_are_spared(nu, p, alpha):
+    N, h = 16, 0.01
+    system = sj.EulerZeitlin(N, nu=nu, p=p, alpha=alpha)
+    for ell in (1, 2, 7, 15):
+        w = _degree(N, ell, seed=ell)
+        # the linear substep: exact for any amplitude
+        got = system.linear_flow(w, h)
+        want = _decay(h, ell, nu, p, alpha) * np.asarray(w)
+        assert np.max(np.abs(got - want)) <= 1e-13 * np.max(np.abs(w)), ell
+        # the whole step, on a state small enough that the bracket part (whose discrete
+        # steady states are not exactly the continuous ones: O(h^2 |W|^2)) moves nothing
+        small = 1e-5 * w
+        got, info = system_step(sj.IsospectralMidpoint(), system, small, h, jnp.zeros(1))
+        assert int(info.result) == 0
+        want = _decay(h, ell, nu, p, alpha) * np.asarray(small)
+        assert np.max(np.abs(got - want)) <= 1e-13 * np.max(np.abs(small)), ell
+    assert _decay(h, 1, nu, p, 0.0) == 1.0  # (l = 1: untouched by the viscosity)
+
+
+def test_constant_forcing_enters_by_variation_of_constants():
+    N, h, alpha, nu = 8, 0.05, 0.4, 1e-2
+    F = _degree(N, 3, seed=4)
+    system = sj.EulerZeitlin(N, nu=nu, alpha=alpha, forcing=F)
+    lam = nu * (3 * 4 - 2) + alpha
+    w = system.linear_flow(jnp.zeros((N, N), complex), h)
+    np.testing.assert_allclose(w, (1 - np.exp(-h * lam)) / lam * np.asarray(F), atol=1e-14)
+    # its steady state F / lambda is a fixed point of the whole step (a single degree:
+    # the bracket of W with its stream vanishes; small, so that the discrete one does too)
+    small = sj.EulerZeitlin(N, nu=nu, alpha=alpha, forcing=1e-5 * F)
+    steady = 1e-5 * np.asarray(F) / lam
+    y, _ = system_step(sj.IsospectralMidpoint(), small, jnp.asarray(steady), h, jnp.zeros(1))
+    assert np.max(np.abs(y - steady)) <= 1e-13 * np.max(np.abs(steady))
+
+
+def test_rossby_haurwitz_wave_on_the_rotating_sphere():
+    N, ell, a, omega = 16, 5, 0.7, 1.3
+    T10 = np.asarray(z.shr2mat(np.eye(4)[2], N))
+    w_ell = np.asarray(_degree(N, ell, seed=1))
+    w0 = a * T10 + w_ell
+    f0 = 2 * omega / np.sqrt(3)
+    f = np.asarray(z.planetary_vorticity(N, omega))
+    assert np.max(np.abs(f - f0 * T10)) < 1e-14  # f = 2 Omega cos(theta) = f0 T_10
+    # [P, W + f] = (-a/2 + (a + f0)/(l(l+1))) [T_10, W_l]
+    speed = -a / 2 + (a + f0) / (ell * (ell + 1))
+    P = np.asarray(sj.EulerZeitlin(N, omega=omega).stream(w0))
+    bracket = P @ (w0 + f) - (w0 + f) @ P
+    assert np.max(np.abs(bracket - speed * (T10 @ w_ell - w_ell @ T10))) < 1e-14
+    # T_10 is diagonal: the exact solution turns each entry of W_l by its own phase (and
+    # with viscosity, which commutes with the turning, decays as it turns)
+    d = np.diag(T10)
+    nu, p, n = 1e-3, 2, 32
+
+    def exact(viscosity, t):
+        phase = np.exp((d[:, None] - d[None, :]) * speed * t / z.hbar(N))
+        return a * T10 + phase * w_ell * np.exp(-t * viscosity * (ell * (ell + 1) - 2) ** p)
+
+    for viscosity in (0.0, nu):
+        system = sj.EulerZeitlin(N, omega=omega, nu=viscosity, p=p)
+        # n steps of h = 1/64, 1/128, 1/256 (one compiled program): the phase error grows
+        # as t h^2 (times the wave's decay), so the error per unit time falls as h^2
+        errors, amplitude = [], []
+        for h in (2.0**-6, 2.0**-7, 2.0**-8):
+            y = sj.integrate(system, jnp.asarray(w0), jnp.zeros((n, 1)), h)
+            want = exact(viscosity, n * h)
+            decay = np.exp(-n * h * viscosity * (ell * (ell + 1) - 2) ** p)
+            errors.append(np.max(np.abs(y - want)) / (n * h * decay))
+            ratio = np.linalg.norm(y - a * T10) / np.linalg.norm(want - a * T10)
+            amplitude.append(abs(ratio - 1))
+        orders = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
+        assert np.all(np.abs(orders - 2) < 0.1), (viscosity, errors)
+        if viscosity == 0:  # the wave's norm is kept to round-off
+            assert max(amplitude) < 1e-12, amplitude
+        else:  # decayed at the exact rate up to the splitting's error, of order 4 here
+            # (the midpoint moves a little of the wave into T_10, which decays otherwise)
+            assert amplitude[0] < 1e-7 and amplitude[1] < amplitude[0] / 8, amplitude
+            assert amplitude[2] < amplitude[1] / 8, amplitude
+
+
+def test_with_no_new_term_the_step_is_the_inviscid_one_bit_for_bit():
+    N, h = 12, 0.02
+    w = _rough(N)
+    method = sj.IsospectralMidpoint()
+    plain = sj.EulerZeitlin(N)
+    off = sj.EulerZeitlin(N, nu=0.0, p=3, alpha=0, forcing=None, omega=None, gamma=0)
+    assert off.linear is None and off.omega is None and off.tables is None
+    y0, _ = method.step(plain, w, h, jnp.zeros(1))
+    y1, _ = system_step(method, off, w, h, jnp.zeros(1))
+    assert np.array_equal(np.asarray(y0), np.asarray(y1))
+    dW = jnp.asarray(np.random.default_rng(0).normal(size=(6, 1)) * np.sqrt(h))
+    a = sj.integrate(sj.EulerZeitlin(N, c=0.3), w, dW, h)
+    b = sj.integrate(sj.EulerZeitlin(N, c=0.3, nu=0, alpha=0.0), w, dW, h)
+    assert np.array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_dissipation_changes_the_casimirs_only_in_the_linear_substep():
+    N, h = 16, 0.01
+    system = sj.EulerZeitlin(N, nu=1e-3, p=2, alpha=0.1)
+    method = sj.IsospectralMidpoint()
+    w = _rough(N, seed=2)
+    half = system.linear_flow(w, 0.5 * h)
+    inner, _ = method.step(system, half, h, jnp.zeros(1))
+    full, info = system_step(method, system, w, h, jnp.zeros(1))
+    assert int(info.result) == 0
+    np.testing.assert_array_equal(full, system.linear_flow(inner, 0.5 * h))
+    c0, c1 = (np.asarray(system.algebra.casimirs(x))[:5] for x in (half, inner))
+    scale = np.asarray(
+        [np.sum(np.abs(np.linalg.eigvalsh(1j * np.asarray(half))) ** k) for k in range(2, 7)]
+    )
+    assert np.max(np.abs(c1 - c0) / scale) <= 1e-13
+    # and they do change in the linear substep (the enstrophy decays)
+    assert np.asarray(system.algebra.casimirs(full))[0] > np.asarray(system.algebra.casimirs(w))[0]
+
+
+@pytest.mark.parametrize("gamma", [0.5, 10.0])
+def test_quasi_geostrophic_stream_solves_its_equation(gamma):
+    N = 12
+    w = np.asarray(_rough(N, seed=3))
+    P = np.asarray(z.solve_poisson(w, gamma=gamma))
+    Pscan = np.asarray(z.solve_poisson(w, route="scan", gamma=gamma))
+    np.testing.assert_allclose(Pscan, P, atol=1e-13)
+    assert abs(np.trace(P)) < 1e-13
+    # the operator applied densely, in NumPy: Delta_N P + gamma/2 (Z^2 P + P Z^2) = W up to
+    # a multiple of the identity (the trace of the stream, removed)
+    s = (N - 1) / 2
+    Z = 1j * z.hbar(N) * np.diag(np.arange(N) - s)
+    lhs = np.asarray(z.laplacian(P)) + 0.5 * gamma * (Z @ Z @ P + P @ Z @ Z)
+    residual = lhs - w
+    shift = np.trace(residual) / N
+    # (the identity's image: Delta_N I = 0, Z^2 I + I Z^2 = 2 Z^2)
+    c = shift / (gamma * np.trace(Z @ Z) / N)
+    np.testing.assert_allclose(residual, c * gamma * (Z @ Z), atol=1e-12)
+    # an independent solve of the same system (scipy, dense) gives the same stream
+    A = np.zeros((N * N, N * N), complex)
+    for k in range(N * N):
+        e = np.zeros(N * N, complex)
+        e[k] = 1
+        E = e.reshape(N, N)
+        A[:, k] = (np.asarray(z.laplacian(E)) + 0.5 * gamma * (Z @ Z @ E + E @ Z @ Z)).ravel()
+    dense = scipy.linalg.solve(A, w.ravel()).reshape(N, N)
+    dense = dense - np.trace(dense) / N * np.eye(N)
+    np.testing.assert_allclose(P, dense, atol=1e-12 * np.max(np.abs(dense)))
+    # the model conserves its energy -1/2 <W, P> and its Casimirs along a run
+    system = sj.EulerZeitlin(N, gamma=gamma)
+    y = sj.integrate(system, jnp.asarray(w), jnp.zeros((20, 1)), 0.01, save_every=20)
+    e0, e1 = float(system.energy(w)), float(system.energy(y[-1]))
+    assert abs(e1 - e0) < 1e-4 * abs(e0)  # (the midpoint rule: O(h^2) energy error)
+    c0, c1 = system.algebra.casimirs(w)[0], system.algebra.casimirs(y[-1])[0]
+    assert abs(float(c1 - c0)) < 1e-13 * abs(float(c0))
+
+
+def test_transport_noise_complex64_and_an_ensemble_run_with_every_term():
+    N = 8
+    X = jnp.stack([_degree(N, el, seed=el) for el in (1, 2, 3)]) * 0.1
+    F = _degree(N, 4, seed=9) * 0.5
+    kwargs = dict(nu=1e-3, p=2, alpha=0.05, forcing=F, omega=0.5)
+    for dtype in (jnp.complex128, jnp.complex64):
+        system = sj.EulerZeitlin(N, noise=sj.salt_noise(X), dtype=dtype, **kwargs)
+        sol = sj.simulate(system, _rough(N), t1=0.2, dt=0.02, n_samples=3, key=jax.random.key(0))
+        assert sol.ys.dtype == dtype and np.all(np.isfinite(np.asarray(sol.ys)))
+        # the states stay in su(N) (the linear substep maps su(N) to itself)
+        last = np.asarray(sol.ys[:, -1]).astype(np.complex128)
+        tol = 1e-12 if dtype == jnp.complex128 else 1e-5
+        assert max(system.algebra.distance(x) for x in last) < tol * np.max(np.abs(last))
+    assert "nu=0.001" in repr(system) and "omega=0.5" in repr(system) and "p=2" in repr(system)
+
+
+def test_bad_input_refused_by_name_before_any_work():
+    N = 6
+    good = np.asarray(_degree(N, 2))
+    for kwargs, match in [
+        (dict(nu=-1.0), "nu must be"),
+        (dict(nu=float("nan")), "nu must be"),
+        (dict(alpha=-0.1), "alpha must be"),
+        (dict(nu=1e-3, p=0), "p must be a positive integer"),
+        (dict(nu=1e-3, p=1.5), "p must be a positive integer"),
+        (dict(p=-2), "p must be a positive integer"),
+        (dict(forcing=np.zeros((N + 1, N + 1), complex)), "forcing must be an element"),
+        (dict(forcing=np.ones((N, N))), "skew-Hermitian"),
+        (dict(forcing=good + 1j * np.eye(N)), "traceless"),
+        (dict(gamma=-0.5), "gamma must be"),
+        (dict(gamma=1.0, poisson="eigenbasis"), "gamma > 0"),
+        (dict(omega=float("inf")), "omega must be"),
+    ]:
+        with pytest.raises(ValueError, match=match):
+            sj.EulerZeitlin(N, **kwargs)
