@@ -218,6 +218,146 @@ def test_bad_input_refused_by_name_before_any_work():
         (dict(gamma=-0.5), "gamma must be"),
         (dict(gamma=1.0, poisson="eigenbasis"), "gamma > 0"),
         (dict(omega=float("inf")), "omega must be"),
+        (dict(additive_band=(0, 2), additive_amplitude=1.0), "additive_band must be"),
+        (dict(additive_band=(2, N), additive_amplitude=1.0), "additive_band must be"),
+        (dict(additive_band=(3, 2), additive_amplitude=1.0), "additive_band must be"),
+        (dict(additive_band=(1, 2)), "additive_amplitude must be"),
+        (dict(additive_band=(1, 2), additive_amplitude=[1.0, 2.0, 3.0]), "one per degree"),
+        (dict(additive_band=(1, 2), additive_amplitude=-1.0), "finite and >= 0"),
     ]:
         with pytest.raises(ValueError, match=match):
             sj.EulerZeitlin(N, **kwargs)
+    forced = sj.EulerZeitlin(N, additive_band=(1, 2), additive_amplitude=0.1)
+    with pytest.raises(ValueError, match="take no Lévy areas"):
+        sj.simulate(
+            forced,
+            good,
+            t1=0.1,
+            dt=0.05,
+            n_samples=1,
+            key=jax.random.key(0),
+            driver=sj.BrownianMotion(levy_area=True),
+        )
+
+
+def test_additive_forcing_gives_the_schemes_exact_stationary_variance():
+    # one degree forced, damped: each coefficient is an Ornstein-Uhlenbeck process (the
+    # bracket of a one-degree state vanishes; small, so that the discrete one does too).
+    # The splitting L K Phi K L gives w_{n+1} = e^{-ah} w_n + e^{-ah/2} sigma dB: stationary
+    # variance sigma^2 h / (2 sinh(ah)), the exact sigma^2 / (2a) times ah / sinh(ah)
+    N, ell, sigma, alpha, h = 6, 2, 1e-3, 2.0, 0.5
+    system = sj.EulerZeitlin(N, alpha=alpha, additive_band=(ell, ell), additive_amplitude=sigma)
+    assert system.n_noises == 1 + 2 * ell + 1 and system.additive.n_noises == 5
+    assert float(system.additive.enstrophy_injection()) == pytest.approx(2.5 * sigma**2)
+    n = 2000
+    sol = sj.simulate(
+        system, jnp.zeros((N, N), complex), t1=4.0, dt=h, n_samples=n, key=jax.random.key(3)
+    )
+    om = np.asarray(z.mat2shr(sol.ys[:, -1], L=ell + 1))
+    band = om[:, ell * ell : (ell + 1) ** 2]  # (n, 5): independent, mean 0
+    assert np.max(np.abs(np.delete(om, np.s_[ell * ell : (ell + 1) ** 2], 1))) < 1e-15
+    var = np.mean(band**2)  # (the mean is 0)
+    # (started at 0: after t = 4 the variance is within e^{-2 alpha t} = 1e-7 of stationary)
+    want = sigma**2 * h / (2 * np.sinh(alpha * h))
+    se = want * np.sqrt(2.0 / band.size)
+    assert abs(var - want) < 4 * se, (var, want, se)
+    assert abs(var - sigma**2 / (2 * alpha)) > 4 * se  # (the exact one is 18 % above)
+    # with an Ornstein-Uhlenbeck driver the forcing is correlated in time: it runs, every
+    # sample stays in su(N), and the forced band alone moves
+    ou = sj.simulate(
+        system,
+        jnp.zeros((N, N), complex),
+        t1=1.0,
+        dt=h,
+        n_samples=2,
+        key=jax.random.key(0),
+        driver=sj.OrnsteinUhlenbeck(0.5),
+    )
+    om = np.asarray(z.mat2shr(ou.ys[:, -1], L=ell + 1))
+    assert np.all(np.abs(om[:, ell * ell :]) > 0) and np.max(np.abs(om[:, : ell * ell])) < 1e-15
+
+
+def test_enstrophy_and_energy_budgets_close_at_order_two():
+    # W(t) - W(0) against the time integral (trapezoid) of injection - dissipation -
+    # damping along the run: they differ by the time discretisation only, O(h^2)
+    N, t1 = 12, 1.0
+    F = 2.0 * np.asarray(_degree(N, 3, seed=5))
+    system = sj.EulerZeitlin(N, nu=2e-3, p=2, alpha=0.3, forcing=F)
+    w0 = _rough(N, seed=6)
+    gaps = []
+    for n in (64, 128, 256):
+        h = t1 / n
+        ys = sj.integrate(system, w0, jnp.zeros((n, 1)), h, save_every=1)  # (w0 first)
+        rates = system.budget(ys)
+        gap = []
+        for q, total in (("enstrophy", system.enstrophy(ys)), ("energy", system.energy(ys))):
+            net = rates[f"{q}_injection"] - rates[f"{q}_dissipation"] - rates[f"{q}_damping"]
+            integral = h * (jnp.sum(net) - 0.5 * (net[0] + net[-1]))
+            gap.append(abs(float(total[-1] - total[0] - integral)) / abs(float(integral)))
+        gaps.append(gap)
+    gaps = np.asarray(gaps)
+    orders = np.log2(gaps[:-1] / gaps[1:])
+    assert np.all(np.abs(orders - 2) < 0.15), (gaps, orders)
+    assert np.all(gaps[-1] < 3e-3)  # (relative to the integral, at h = 1/256)
+
+
+def test_transfer_and_flux_against_the_flow_itself():
+    N, h = 12, 1e-3
+    system = sj.EulerZeitlin(N)
+    w = _rough(N, seed=7)
+    T = np.asarray(sj._systems.budgets.transfer(system, w))
+    assert np.max(np.abs(T.sum(-1))) < 1e-12 * np.max(np.abs(T))  # (Casimir, Hamiltonian)
+    flux = np.asarray(system.flux(w))
+    np.testing.assert_allclose(flux, -np.cumsum(T, -1), atol=1e-13)
+    # the spectra's rate of change along the integrator's own steps, h forward and back
+    method = sj.IsospectralMidpoint(rtol=0)
+    fwd, _ = method.step(system, w, h, jnp.zeros(1))
+    back, _ = method.step(system, w, -h, jnp.zeros(1))
+    dz = (z.enstrophy_spectrum(fwd) - z.enstrophy_spectrum(back)) / (2 * h)
+    de = (z.energy_spectrum(fwd) - z.energy_spectrum(back)) / (2 * h)
+    np.testing.assert_allclose(dz, T[0], atol=1e-5 * np.max(np.abs(T[0])))
+    np.testing.assert_allclose(de, T[1], atol=1e-5 * np.max(np.abs(T[1])))
+    # the forced-dissipative run store has the budgets and fluxes, by degree
+    pytest.importorskip("zarr")
+    system = sj.EulerZeitlin(8, nu=1e-3, alpha=0.1, additive_band=(2, 3), additive_amplitude=0.1)
+    run = sj.simulate_to_store(
+        system,
+        _rough(8),
+        str(pytest.importorskip("pathlib").Path(__import__("tempfile").mkdtemp()) / "run"),
+        t1=0.2,
+        dt=0.05,
+        n_samples=2,
+        key=jax.random.key(0),
+        save_every=2,
+        progress=False,
+    )
+    assert run.read("enstrophy_flux").shape == (3, 2, 8)  # (t = 0, 0.1, 0.2)
+    assert np.max(np.abs(run.read("energy_flux")[..., -1])) < 1e-12
+    injection = run.read("enstrophy_injection")  # (the additive forcing's mean rate alone)
+    np.testing.assert_allclose(injection, 0.5 * 0.1**2 * (5 + 7))
+    assert np.all(run.read("enstrophy_dissipation") > 0) and np.all(run.read("energy_damping") > 0)
+
+
+def test_a_run_whose_steps_are_mostly_redone_warns_once_and_names_a_step_that_is_not():
+    import warnings
+
+    N = 16
+    system = sj.EulerZeitlin(N)
+    w = 4.0 * _rough(N, seed=1)  # (every step at h = 0.05 is redone as substeps)
+    guide = system.step_guide(w)
+    # the guide is quflow's estimate_stepsize in seconds: 0.1 pi hbar / rho(P)
+    rho = np.linalg.norm(np.asarray(system.stream(w)), 2)
+    assert guide == pytest.approx(0.1 * np.pi * z.hbar(N) / rho, rel=1e-12)
+    for h, n_warnings in ((0.05, 1), (guide, 0)):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            sol = sj.simulate(system, w, t1=8 * h, dt=h, n_samples=1, key=jax.random.key(0))
+        redone = [c for c in caught if "redone as substeps" in str(c.message)]
+        assert len(redone) == n_warnings, (h, [str(c.message) for c in caught])
+        if n_warnings:
+            assert int(sol.stats["n_retried_steps"]) == 8
+            assert "system.step_guide" in str(redone[0].message)
+        else:
+            assert int(sol.stats["n_retried_steps"]) == 0
+    with pytest.raises(ValueError, match="safety"):
+        system.step_guide(w, safety=0)

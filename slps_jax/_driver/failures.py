@@ -126,3 +126,33 @@ def report(caller, throw, retried, fail_step, result):
         _reporter(caller, throw, retried)(fail_step, result)
     else:
         _report_now(caller, throw, retried, fail_step, result)
+
+
+RETRIED_SHARE = 0.5
+"""`report_retries` warns when more than this share of the steps were redone as substeps."""
+
+
+def report_retries(caller, sol, system, y0, dt, n_steps):
+    """Warn, once per run, when most steps were redone as substeps (`retry_substeps`): the
+    results are right, but the run paid for each step several times. The warning names a
+    step that would not need that (`system.step_guide` of the initial state and of the
+    first sample's last one, the smaller). Nothing where the statistics are traced."""
+    n_retried = sol.stats.get("n_retried_steps")
+    if n_retried is None or isinstance(n_retried, jax.core.Tracer):
+        return
+    total = sol.fail_step.size * n_steps
+    share = float(np.asarray(gather(n_retried))) / max(total, 1)
+    if share <= RETRIED_SHARE:
+        return
+    try:
+        guide = min(system.step_guide(y0), system.step_guide(np.asarray(sol.ys)[0, -1]))
+        advice = f"a step of about {guide:.3g} (system.step_guide) would not need that"
+    except Exception:  # (a system whose gradient cannot be evaluated here)
+        advice = "a smaller step would not need that"
+    warnings.warn(
+        f"{caller}: {100 * share:.0f} % of the steps were redone as substeps "
+        f"(retry_substeps): the step dt = {float(dt):.3g} is too large for the method's solve "
+        f"on these states, and each such step cost several; {advice}, and would cost less.",
+        RuntimeWarning,
+        stacklevel=user_stacklevel(),
+    )

@@ -23,7 +23,7 @@ from .._support.checks import (
 )
 from .._support.deprecated import renamed_arguments
 from .._support.solution import RESULTS, Solution
-from .failures import report
+from .failures import report, report_retries
 from .plan import (
     check_levy_area,
     check_method,
@@ -490,7 +490,9 @@ def simulate(
     - `retry_substeps`: `k >= 2` (default 4): a step that fails is redone as `k`, then
       `k^2`, then `k^3` equal substeps before the sample is given up; `stats` then has
       `n_retried_steps`. `None`: not redone. Steps that succeed are untouched, and the
-      retry is differentiable.
+      retry is differentiable. When more than half of the steps were redone, a
+      `RuntimeWarning` (once per call) names a step that would not need it
+      (`system.step_guide`).
     - `sharding`: `None` (default), `"auto"` (the context mesh of `jax.set_mesh` when one
       is set, else all local devices, when there are several), or a
       `jax.sharding.Sharding` of the sample axis, such as
@@ -530,6 +532,7 @@ def simulate(
     )
     sol = run_ensemble(p, newton_stats=newton_stats, saved=save_every is not None)
     report("simulate", throw, retry_substeps is not None, sol.fail_step, sol.result)
+    report_retries("simulate", sol, p.system, p.y0, p.dt, p.n_steps)
     return sol
 
 

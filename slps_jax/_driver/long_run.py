@@ -62,10 +62,13 @@ def simulate_to_store(
     - `save_every`: steps between snapshots (required: a run to disk saves snapshots).
     - `diagnostics`: computed on each snapshot, per sample: `"auto"` (default: for a matrix
       state the Casimirs $\operatorname{tr}W^k$, $k = 2 \dots 6$ (their real part for even
-      $k$, imaginary for odd); for `EulerZeitlin` also `energy`, `enstrophy`, and up to
-      N = 128 `energy_spectrum` and `enstrophy_spectrum` by degree ($N^3$-number tables
-      above); for so(3)* the Casimir $|y|^2$), `None`, or a dict `name -> fn(state)` of
-      JAX functions of one state.
+      $k$, imaginary for odd); for `EulerZeitlin` also `energy`, `enstrophy`, up to
+      N = 128 `energy_spectrum`, `enstrophy_spectrum`, `energy_flux` and `enstrophy_flux`
+      by degree ($N^3$-number tables above; the last axis named `degree`), and with linear
+      terms or an additive forcing the budgets' rates `energy_injection`,
+      `energy_dissipation`, `energy_damping` and the same for the enstrophy
+      (`EulerZeitlin.budget`); for so(3)* the Casimir $|y|^2$), `None`, or a dict
+      `name -> fn(state)` of JAX functions of one state.
     - `save_states`: also store the states themselves (default `True`; `False` keeps the
       diagnostics only).
     - `record_snapshots`: snapshots per record at most (default 16): the largest divisor of
@@ -211,6 +214,7 @@ def _diagnostics(system, diagnostics) -> dict[str, Any]:
     if diagnostics != "auto":
         raise ValueError(f"diagnostics must be 'auto', None or a dict, got {diagnostics!r}.")
     from .. import zeitlin
+    from .._systems import budgets
     from .._systems.euler_zeitlin import EulerZeitlin
 
     alg = system.algebra
@@ -220,11 +224,27 @@ def _diagnostics(system, diagnostics) -> dict[str, Any]:
         "casimirs": functools.partial(_casimirs, order=min(CASIMIR_ORDER, alg.shape[-1]))
     }
     if isinstance(system, EulerZeitlin):
-        out["energy"] = zeitlin.energy
+        out["energy"] = system.energy if system.gamma else zeitlin.energy
         out["enstrophy"] = zeitlin.enstrophy
         if system.N <= SPECTRA_MAX_N:
             out["energy_spectrum"] = zeitlin.energy_spectrum
             out["enstrophy_spectrum"] = zeitlin.enstrophy_spectrum
+            out["enstrophy_flux"] = lambda w: system.flux(w)[0]
+            out["energy_flux"] = lambda w: system.flux(w)[1]
+        if system.linear is not None or system.additive is not None:
+            # (the forcing as a constant of N^2 numbers, not through the system's tables)
+            forcing = None if system.linear is None else system.linear.forcing
+            forcing = None if forcing is None else np.asarray(forcing)
+            terms = lambda w: budgets.budget(system, w, forcing)
+            for name in (
+                "energy_injection",
+                "energy_dissipation",
+                "energy_damping",
+                "enstrophy_injection",
+                "enstrophy_dissipation",
+                "enstrophy_damping",
+            ):
+                out[name] = lambda w, name=name: terms(w)[name]
     return out
 
 

@@ -126,16 +126,22 @@ def check_levy_area(area, n_steps, n_noises, method):
 
 def check_levy_option(levy_area, method, system):
     """Whether an ensemble draws Lévy areas: `"auto"` (for a method that uses them and a
-    system with several noises), `True` (refused for a method that cannot use them) or
-    `False`. One noise never needs areas (they are zero): `False` then."""
+    system with several noises that takes them), `True` (refused for a method that cannot
+    use them, and for a system that takes none) or `False`. One noise never needs areas
+    (they are zero): `False` then."""
     if isinstance(levy_area, str) and levy_area == "auto":
-        return bool(method.uses_levy_area() and system.n_noises > 1)
+        return bool(method.uses_levy_area() and system.n_noises > 1 and system.takes_areas)
     if not isinstance(levy_area, (bool, np.bool_)):
         raise TypeError(f"levy_area must be 'auto', True or False, got {levy_area!r}.")
     if levy_area and not method.uses_levy_area():
         raise TypeError(
             f"levy_area=True: {type(method).__name__} does not use Lévy areas; "
             f"methods that do: {_area_methods()}."
+        )
+    if levy_area and not system.takes_areas:
+        raise ValueError(
+            "levy_area=True: this system's noises take no Lévy areas (an EulerZeitlin with an "
+            "additive forcing); use levy_area='auto' or False."
         )
     return bool(levy_area) and system.n_noises > 1
 

@@ -10,6 +10,7 @@ steps see the same step.
 
 from __future__ import annotations
 
+from .._brownian import BrownianStep, as_step
 from .._methods.base import finite_result
 
 
@@ -24,21 +25,37 @@ def system_step(method, system, y, dt, dW, history=()):
     r"""One step of `system` by `method`: the method's step on the bracket part, and where
     the system has linear terms (`system.linear`, an `EulerZeitlin` with `nu`, `alpha` or
     `forcing`), the Strang splitting $L_{h/2}\circ\Phi_h\circ L_{h/2}$ around it, $L$ their
-    exact flow. On the rotating sphere the method steps the absolute vorticity $W + f$
-    (`EulerZeitlin.bracket_view`). A system without either is stepped as it is.
+    exact flow. An additive forcing (`system.additive`) enters as two half kicks
+    $K = \tfrac12\sum\sigma_\ell\Delta B_{\ell m}T_{\ell m}$ of the step's last increments,
+    $L_{h/2}\circ K\circ\Phi_h\circ K\circ L_{h/2}$, the method seeing only the transport
+    noises' increments. On the rotating sphere the method steps the absolute vorticity
+    $W + f$ (`EulerZeitlin.bracket_view`). A system without any of these is stepped as it
+    is.
 
     **Returns:** `(y_next, StepInfo)`, the method's report with the final state's check."""
     linear = getattr(system, "linear", None)
+    additive = getattr(system, "additive", None)
     view, shift = system.bracket_view() if hasattr(system, "bracket_view") else (system, None)
-    if linear is None and shift is None:
+    if linear is None and shift is None and additive is None:
         return _method_step(method, system, y, dt, dW, history)
+    kick = None
+    if additive is not None:  # (its increments: the last ones; half a kick each side)
+        noise = as_step(dW)
+        s = system.noise.n_noises
+        area = None if noise.area is None else noise.area[:s, :s]
+        kick = 0.5 * additive.kick(noise.dW[s:], y.dtype)
+        dW = BrownianStep(noise.dW[:s], area)
     if linear is not None:
         y = system.linear_flow(y, 0.5 * dt)
+    if kick is not None:
+        y = y + kick
     if shift is not None:
         y = y + shift.astype(y.dtype)
     y, info = _method_step(method, view, y, dt, dW, history)
     if shift is not None:
         y = y - shift.astype(y.dtype)
+    if kick is not None:
+        y = y + kick
     if linear is not None:
         y = system.linear_flow(y, 0.5 * dt)
     return y, info._replace(result=finite_result(y, info.result))

@@ -158,11 +158,17 @@ def _chunks(shape, itemsize):
 
 
 def _dimension_names(name, shape, n_samples):
+    """`time`, then `sample` (where the field has one per sample), then `{name}_{i}`; the
+    last axis of a field by degree (a name ending in `_spectrum` or `_flux`) is `degree`."""
     dims = ["time"]
+    by_degree = name.endswith(("_spectrum", "_flux"))
     for i, n in enumerate(shape):
-        dims.append(
-            "sample" if i == 0 and n_samples is not None and n == n_samples else f"{name}_{i}"
-        )
+        if i == 0 and n_samples is not None and n == n_samples:
+            dims.append("sample")
+        elif by_degree and i == len(shape) - 1:
+            dims.append("degree")
+        else:
+            dims.append(f"{name}_{i}")
     return dims
 
 

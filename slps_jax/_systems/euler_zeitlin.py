@@ -10,6 +10,8 @@ import numpy as np
 from .. import zeitlin
 from .._algebra import su
 from .._support.checks import concrete, is_int
+from . import budgets
+from .additive_forcing import AdditiveForcing
 from .linear_terms import LinearTerms
 from .noise import noise_or_c
 from .system import LiePoissonSystem, Tables
@@ -78,6 +80,13 @@ class EulerZeitlin(LiePoissonSystem):
       (`zeitlin.planetary_vorticity`), enters the bracket: $\dot W = [P, W + f]/\hbar$.
       The state stays the relative vorticity $W$; the Casimirs kept are those of the
       absolute vorticity $W + f$.
+    - `additive_band`, `additive_amplitude`: an additive stochastic forcing
+      $\sum_{\ell=\ell_1}^{\ell_2}\sigma_\ell\sum_mT_{\ell m}\,dB_{\ell m}$ on the degrees
+      `(l1, l2)`, $1 \le \ell_1 \le \ell_2 \le N - 1$, with the amplitude $\sigma_\ell \ge 0$
+      per $\sqrt{\text{s}}$ (a number, or one per degree): `AdditiveForcing`. Its
+      Brownian motions are the system's last `additive.n_noises` noises, after the
+      transport noises (`n_noises` counts both); white with the default driver, correlated
+      in time with `driver=sj.OrnsteinUhlenbeck(T)`. No Lévy areas with it.
     - `gamma`: the global quasi-geostrophic model's $\gamma \ge 0$, a Python number
       (default 0: Euler). The stream solves
       $\Delta_NP + \tfrac\gamma2(Z^2P + PZ^2) = W$, as quflow's `solve_globalqg`
@@ -101,6 +110,7 @@ class EulerZeitlin(LiePoissonSystem):
     tables: Tables | None
     linear: LinearTerms | None
     omega: jax.Array | None
+    additive: AdditiveForcing | None
     gamma: float = eqx.field(static=True)
     shift: jax.Array | None  # (the bracket's view: `bracket_view`)
 
@@ -118,6 +128,8 @@ class EulerZeitlin(LiePoissonSystem):
         forcing=None,
         omega=None,
         gamma=0.0,
+        additive_band=None,
+        additive_amplitude=None,
     ):
         if isinstance(N, (bool, np.bool_)) or not isinstance(N, (int, np.integer)) or N < 2:
             raise ValueError(f"EulerZeitlin needs an integer N >= 2, got {N!r}.")
@@ -151,8 +163,14 @@ class EulerZeitlin(LiePoissonSystem):
                 raise ValueError(f"EulerZeitlin: omega must be a finite scalar, got {omega!r}.")
             omega = jnp.asarray(omega, jnp.finfo(complex_).dtype)
         self.omega = omega
+        if additive_band is None and additive_amplitude is None:
+            self.additive = None
+        else:
+            self.additive = AdditiveForcing(int(N), additive_band, additive_amplitude)
         if dtype is not None:  # (the new terms' leaves too)
-            self.linear, self.omega = _cast((self.linear, self.omega), dtype)
+            self.linear, self.omega, self.additive = _cast(
+                (self.linear, self.omega, self.additive), dtype
+            )
         self.shift = None
         self.tables = (
             Tables(zeitlin.poisson_eigenbasis(int(N), jnp.finfo(complex_).dtype))
@@ -217,7 +235,22 @@ class EulerZeitlin(LiePoissonSystem):
             parts.append(f"omega={self.omega!r}" if omega is None else f"omega={float(omega):g}")
         if self.gamma:
             parts.append(f"gamma={self.gamma:g}")
+        if self.additive is not None:
+            parts.append(repr(self.additive))
         return f"EulerZeitlin({self.N}, {', '.join(parts)})"
+
+    @property
+    def n_noises(self):
+        """The number of independent noises: the transport noises (`noise=`, or one with
+        `c=`), then the additive forcing's (`additive_band`), in that order in `dW`."""
+        return self.noise.n_noises + (0 if self.additive is None else self.additive.n_noises)
+
+    @property
+    def takes_areas(self):
+        """Whether a method may be given Lévy areas: not with an additive forcing (its many
+        noises would make the areas' count grow as their square; the transport noises then
+        run with their increments only)."""
+        return self.additive is None
 
     @property
     def quadratic_hamiltonian(self):
@@ -235,6 +268,20 @@ class EulerZeitlin(LiePoissonSystem):
         if not self.gamma and self.shift is None:
             return zeitlin.energy(w)
         return -0.5 * zeitlin.inner(self._relative(w), self.stream(w))
+
+    def budget(self, w):
+        r"""The energy and enstrophy budgets' rates of the state `w`, over leading axes: a
+        dict of `energy_injection`, `energy_dissipation`, `energy_damping` and the same for
+        the enstrophy, per second (`slps_jax._systems.budgets` has the formulas; $O(N^2)$)."""
+        forcing = None if self.linear is None else self.linear.forcing
+        return budgets.budget(self, w, forcing)
+
+    def flux(self, w):
+        r"""The flux of enstrophy and of energy across each degree $\ell = 0 \dots N - 1$ by
+        the bracket, $\Pi(\ell) = -\sum_{\ell' \le \ell}T(\ell')$, `(..., 2, N)` (row 0 the
+        enstrophy's, row 1 the energy's): positive where it moves them from the degrees up
+        to $\ell$ to those above. Uses `mat2shr`'s tables ($N^3$ numbers)."""
+        return budgets.flux(self, w)
 
     def enstrophy(self, w):
         r"""quflow's enstrophy $\tfrac12\langle W, W\rangle_{L^2}$, over leading axes."""

@@ -7,6 +7,7 @@ from typing import Any
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from .._algebra import SO3, AbstractAlgebra
 from .._brownian import as_step
@@ -118,6 +119,10 @@ class LiePoissonSystem(eqx.Module):
         """The number $s$ of independent noises (1 with `c=`)."""
         return self.noise.n_noises
 
+    # Whether a method may be given the Lévy areas of the system's noises (`EulerZeitlin`
+    # with an additive forcing may not).
+    takes_areas = True
+
     @property
     def c(self):
         """The amplitude $c$ of one noise proportional to the drift (`c=`), else `None`."""
@@ -164,6 +169,24 @@ class LiePoissonSystem(eqx.Module):
         return jnp.vectorize(
             lambda u: self.noise.values(u, self.params), signature=self._signature("(s)")
         )(jnp.asarray(y))
+
+    def step_guide(self, y, safety=0.1):
+        r"""A step for the state `y` that the implicit methods' solves take in a few updates:
+        $h = \text{safety}\cdot\pi/\rho(\nabla H_0(y))$, $\rho$ the spectral norm of the
+        gradient's matrix (on so(3)*, $|\nabla H_0(y)|$). The fixed point's update contracts
+        by about $h\rho$: the default, quflow's `estimate_stepsize` (0.1π in its units,
+        $\hbar$ seconds for `EulerZeitlin`), keeps that near 0.3. It looks at the drift only:
+        strong noise, or a state that roughens along the run, may need less.
+
+        **Arguments:** `y`, one concrete state; `safety`, a positive factor (default 0.1).
+
+        **Returns:** $h$, a Python float (`inf` where the gradient vanishes).
+        """
+        if not (isinstance(safety, (int, float)) and safety > 0):
+            raise ValueError(f"step_guide: safety must be a positive number, got {safety!r}.")
+        g = np.asarray(self.algebra.to_matrix(self.gradient(jnp.asarray(y))))
+        rho = float(np.linalg.norm(g.astype(np.complex128), 2))
+        return float("inf") if rho == 0 else safety * np.pi / rho
 
     def casimir(self, y):
         r"""The first Casimir: $C(y) = \tfrac12 |y|^2$ on so(3), $\operatorname{tr}(Y^2)$ on
