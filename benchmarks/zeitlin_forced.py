@@ -9,6 +9,9 @@
   its `isomp` at its defaults with its Strang splitting of `solve_viscdamp` (theta = 1/2,
   in the same seconds as ours, its viscosity nu Delta with p = 1: the same work per step
   whatever p) on the same state, and our ratio to it.
+- Rough states: a su(64) state with energy at every degree, at h = 0.01 s (where every step
+  is redone as substeps) and at `system.step_guide`'s step: seconds per unit of simulated
+  time, updates per step, the share of steps redone, and whether `simulate` warned.
 - Against quflow (where it is installed by hand from its sources; never a dependency):
   - the quasi-geostrophic stream against `solve_globalqg` (N = 64, 128; gamma 0.5, 10),
     the largest difference relative to the largest entry;
@@ -17,9 +20,14 @@
     Crank–Nicolson, ours exact: the difference is theirs, O(h^2), and shrinks by about 4
     per halving.
 
+- `--transport`: transport noise end to end (N = 128): ms per step through `simulate` of the
+  deterministic step (warm-started and cold) and of 8 transport noises with and without
+  their Lévy areas, and through `integrate` with the noises given, with the fixed point's
+  updates per step (`zeitlin_transport.json`, `zeitlin_transport.md`).
+
 Writes `zeitlin_forced.json` and `zeitlin_forced.md` into --out (default benchmarks/results).
 
-    python benchmarks/zeitlin_forced.py [--fast] [--out DIR]
+    python benchmarks/zeitlin_forced.py [--fast] [--transport] [--out DIR]
 """
 
 from __future__ import annotations
@@ -160,12 +168,132 @@ def agreement(ns=(64, 128), n_steps=100):
     return rows
 
 
+def rough(N=64, scales=(4.0, 6.0), h=0.01, t1=0.16):
+    """A rough su(N) state (coefficients N(0, 1)/l, x0.3 above l = 15, seed 0, times each
+    of `scales`), deterministic: seconds per unit of simulated time and solver updates per
+    step at h (most steps redone as substeps) and at `system.step_guide`'s step."""
+    import warnings
+
+    rng = np.random.default_rng(0)
+    el = np.repeat(np.arange(N), 2 * np.arange(N) + 1).astype(float)
+    om = rng.normal(size=N * N) / np.maximum(el, 1)
+    om[el > 15] *= 0.3
+    om[0] = 0.0
+    system = sj.EulerZeitlin(N)
+    rows = []
+    for scale in scales:
+        w = z.shr2mat(scale * om, N)
+        guide = system.step_guide(w)
+        for name, step in (("h", h), ("step_guide", guide)):
+            n = max(1, int(round(t1 / step)))
+            run = lambda: sj.simulate(
+                system,
+                w,
+                t1=n * step,
+                dt=step,
+                n_samples=1,
+                key=jax.random.key(0),
+                newton_stats=True,
+            )
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                sol = run()
+            med = _common.time_call(lambda: run().ys, repeats=3)[0]
+            rows.append(
+                dict(
+                    N=N,
+                    scale=scale,
+                    step=name,
+                    h=step,
+                    s_per_unit_time=med / (n * step),
+                    updates=float(sol.stats["newton_iterations_mean"]),
+                    retried_share=float(sol.stats["n_retried_steps"]) / n,
+                    warned=any("redone" in str(c.message) for c in caught),
+                )
+            )
+            print(rows[-1], flush=True)
+    return rows
+
+
+def transport(N=128, n_steps=32):
+    """Transport noise end to end: one state, h = 0.64/N s, ms per step through `simulate`
+    (the driver's drawing included) of the deterministic system (warm-started, and cold),
+    of 8 transport noises (degrees 1-2, amplitude 0.05) with and without their Lévy areas,
+    and through `integrate` with the same noises given (no drawing), with the fixed
+    point's updates per step."""
+    h = 0.64 / N
+    w0 = initial(N)
+    det = sj.EulerZeitlin(N)
+    noisy = sj.EulerZeitlin(N, noise=sj.salt_noise(0.05 * z.shr2mat(np.eye(9)[1:], N)))
+
+    def through_simulate(system, **kwargs):
+        run = lambda: sj.simulate(
+            system,
+            w0,
+            t1=n_steps * h,
+            dt=h,
+            n_samples=1,
+            key=jax.random.key(0),
+            newton_stats=True,
+            **kwargs,
+        )
+        sol = run()
+        med = _common.time_call(lambda: run().ys, repeats=5)[0]
+        return 1e3 * med / n_steps, float(sol.stats["newton_iterations_mean"])
+
+    rows = [
+        ("deterministic (warm start)", *through_simulate(det)),
+        (
+            "deterministic, cold start",
+            *through_simulate(det, method=sj.IsospectralMidpoint(warm_start=0)),
+        ),
+        ("8 noises with areas (drawn)", *through_simulate(noisy)),
+        (
+            "8 noises without areas",
+            *through_simulate(noisy, driver=sj.BrownianMotion(levy_area=False)),
+        ),
+    ]
+    dW, A = sj.brownian_increments(jax.random.key(1), n_steps, h, n_noises=8, levy_area=True)
+    given = jax.jit(lambda m, w, d, a: sj.integrate(m, w, d, h, areas=a, throw=False))
+    med = _common.time_call(given, noisy, w0, dW, A, repeats=5)[0]
+    rows.append(("8 noises with areas given (integrate)", 1e3 * med / n_steps, None))
+    base = rows[0][1]
+    out = [
+        dict(N=N, case=c, ms_per_step=ms, vs_deterministic=ms / base, updates=u)
+        for c, ms, u in rows
+    ]
+    for row in out:
+        print(row, flush=True)
+    return out
+
+
 def main(argv=None):
     p = _common.parser(__doc__, "N = 16 and 32 only, no quflow")
+    p.add_argument(
+        "--transport", action="store_true", help="only transport noise end to end (N = 128)"
+    )
     args = p.parse_args(argv)
     info = _common.machine_info()
+    if args.transport:
+        rows = transport(N=16 if args.fast else 128)
+        _common.write_json(
+            os.path.join(args.out, "zeitlin_transport.json"), dict(machine=info, rows=rows)
+        )
+        with open(os.path.join(args.out, "zeitlin_transport.md"), "w") as fh:
+            fh.write(
+                f"Measured on {_common.device_name(info)}, jax {info['jax']}, "
+                f"{info['date'][:10]}; one state, complex128, h = 0.64/N s, 32 steps.\n\n"
+            )
+            fh.write(
+                _common.markdown_table(
+                    rows,
+                    list(rows[0]),
+                    {"ms_per_step": ".3g", "vs_deterministic": ".3g", "updates": ".3g"},
+                )
+            )
+        return
     ns = (16, 32) if args.fast else (128, 256)
-    out = dict(machine=info, cost=cost(ns))
+    out = dict(machine=info, cost=cost(ns), rough=rough(N=16 if args.fast else 64))
     if qf is not None and not args.fast:
         out["qg"] = qg()
         out["agreement"] = agreement()
@@ -178,10 +306,10 @@ def main(argv=None):
             f"complex128, h = 0.64/N s; nu = {NU:g}, p = {P}, alpha = {ALPHA:g}, a forcing "
             "on degrees 8-10.\n"
         )
-        for key in ("cost", "qg", "agreement"):
+        for key in ("cost", "rough", "qg", "agreement"):
             if key in out:
                 cols = list(out[key][0])
-                formats = {c: ".3g" for c in cols if c not in ("N", "steps")}
+                formats = {c: ".3g" for c in cols if c not in ("N", "steps", "step", "warned")}
                 fh.write("\n\n" + _common.markdown_table(out[key], cols, formats))
         fh.write("\n")
 

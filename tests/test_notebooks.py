@@ -29,6 +29,7 @@ def test_there_are_notebooks():
         "06_euler_sphere.ipynb",
         "07_data_driven_noise.ipynb",
         "08_assimilation.ipynb",
+        "09_forced_turbulence.ipynb",
     ]
 
 
