@@ -45,7 +45,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import _common
-from zeitlin import initial
+from zeitlin import _one_path, initial
 
 import slps_jax as sj
 from slps_jax import zeitlin as z
@@ -186,15 +186,7 @@ def rough(N=64, scales=(4.0, 6.0), h=0.01, t1=0.16):
         guide = system.step_guide(w)
         for name, step in (("h", h), ("step_guide", guide)):
             n = max(1, int(round(t1 / step)))
-            run = lambda: sj.simulate(
-                system,
-                w,
-                t1=n * step,
-                dt=step,
-                n_samples=1,
-                key=jax.random.key(0),
-                newton_stats=True,
-            )
+            run = lambda: _one_path(system, w, sj.IsospectralMidpoint(), n, h=step)
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")
                 sol = run()
@@ -226,17 +218,9 @@ def transport(N=128, n_steps=32):
     det = sj.EulerZeitlin(N)
     noisy = sj.EulerZeitlin(N, noise=sj.salt_noise(0.05 * z.shr2mat(np.eye(9)[1:], N)))
 
-    def through_simulate(system, **kwargs):
-        run = lambda: sj.simulate(
-            system,
-            w0,
-            t1=n_steps * h,
-            dt=h,
-            n_samples=1,
-            key=jax.random.key(0),
-            newton_stats=True,
-            **kwargs,
-        )
+    def through_simulate(system, method=None, **kwargs):
+        method = sj.IsospectralMidpoint() if method is None else method
+        run = lambda: _one_path(system, w0, method, n_steps, h=h, **kwargs)
         sol = run()
         med = _common.time_call(lambda: run().ys, repeats=5)[0]
         return 1e3 * med / n_steps, float(sol.stats["newton_iterations_mean"])
