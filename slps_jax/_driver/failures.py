@@ -136,7 +136,8 @@ def report_retries(caller, sol, system, y0, dt, n_steps):
     """Warn, once per run, when most steps were redone as substeps (`retry_substeps`): the
     results are right, but the run paid for each step several times. The warning names a
     step that would not need that (`system.step_guide` of the initial state and of the
-    first sample's last one, the smaller). Nothing where the statistics are traced."""
+    first sample's last one, the smaller), or, where the step is already below it, the
+    method's options or the noise. Nothing where the statistics are traced."""
     n_retried = sol.stats.get("n_retried_steps")
     if n_retried is None or isinstance(n_retried, jax.core.Tracer):
         return
@@ -146,13 +147,20 @@ def report_retries(caller, sol, system, y0, dt, n_steps):
         return
     try:
         guide = min(system.step_guide(y0), system.step_guide(np.asarray(sol.ys)[0, -1]))
-        advice = f"a step of about {guide:.3g} (system.step_guide) would not need that"
-    except Exception:  # (a system whose gradient cannot be evaluated here)
-        advice = "a smaller step would not need that"
-    warnings.warn(
-        f"{caller}: {100 * share:.0f} % of the steps were redone as substeps "
-        f"(retry_substeps): the step dt = {float(dt):.3g} is too large for the method's solve "
-        f"on these states, and each such step cost several; {advice}, and would cost less.",
-        RuntimeWarning,
-        stacklevel=user_stacklevel(),
-    )
+    except Exception:  # (a system whose gradient cannot be evaluated here: traced leaves)
+        guide = None
+    start = f"{caller}: {100 * share:.0f} % of the steps were redone as substeps (retry_substeps)"
+    if guide is not None and guide < float(dt):
+        msg = (
+            f"{start}: the step dt = {float(dt):.3g} is too large for the method's solve on "
+            f"these states, and each such step cost several; a step of about {guide:.3g} "
+            "(system.step_guide) would not need that, and would cost less."
+        )
+    else:
+        below = "" if guide is None else f" (system.step_guide: {guide:.3g})"
+        msg = (
+            f"{start}, each at the cost of several, although the step dt = {float(dt):.3g} is "
+            f"not large for the drift{below}: the method's options (max_iter, tol, rtol) or "
+            "the noise's strength are what make its solve fail."
+        )
+    warnings.warn(msg, RuntimeWarning, stacklevel=user_stacklevel())
