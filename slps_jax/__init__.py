@@ -99,6 +99,7 @@ from ._support.store import StoredRun as StoredRun
 from ._support.store import open_run as open_run
 
 # Systems
+from ._systems.additive_forcing import AdditiveForcing as AdditiveForcing
 from ._systems.euler_zeitlin import EulerZeitlin as EulerZeitlin
 from ._systems.flow import deterministic_flow as deterministic_flow  # deprecated: drift_flow
 from ._systems.flow import drift_flow as drift_flow

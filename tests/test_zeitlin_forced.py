@@ -218,16 +218,20 @@ def test_bad_input_refused_by_name_before_any_work():
         (dict(gamma=-0.5), "gamma must be"),
         (dict(gamma=1.0, poisson="eigenbasis"), "gamma > 0"),
         (dict(omega=float("inf")), "omega must be"),
-        (dict(additive_band=(0, 2), additive_amplitude=1.0), "additive_band must be"),
-        (dict(additive_band=(2, N), additive_amplitude=1.0), "additive_band must be"),
-        (dict(additive_band=(3, 2), additive_amplitude=1.0), "additive_band must be"),
-        (dict(additive_band=(1, 2)), "additive_amplitude must be"),
-        (dict(additive_band=(1, 2), additive_amplitude=[1.0, 2.0, 3.0]), "one per degree"),
-        (dict(additive_band=(1, 2), additive_amplitude=-1.0), "finite and >= 0"),
     ]:
         with pytest.raises(ValueError, match=match):
             sj.EulerZeitlin(N, **kwargs)
-    forced = sj.EulerZeitlin(N, additive_band=(1, 2), additive_amplitude=0.1)
+    for band, amplitude, match in [
+        ((0, 2), 1.0, "band must be"),
+        ((2, N), 1.0, "band"),
+        ((3, 2), 1.0, "band must be"),
+        ((1, 2), None, "amplitude must be"),
+        ((1, 2), [1.0, 2.0, 3.0], "one per degree"),
+        ((1, 2), -1.0, "finite and >= 0"),
+    ]:
+        with pytest.raises(ValueError, match=match):
+            sj.EulerZeitlin(N, additive=sj.AdditiveForcing(band, amplitude))
+    forced = sj.EulerZeitlin(N, additive=sj.AdditiveForcing((1, 2), 0.1))
     with pytest.raises(ValueError, match="take no Lévy areas"):
         sj.simulate(
             forced,
@@ -246,7 +250,7 @@ def test_additive_forcing_gives_the_schemes_exact_stationary_variance():
     # The splitting L K Phi K L gives w_{n+1} = e^{-ah} w_n + e^{-ah/2} sigma dB: stationary
     # variance sigma^2 h / (2 sinh(ah)), the exact sigma^2 / (2a) times ah / sinh(ah)
     N, ell, sigma, alpha, h = 6, 2, 1e-3, 2.0, 0.5
-    system = sj.EulerZeitlin(N, alpha=alpha, additive_band=(ell, ell), additive_amplitude=sigma)
+    system = sj.EulerZeitlin(N, alpha=alpha, additive=sj.AdditiveForcing((ell, ell), sigma))
     assert system.n_noises == 1 + 2 * ell + 1 and system.additive.n_noises == 5
     assert float(system.additive.enstrophy_injection()) == pytest.approx(2.5 * sigma**2)
     n = 2000
@@ -319,7 +323,7 @@ def test_transfer_and_flux_against_the_flow_itself():
     np.testing.assert_allclose(de, T[1], atol=1e-5 * np.max(np.abs(T[1])))
     # the forced-dissipative run store has the budgets and fluxes, by degree
     pytest.importorskip("zarr")
-    system = sj.EulerZeitlin(8, nu=1e-3, alpha=0.1, additive_band=(2, 3), additive_amplitude=0.1)
+    system = sj.EulerZeitlin(8, nu=1e-3, alpha=0.1, additive=sj.AdditiveForcing((2, 3), 0.1))
     run = sj.simulate_to_store(
         system,
         _rough(8),

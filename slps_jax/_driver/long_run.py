@@ -113,7 +113,7 @@ def simulate_to_store(
     carry0 = _initial_carries(p.method, p.system, p.y0, p.path, keys)
     leaves0, treedef = jax.tree_util.tree_flatten(carry0)
     state_spec = {"state": ((p.n_samples, *p.y0.shape), p.y0.dtype)} if save_states else {}
-    shapes = {name: jax.eval_shape(fn, p.y0) for name, fn in fns.items()}
+    shapes = {k: v for name, fn in fns.items() for k, v in _fields(name, jax.eval_shape(fn, p.y0))}
     snapshots = {
         **state_spec,
         "ok": ((p.n_samples,), np.bool_),
@@ -122,7 +122,7 @@ def simulate_to_store(
     carry_spec = {f"carry_{i}": (leaf.shape, leaf.dtype) for i, leaf in enumerate(leaves0)}
     store = RunStore(
         path,
-        _fingerprint(p, keys, fns, save_states),
+        _fingerprint(p, keys, shapes, save_states),
         snapshots,
         carry_spec,
         mode="resume" if resume else "create",
@@ -229,23 +229,21 @@ def _diagnostics(system, diagnostics) -> dict[str, Any]:
         if system.N <= SPECTRA_MAX_N:
             out["energy_spectrum"] = zeitlin.energy_spectrum
             out["enstrophy_spectrum"] = zeitlin.enstrophy_spectrum
-            out["enstrophy_flux"] = lambda w: system.flux(w)[0]
-            out["energy_flux"] = lambda w: system.flux(w)[1]
+            out["(fluxes)"] = lambda w: dict(
+                zip(("enstrophy_flux", "energy_flux"), budgets.flux(system, w))
+            )
         if system.linear is not None or system.additive is not None:
             # (the forcing as a constant of N^2 numbers, not through the system's tables)
             forcing = None if system.linear is None else system.linear.forcing
             forcing = None if forcing is None else np.asarray(forcing)
-            terms = lambda w: budgets.budget(system, w, forcing)
-            for name in (
-                "energy_injection",
-                "energy_dissipation",
-                "energy_damping",
-                "enstrophy_injection",
-                "enstrophy_dissipation",
-                "enstrophy_damping",
-            ):
-                out[name] = lambda w, name=name: terms(w)[name]
+            out["(budgets)"] = lambda w: budgets.budget(system, w, forcing)
     return out
+
+
+def _fields(name, value):
+    """A diagnostic's fields: `(name, value)`, or the items of a diagnostic that gives several
+    fields at once as a dict (the budgets, the fluxes: computed once per state)."""
+    return value.items() if isinstance(value, dict) else [(name, value)]
 
 
 def _casimirs(w, order):
@@ -270,7 +268,7 @@ def _snapshot(fns, save_states, ys, ok):
 @functools.partial(jax.jit, static_argnames="fns")
 @_highest_precision
 def _evaluate(fns, ys):
-    return {name: jax.vmap(jax.vmap(fn))(ys) for name, fn in fns}
+    return {k: v for name, fn in fns for k, v in _fields(name, jax.vmap(jax.vmap(fn))(ys))}
 
 
 def _carry_dict(leaves):

@@ -43,7 +43,7 @@ def system_step(method, system, y, dt, dW, history=()):
         noise = as_step(dW)
         s = system.noise.n_noises
         area = None if noise.area is None else noise.area[:s, :s]
-        kick = 0.5 * additive.kick(noise.dW[s:], y.dtype)
+        kick = 0.5 * additive.kick(noise.dW[s:], y.shape[-1], y.dtype)
         dW = BrownianStep(noise.dW[:s], area)
     if linear is not None:
         y = system.linear_flow(y, 0.5 * dt)

@@ -9,10 +9,10 @@ import numpy as np
 
 from .. import zeitlin
 from .._algebra import su
-from .._support.checks import concrete, is_int
+from .._support.checks import concrete
 from . import budgets
 from .additive_forcing import AdditiveForcing
-from .linear_terms import LinearTerms
+from .linear_terms import LinearTerms, check_power
 from .noise import noise_or_c
 from .system import LiePoissonSystem, Tables
 
@@ -80,13 +80,10 @@ class EulerZeitlin(LiePoissonSystem):
       (`zeitlin.planetary_vorticity`), enters the bracket: $\dot W = [P, W + f]/\hbar$.
       The state stays the relative vorticity $W$; the Casimirs kept are those of the
       absolute vorticity $W + f$.
-    - `additive_band`, `additive_amplitude`: an additive stochastic forcing
-      $\sum_{\ell=\ell_1}^{\ell_2}\sigma_\ell\sum_mT_{\ell m}\,dB_{\ell m}$ on the degrees
-      `(l1, l2)`, $1 \le \ell_1 \le \ell_2 \le N - 1$, with the amplitude $\sigma_\ell \ge 0$
-      per $\sqrt{\text{s}}$ (a number, or one per degree): `AdditiveForcing`. Its
-      Brownian motions are the system's last `additive.n_noises` noises, after the
-      transport noises (`n_noises` counts both); white with the default driver, correlated
-      in time with `driver=sj.OrnsteinUhlenbeck(T)`. No Lévy areas with it.
+    - `additive`: an additive stochastic forcing on a band of degrees,
+      `AdditiveForcing(band, amplitude)` (default `None`). Its Brownian motions are the
+      system's last `additive.n_noises` noises, after the transport noises (`n_noises`
+      counts both). No Lévy areas with it.
     - `gamma`: the global quasi-geostrophic model's $\gamma \ge 0$, a Python number
       (default 0: Euler). The stream solves
       $\Delta_NP + \tfrac\gamma2(Z^2P + PZ^2) = W$, as quflow's `solve_globalqg`
@@ -128,8 +125,7 @@ class EulerZeitlin(LiePoissonSystem):
         forcing=None,
         omega=None,
         gamma=0.0,
-        additive_band=None,
-        additive_amplitude=None,
+        additive=None,
     ):
         if isinstance(N, (bool, np.bool_)) or not isinstance(N, (int, np.integer)) or N < 2:
             raise ValueError(f"EulerZeitlin needs an integer N >= 2, got {N!r}.")
@@ -152,8 +148,7 @@ class EulerZeitlin(LiePoissonSystem):
         if LinearTerms.present(nu, alpha, forcing):
             self.linear = LinearTerms(int(N), jnp.finfo(complex_).dtype, nu, p, alpha, forcing)
         else:
-            if not is_int(p) or p < 1:
-                raise ValueError(f"EulerZeitlin: p must be a positive integer, got {p!r}.")
+            check_power(p)
             self.linear = None
         if omega is not None:
             if isinstance(omega, (bool, np.bool_, str)):
@@ -163,10 +158,14 @@ class EulerZeitlin(LiePoissonSystem):
                 raise ValueError(f"EulerZeitlin: omega must be a finite scalar, got {omega!r}.")
             omega = jnp.asarray(omega, jnp.finfo(complex_).dtype)
         self.omega = omega
-        if additive_band is None and additive_amplitude is None:
-            self.additive = None
-        else:
-            self.additive = AdditiveForcing(int(N), additive_band, additive_amplitude)
+        if additive is not None:
+            if not isinstance(additive, AdditiveForcing):
+                raise TypeError(
+                    f"EulerZeitlin: additive must be an AdditiveForcing(band, amplitude), "
+                    f"got {type(additive).__name__}."
+                )
+            additive.check(int(N))
+        self.additive = additive
         if dtype is not None:  # (the new terms' leaves too)
             self.linear, self.omega, self.additive = _cast(
                 (self.linear, self.omega, self.additive), dtype
@@ -236,13 +235,13 @@ class EulerZeitlin(LiePoissonSystem):
         if self.gamma:
             parts.append(f"gamma={self.gamma:g}")
         if self.additive is not None:
-            parts.append(repr(self.additive))
+            parts.append(f"additive={self.additive!r}")
         return f"EulerZeitlin({self.N}, {', '.join(parts)})"
 
     @property
     def n_noises(self):
         """The number of independent noises: the transport noises (`noise=`, or one with
-        `c=`), then the additive forcing's (`additive_band`), in that order in `dW`."""
+        `c=`), then the additive forcing's (`additive`), in that order in `dW`."""
         return self.noise.n_noises + (0 if self.additive is None else self.additive.n_noises)
 
     @property

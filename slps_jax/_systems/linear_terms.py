@@ -37,6 +37,12 @@ def _nonnegative(name, x):
     return jnp.asarray(x, float)
 
 
+def check_power(p):
+    """The viscosity's power `p`: a positive integer (`ValueError` otherwise)."""
+    if not is_int(p) or p < 1:
+        raise ValueError(f"EulerZeitlin: p must be a positive integer, got {p!r}.")
+
+
 def check_forcing(forcing, N):
     """A constant forcing: an `(N, N)` traceless skew-Hermitian matrix (an element of su(N)),
     refused otherwise by name."""
@@ -79,8 +85,7 @@ class LinearTerms(eqx.Module):
     N: int = eqx.field(static=True)
 
     def __init__(self, N, real_dtype, nu=0.0, p=1, alpha=0.0, forcing=None):
-        if not is_int(p) or p < 1:
-            raise ValueError(f"EulerZeitlin: p must be a positive integer, got {p!r}.")
+        check_power(p)
         self.nu = _nonnegative("nu", nu)
         self.alpha = _nonnegative("alpha", alpha)
         self.p = int(p)
@@ -115,14 +120,6 @@ class LinearTerms(eqx.Module):
         ell = np.stack(zeitlin._folded_eigenbasis(N)[2:4])
         viscous = np.where(ell > 0, (ell * (ell + 1.0) - 2.0) ** self.p, 0.0)
         return self.nu.astype(dtype) * jnp.asarray(viscous, dtype) + self.alpha.astype(dtype)
-
-    def decay(self, N, tau, dtype):
-        r"""$e^{-\tau\lambda_\ell}$ for each degree $\ell = 0, \dots, N - 1$ (for tests and
-        budgets), shape `(N,)`."""
-        ell = np.arange(N)
-        viscous = np.where(ell > 0, (ell * (ell + 1.0) - 2.0) ** self.p, 0.0)
-        lam = self.nu.astype(dtype) * jnp.asarray(viscous, dtype) + self.alpha.astype(dtype)
-        return jnp.exp(-tau * lam)
 
     def flow(self, w, tau):
         r"""The exact flow of $\dot W = -\Lambda W + F$ for the time `tau` (a scalar, possibly
