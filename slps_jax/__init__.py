@@ -101,9 +101,7 @@ from ._support.store import open_run as open_run
 # Systems
 from ._systems.additive_forcing import AdditiveForcing as AdditiveForcing
 from ._systems.euler_zeitlin import EulerZeitlin as EulerZeitlin
-from ._systems.flow import deterministic_flow as deterministic_flow  # deprecated: drift_flow
 from ._systems.flow import drift_flow as drift_flow
-from ._systems.flow import exact_flow as exact_flow  # deprecated: drift_flow
 from ._systems.flow import exact_solution as exact_solution
 from ._systems.noise import AbstractNoise as AbstractNoise
 from ._systems.noise import proportional_noise as proportional_noise
@@ -113,6 +111,84 @@ from ._systems.rigid_body import PAPER_Y0 as PAPER_Y0
 from ._systems.rigid_body import GeneralisedRigidBody as GeneralisedRigidBody
 from ._systems.rigid_body import RigidBody as RigidBody
 from ._systems.system import LiePoissonSystem as LiePoissonSystem
+
+# The public names: everything above, and nothing else (tests/test_api.py checks it).
+__all__ = [
+    "so3",
+    "zeitlin",
+    "SO3",
+    "AbstractAlgebra",
+    "so",
+    "su",
+    "BrownianMotion",
+    "BrownianStep",
+    "OrnsteinUhlenbeck",
+    "brownian_increments",
+    "ou_increments",
+    "integrate",
+    "simulate",
+    "simulate_to_store",
+    "default_method",
+    "EnsembleStatistics",
+    "ensemble_statistics",
+    "AbstractMethod",
+    "StepInfo",
+    "StrongOrders",
+    "EulerMaruyama",
+    "Exact",
+    "Heun",
+    "IsospectralMidpoint",
+    "LiePoisson",
+    "LiePoissonSym2",
+    "LiePoissonSym4",
+    "Midpoint",
+    "Milstein",
+    "SaltSplitting",
+    "Strang",
+    "Strang4",
+    "FilterResult",
+    "CalibrationResult",
+    "calibrate",
+    "moments",
+    "ConvergenceResult",
+    "WeakConvergenceResult",
+    "strong_convergence",
+    "weak_convergence",
+    "particle_filter",
+    "particle_filter_to_store",
+    "ForecastScores",
+    "PairedComparison",
+    "crps_ensemble",
+    "forecast_scores",
+    "paired_comparison",
+    "TransportNoiseFit",
+    "fit_transport_noise",
+    "AmplitudeTuning",
+    "ModelErrorVariance",
+    "forecast_ensembles",
+    "model_error_variance",
+    "scaled_noise",
+    "start_crps",
+    "tune_amplitude",
+    "RESULTS",
+    "Solution",
+    "Checkpoint",
+    "RunStore",
+    "StoredRun",
+    "open_run",
+    "AdditiveForcing",
+    "EulerZeitlin",
+    "drift_flow",
+    "exact_solution",
+    "AbstractNoise",
+    "proportional_noise",
+    "random_inertia_noise",
+    "salt_noise",
+    "PAPER_Y0",
+    "GeneralisedRigidBody",
+    "RigidBody",
+    "LiePoissonSystem",
+]
 
 # The architecture, bottom to top: a unit (a subpackage, or a top-level module) imports only
 # units of its own layer or below (tests/test_layering.py reads this).

@@ -7,7 +7,9 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from ._algebra import so3 as comp
+from ._algebra import so3 as _comp
+
+__all__ = ["cayley", "cayley_inv", "exp", "hat", "log", "skew", "sym", "vee"]
 
 
 def hat(v):
@@ -15,7 +17,7 @@ def hat(v):
 
     **Arguments:** `v`, shape `(..., 3)`. **Returns:** shape `(..., 3, 3)`.
     """
-    return comp.unmat(comp.hat(comp.vec(jnp.asarray(v))))
+    return _comp.unmat(_comp.hat(_comp.vec(jnp.asarray(v))))
 
 
 def vee(m):
@@ -24,7 +26,7 @@ def vee(m):
 
     **Arguments:** `m`, shape `(..., 3, 3)`. **Returns:** shape `(..., 3)`.
     """
-    return comp.unvec(comp.vee_skew(comp.mat(jnp.asarray(m))))
+    return _comp.unvec(_comp.vee_skew(_comp.mat(jnp.asarray(m))))
 
 
 def skew(m):
@@ -56,7 +58,7 @@ def exp(xi):
 
     **Arguments:** `xi`, shape `(..., 3)`. **Returns:** rotation matrices `(..., 3, 3)`.
     """
-    return comp.unmat(comp.exp(comp.vec(jnp.asarray(xi))))
+    return _comp.unmat(_comp.exp(_comp.vec(jnp.asarray(xi))))
 
 
 def log(r):
@@ -68,15 +70,15 @@ def log(r):
 
     **Arguments:** `r`, rotation matrices `(..., 3, 3)`. **Returns:** `(..., 3)`.
     """
-    m = comp.mat(jnp.asarray(r))
-    w = comp.vee_skew(m)
-    s2 = comp.dot(w, w)
-    small = s2 < comp.small_angle_threshold(s2.dtype) ** 2
+    m = _comp.mat(jnp.asarray(r))
+    w = _comp.vee_skew(m)
+    s2 = _comp.dot(w, w)
+    small = s2 < _comp.small_angle_threshold(s2.dtype) ** 2
     s = jnp.sqrt(jnp.where(small, 1.0, s2))
-    theta = jnp.arctan2(s, 0.5 * (comp.trace(m) - 1.0))
+    theta = jnp.arctan2(s, 0.5 * (_comp.trace(m) - 1.0))
     # theta / sin(theta) -> 1 + theta^2/6 as theta -> 0.
     factor = jnp.where(small, 1.0 + s2 / 6.0, theta / s)
-    return comp.unvec(comp.scale(factor, w))
+    return _comp.unvec(_comp.scale(factor, w))
 
 
 def cayley(xi):
@@ -86,7 +88,7 @@ def cayley(xi):
 
     **Arguments:** `xi`, shape `(..., 3)`. **Returns:** `(..., 3, 3)`.
     """
-    return comp.unmat(comp.cayley(comp.vec(jnp.asarray(xi))))
+    return _comp.unmat(_comp.cayley(_comp.vec(jnp.asarray(xi))))
 
 
 def cayley_inv(r):
@@ -94,5 +96,5 @@ def cayley_inv(r):
 
     **Arguments:** `r`, rotation matrices `(..., 3, 3)`. **Returns:** `(..., 3)`.
     """
-    m = comp.mat(jnp.asarray(r))
-    return comp.unvec(comp.scale(4.0 / (1.0 + comp.trace(m)), comp.vee_skew(m)))
+    m = _comp.mat(jnp.asarray(r))
+    return _comp.unvec(_comp.scale(4.0 / (1.0 + _comp.trace(m)), _comp.vee_skew(m)))

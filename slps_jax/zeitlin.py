@@ -34,6 +34,26 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.linalg
 
+__all__ = [
+    "ROUTES",
+    "elm2ind",
+    "energy",
+    "energy_spectrum",
+    "enstrophy",
+    "enstrophy_spectrum",
+    "field",
+    "grid",
+    "hbar",
+    "inner",
+    "laplacian",
+    "mat2shr",
+    "planetary_vorticity",
+    "poisson_eigenbasis",
+    "shr2mat",
+    "solve_poisson",
+    "truncate",
+]
+
 
 def hbar(N):
     r"""$\hbar = 2/\sqrt{N^2-1}$: physical time = quflow's qtime $\cdot\ \hbar$.

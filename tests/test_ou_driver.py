@@ -99,10 +99,6 @@ def test_simulate_with_an_ornstein_uhlenbeck_driver_is_integrate_with_its_increm
             key=jax.random.key(0),
             driver=drv,
         )
-    with pytest.raises(TypeError, match="no truncation and no Lévy areas"):
-        sj.simulate(
-            system, w0, t1=h, dt=h, n_samples=1, key=jax.random.key(0), driver=drv, levy_area=True
-        )
     with pytest.raises(TypeError, match="driver"):
         sj.simulate(system, w0, t1=h, dt=h, n_samples=1, key=jax.random.key(0), driver="ou")
     with pytest.raises(ValueError, match="correlation_time"):

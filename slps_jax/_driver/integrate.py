@@ -21,7 +21,6 @@ from .._support.checks import (
     real_array,
     real_dtype,
 )
-from .._support.deprecated import renamed_arguments
 from .._support.solution import RESULTS, Solution
 from .failures import report, report_retries
 from .plan import (
@@ -29,7 +28,6 @@ from .plan import (
     check_method,
     check_system,
     check_y0,
-    driver_keywords,
     plan_ensemble,
 )
 from .retry import robust_step, step_with_history
@@ -357,7 +355,6 @@ ensemble_dynamic_jit = jax.jit(
 # Public API.
 
 
-@renamed_arguments(model="system", levy_area="areas")
 def integrate(
     system,
     y0,
@@ -389,8 +386,7 @@ def integrate(
     - `areas`: `None` (default), or the Lévy areas of the steps, shape
       `(n_steps, s, s)`, antisymmetric: `A[n, q, r]` $= \tfrac12(J_{qr} - J_{rq})$,
       $J_{qr} = \int_{t_n}^{t_{n+1}} (W_q(t) - W_q(t_n)) \circ dW_r(t)$
-      (`brownian_increments(..., levy_area=True)` draws them; the old name of this
-      argument, `levy_area=`, warns). With them a method that
+      (`brownian_increments(..., levy_area=True)` draws them). With them a method that
       `uses_levy_area` has strong order 1 for several non-commuting noises; refused for
       one that does not.
     - `method`: a method instance, or `"auto"` (default): `Midpoint()` on so(3)*,
@@ -442,8 +438,6 @@ def integrate(
     return jnp.concatenate([y0[None], ys], axis=0)
 
 
-@renamed_arguments(model="system")
-@driver_keywords
 def simulate(
     system,
     y0,
@@ -510,8 +504,7 @@ def simulate(
       `False`). `sj.OrnsteinUhlenbeck(T)`: smooth unit Ornstein–Uhlenbeck traces of
       correlation times `T` (one per noise), each step's increment their integral over the
       step, drawn exactly (no truncation, no Lévy areas; `sj.ou_increments` gives the same
-      increments for `integrate`). The keywords `truncate_k=` and `levy_area=` of earlier
-      versions still work, with a `DeprecationWarning`.
+      increments for `integrate`).
 
     **Returns:** a `Solution`.
     """

@@ -14,7 +14,7 @@ from .. import _brownian
 from .._support.progress import progress_bar
 from .._support.store import RunStore, open_run
 from .integrate import _highest_precision, initial_carry, run_blocks
-from .plan import driver_keywords, plan_ensemble
+from .plan import plan_ensemble
 
 # Snapshots per record at most (default): a record is one compiled call and one append.
 RECORD_SNAPSHOTS = 16
@@ -24,7 +24,6 @@ CASIMIR_ORDER = 6
 SPECTRA_MAX_N = 128
 
 
-@driver_keywords
 def simulate_to_store(
     system,
     y0,

@@ -10,9 +10,6 @@ arguments of an ensemble once, for `simulate`, `ensemble_statistics` and (throug
 from __future__ import annotations
 
 import dataclasses
-import functools
-from collections.abc import Callable
-from typing import Any, ParamSpec, TypeVar
 
 import jax
 import numpy as np
@@ -31,13 +28,9 @@ from .._support.checks import (
     real_array,
     real_dtype,
 )
-from .._support.deprecated import renamed_arguments, warn
 from .._systems.capabilities import RIGID_BODY, SO3_VECTORS
 from .._systems.system import LiePoissonSystem, check_system
 from .sharding import check_sharding
-
-P = ParamSpec("P")
-R = TypeVar("R")
 
 
 def check_pair(method, system):
@@ -54,7 +47,6 @@ def check_pair(method, system):
         )
 
 
-@renamed_arguments(model="system")
 def default_method(system):
     """The method `method="auto"` picks for `system`, by the measurements in
     `docs/methods.md` ("Which method").
@@ -170,30 +162,6 @@ def driver_path(driver, dt, method, system, dtype):
         )
     areas = check_levy_option(driver.levy_area, method, system)
     return driver.path(dt, system.n_noises, dtype, levy_area=areas)
-
-
-def driver_keywords(f: Callable[P, R]) -> Callable[P, R]:
-    """A decorator for an entry point whose `truncate_k=` and `levy_area=` are now the
-    options of its driver, `driver=sj.BrownianMotion(truncate_k=..., levy_area=...)`: the old
-    keywords still work for one release, with a `DeprecationWarning`."""
-
-    @functools.wraps(f)
-    def inner(*args: P.args, **kwargs: P.kwargs) -> R:
-        old: dict[str, Any] = {n: kwargs.pop(n) for n in ("truncate_k", "levy_area") if n in kwargs}
-        if old:
-            name = getattr(f, "__name__", "the function")
-            given = ", ".join(f"{n}={v!r}" for n, v in old.items())
-            if kwargs.get("driver") is not None:
-                raise TypeError(
-                    f"{name}() got {given} and driver=: the Brownian motions' options are "
-                    f"BrownianMotion's ({name}(driver=sj.BrownianMotion({given})); an "
-                    f"OrnsteinUhlenbeck driver has no truncation and no Lévy areas)."
-                )
-            warn(f"{name}({'=..., '.join(old)}=...)", f"{name}(driver=sj.BrownianMotion({given}))")
-            kwargs["driver"] = _brownian.BrownianMotion(**old)
-        return f(*args, **kwargs)
-
-    return inner
 
 
 def check_y0(y0, method, system):

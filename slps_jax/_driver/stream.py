@@ -22,11 +22,10 @@ import numpy as np
 from .. import _brownian
 from .._methods.base import AbstractMethod
 from .._support.checks import user_stacklevel
-from .._support.deprecated import renamed_arguments
 from .._support.progress import advance, progress_bar
 from .failures import message
 from .integrate import ensemble
-from .plan import driver_keywords, plan_ensemble
+from .plan import plan_ensemble
 from .sharding import automatic
 
 STATISTICS = ("mean", "var", "cov", "skewness", "kurtosis")
@@ -152,8 +151,6 @@ def _chunk(
     return n_failed, _merge(state[1], _chunk_moments(obs, ok, want_cov))
 
 
-@renamed_arguments(model="system")
-@driver_keywords
 def ensemble_statistics(
     system,
     y0,

@@ -13,7 +13,6 @@ import jax.numpy as jnp
 from .._algebra import adjoint, matmul
 from .._support.batching import batched_like
 from .._support.checks import check_options, real_dtype
-from .._support.deprecated import renamed_option
 from .._support.solution import RESULTS
 from .base import AbstractMethod, StepInfo, StrongOrders, default_tol, finite_result
 from .newton import _RUNNING, implicit_root, jacobian_mode, solve_array
@@ -68,7 +67,6 @@ class IsospectralMidpoint(AbstractMethod):
       products per update, complex ones as three real products: linear convergence at a
       rate $O(h^{1/2})$ and no linear algebra, the fastest from so(8) on and on su(N); it can
       fail to converge at large steps and strong noise, where Newton does not).
-      The old name of this option, `jacobian=` (`"identity"` for `"fixed_point"`), warns.
     - `warm_start`: how the fixed point starts (0 … 3): from $Y_n$ (0), or from
       $Y_n + \tau_n\,d$, $d$ extrapolated from the increments per unit time
       $(X_m - Y_m)/\tau_m$ of the last `warm_start` steps (1: the last one, quflow's start;
@@ -106,7 +104,6 @@ class IsospectralMidpoint(AbstractMethod):
     iteration: str = eqx.field(default="auto", static=True)
     final_update: str = eqx.field(default="auto", static=True)
     warm_start: int = eqx.field(default=3, static=True)
-    jacobian: str | None = eqx.field(default=None, static=True, repr=False)  # (deprecated)
 
     def _cayley(self, system, dtype):
         """Whether the step is the Cayley rotation (`final_update`): by default wherever the
@@ -125,8 +122,6 @@ class IsospectralMidpoint(AbstractMethod):
 
     def __post_init__(self):
         check_options(self)
-        self.iteration = renamed_option(self, "jacobian", "iteration", {"identity": "fixed_point"})
-        self.jacobian = None
         if self.final_update not in ("auto", "explicit", "cayley"):
             raise ValueError(
                 f"IsospectralMidpoint: final_update must be 'auto', 'explicit' "

@@ -14,7 +14,6 @@ from .._algebra import adjoint
 from .._algebra import so3 as comp
 from .._brownian import scale_noise
 from .._support.checks import check_options, real_dtype
-from .._support.deprecated import renamed_option
 from .._support.solution import RESULTS
 from .._systems.capabilities import QUADRATIC, SO3_VECTORS
 from .base import AbstractMethod, StepInfo, StrongOrders, default_tol, finite_result
@@ -364,8 +363,7 @@ class LiePoisson(AbstractMethod):
       rate $O(h^{1/2})$, about 8 updates, with no autodiff Jacobian; `"newton"`: the full
       Jacobian by forward-mode autodiff at every update (quadratic convergence, 3 updates,
       but `n(n-1)/2` tangents each: 3–8x slower per step, measured in
-      `benchmarks/so_n.py`). The old name of this option, `jacobian=` (`"chart"` for
-      `"chord"`), warns.
+      `benchmarks/so_n.py`).
     - `second_order`: keep the second-order terms of the generating function, $c^2\Delta W^2$
       of (41) for one noise and the $S_{rq}$ terms for several (default `True`). They make
       the scheme converge to the Stratonovich solution; `False` shows their effect, a bias
@@ -388,7 +386,6 @@ class LiePoisson(AbstractMethod):
     unroll: int = eqx.field(default=0, static=True)
     iteration: str = eqx.field(default="auto", static=True)
     second_order: bool = eqx.field(default=True, static=True)
-    jacobian: str | None = eqx.field(default=None, static=True, repr=False)  # (deprecated)
 
     def __post_init__(self):
         check_options(self)
@@ -396,8 +393,6 @@ class LiePoisson(AbstractMethod):
             raise TypeError(
                 f"LiePoisson: second_order must be True or False, got {self.second_order!r}."
             )
-        self.iteration = renamed_option(self, "jacobian", "iteration", {"chart": "chord"})
-        self.jacobian = None
         if self.iteration not in ("auto", "chord", "newton"):
             raise ValueError(
                 f"LiePoisson: iteration must be 'auto', 'chord' or 'newton', got "

@@ -22,11 +22,9 @@ from .._driver.plan import (
     check_driver,
     check_levy_option,
     check_method,
-    driver_keywords,
     plan_ensemble,
 )
 from .._methods.base import AbstractMethod
-from .._support.deprecated import renamed_attribute
 from .._systems.noise import _ParameterNoise
 from .._systems.rigid_body import RigidBody
 
@@ -69,8 +67,6 @@ class CalibrationResult:
     stderr: np.ndarray | None
     singular_values: np.ndarray
     names: tuple = ("I_1", "I_2", "I_3", "c")
-
-    model = renamed_attribute("model", "system")  # (the old name, one release)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -185,7 +181,6 @@ def _residuals_and_jacobian(fit, theta, theta_all, observed, weight, key):
     return jax.jacfwd(residuals_aux, has_aux=True)(theta)
 
 
-@driver_keywords
 def calibrate(
     observed,
     y0,

@@ -24,7 +24,6 @@ from .._driver.plan import (
     check_method,
     check_system,
     check_y0,
-    driver_keywords,
 )
 from .._methods.base import AbstractMethod
 from .._methods.midpoint import Midpoint
@@ -35,7 +34,6 @@ from .._support.checks import (
     real_dtype,
     user_stacklevel,
 )
-from .._support.deprecated import renamed_arguments, warn
 from .._systems.capabilities import NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
 from .._systems.flow import drift_flow
 
@@ -210,9 +208,6 @@ def _study(
         raise ValueError(f"dts must be distinct, got {dts}.")
     dts = np.sort(dts)[::-1]
     named = reference if isinstance(reference, str) else None
-    if named == "flow":
-        warn("reference='flow'", "reference='exact' (the drift's flow for any system)")
-        named = reference = "exact"
     if named == "midpoint":
         reference = Midpoint()
         if reference_dt is None and reference_factor is None:
@@ -374,8 +369,6 @@ def _runs(st, name, method):
     return np.stack([np.asarray(y) for y, _, _ in runs]), ~failed
 
 
-@renamed_arguments(model="system")
-@driver_keywords
 def strong_convergence(
     system,
     y0,
@@ -542,8 +535,6 @@ class WeakConvergenceResult:
         return np.all(np.abs(self.bias[name]) > self.ci[name], axis=0)
 
 
-@renamed_arguments(model="system")
-@driver_keywords
 def weak_convergence(
     system,
     y0,

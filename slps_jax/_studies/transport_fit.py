@@ -226,7 +226,6 @@ def fit_transport_noise(
     n_modes=None,
     time_model="white",
     regularization="l-curve",
-    method=None,
 ):
     r"""Transport noise for the coarse system su(N) from snapshots of a finer run.
 
@@ -260,7 +259,6 @@ def fit_transport_noise(
     - `regularization`: `"l-curve"` (default: the Tikhonov parameter at the L-curve's
       corner, pooled over the samples) or a number $\alpha \ge 0$ ($0$: the minimum-norm
       least-squares solution).
-    - `method`: deprecated, unused (the fit makes no coarse run).
 
     Left out: the mean missed transport (a bias, not noise), the part of $R_n$ that no
     transport can produce (`unexplained`), and the non-Gaussian statistics of the traces.
@@ -272,10 +270,6 @@ def fit_transport_noise(
     10.1137/18M1167929 (EOFs of the missed transport); Hansen (1992), SIAM Review 34 (the
     L-curve). `docs/data-driven-noise.md` derives the estimator.
     """
-    if method is not None:
-        from .._support.deprecated import warn
-
-        warn("fit_transport_noise(method=...)", "nothing (the fit makes no coarse run)")
     states = np.asarray(states)
     if states.ndim != 3 or states.shape[1] != states.shape[2] or not np.iscomplexobj(states):
         raise ValueError(

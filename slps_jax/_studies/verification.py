@@ -25,7 +25,6 @@ from .._driver.plan import (
     check_levy_option,
     check_method,
     check_system,
-    driver_keywords,
 )
 from .._support.checks import check_count, check_positive, check_retry
 from .._systems.euler_zeitlin import EulerZeitlin
@@ -49,7 +48,6 @@ def scaled_noise(noise, factor):
     return jax.tree_util.tree_map(lambda x: factor * x, noise)
 
 
-@driver_keywords
 def forecast_ensembles(
     system,
     starts,

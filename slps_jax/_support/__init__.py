@@ -1,3 +1,3 @@
 """What every layer uses and that imports nothing of the package: input checks and the dtype
 policy (`checks`), batching helpers, the failure codes and `Solution` (`solution`), progress
-bars, and the old public names kept for one release (`deprecated`)."""
+and progress bars."""

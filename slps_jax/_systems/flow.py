@@ -11,7 +11,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._support.checks import check_positive, concrete, numeric_array, real_array
-from .._support.deprecated import alias, renamed_arguments
 from .capabilities import NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
 from .elliptic_flow import _check_real, rigid_body_flow
 from .system import check_system
@@ -59,7 +58,6 @@ def _runge_kutta_flow(system, y0, times, max_step):
     return _rk4(system, y0, flat, n_steps).reshape(times.shape + y0.shape)
 
 
-@renamed_arguments(model="system")
 def drift_flow(system, y0, times, *, max_step=2.0**-10):
     r"""$\varphi_t(y_0)$, the flow of the drift $\dot y = B(y)\nabla H_0(y)$, at each of
     `times` (negative times run it backwards).
@@ -98,7 +96,6 @@ def drift_flow(system, y0, times, *, max_step=2.0**-10):
     return ys.reshape(times.shape + ys.shape[1:])
 
 
-@renamed_arguments(model="system")
 def exact_solution(system, y0, t, W_t):
     r"""The exact solution of a system whose one noise is proportional to the drift,
 
@@ -128,43 +125,3 @@ def exact_solution(system, y0, t, W_t):
     t = _check_real("t", t, (), "; use jax.vmap for several times")
     W_t = _check_real("W_t", W_t, (), "; use jax.vmap for several paths")
     return drift_flow(system, y0, t + system.c * W_t)
-
-
-# The old names of the drift's flow (one release): the rigid body's closed form, and
-# Runge–Kutta for any system.
-@renamed_arguments(model="system")
-def _deterministic_flow(system, y0, times, *, max_step=2.0**-10):
-    r"""Deprecated (removed in the next release): use `drift_flow`. The drift's flow
-    $\varphi_t(y_0)$ of any system at each of `times`, by classical Runge–Kutta with steps
-    of at most `max_step`; `model=` is accepted for `system=`. Warns with a
-    `DeprecationWarning`.
-
-    **Arguments:**
-
-    - `system`: any system.
-    - `y0`: a state.
-    - `times`: a time or an array of times, any shape, concrete (outside `jax.jit`).
-    - `max_step`: the largest Runge–Kutta step, a positive number (default 2^-10).
-
-    **Returns:** $\varphi_t(y_0)$ at each time, shape `times.shape + y0.shape`.
-    """
-    return _runge_kutta_flow(system, y0, times, max_step)
-
-
-exact_flow = alias(renamed_arguments(model="system")(rigid_body_flow), "exact_flow", "drift_flow")
-r"""Deprecated (removed in the next release): use `drift_flow`. `exact_flow(system, y0, t)`,
-the rigid body's flow $\varphi_t(y_0)$ in closed form (Jacobi elliptic functions) at one
-scalar time `t`; `model=` is accepted for `system=`. Warns with a `DeprecationWarning`.
-
-**Arguments:** `system` (anything with `inertia`, e.g. a `RigidBody`), `y0` (shape `(3,)`),
-`t` (a scalar). **Returns:** $\varphi_t(y_0)$, shape `(3,)`.
-"""
-deterministic_flow = alias(_deterministic_flow, "deterministic_flow", "drift_flow")
-r"""Deprecated (removed in the next release): use `drift_flow`.
-`deterministic_flow(system, y0, times, *, max_step=2**-10)`, the drift's flow
-$\varphi_t(y_0)$ of any system by classical Runge–Kutta with steps of at most `max_step`;
-`model=` is accepted for `system=`. Warns with a `DeprecationWarning`.
-
-**Arguments:** `system`, `y0` (a state), `times` (an array of times), `max_step`.
-**Returns:** $\varphi_t(y_0)$ at each time, shape `times.shape + y0.shape`.
-"""

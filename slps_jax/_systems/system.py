@@ -12,7 +12,6 @@ import numpy as np
 from .._algebra import SO3, AbstractAlgebra
 from .._brownian import as_step
 from .._support.checks import float_dtype, real_dtype
-from .._support.deprecated import renamed_arguments
 from . import fields
 from .noise import AbstractNoise, noise_or_c
 
@@ -214,7 +213,6 @@ class LiePoissonSystem(eqx.Module):
     # G_A the Hamiltonian of the area term sum_{q<r} A_qr [f_q, f_r] of the strong-order-1
     # expansion (`docs/levy-area.md`).
 
-    @renamed_arguments(noise="increments")
     def noise_gradient(self, y, increments):
         r"""$u(y) = \sum_r \Delta W_r \nabla H_r(y)$ for one state `y` (no area term)."""
         dW = as_step(increments).dW
@@ -241,7 +239,6 @@ class LiePoissonSystem(eqx.Module):
         system's own: with one noise `c=` there is no area)."""
         return increments.area is not None and self.noise.takes_areas
 
-    @renamed_arguments(noise="increments")
     def step_hamiltonian(self, y, dt, increments):
         r"""$K(y) = hH_0(y) + \sum_r \Delta W_r H_r(y)$ (plus $G_A(y)$ with areas) for one
         state `y`."""
@@ -251,7 +248,6 @@ class LiePoissonSystem(eqx.Module):
         k = k if own is None else k + jnp.dot(increments.dW, own)
         return k + self.area_hamiltonian(y, increments.area) if self.has_area(increments) else k
 
-    @renamed_arguments(noise="increments")
     def step_gradient(self, y, dt, increments):
         r"""$\nabla K(y)$ for one state `y`."""
         increments = as_step(increments)
@@ -266,7 +262,6 @@ class LiePoissonSystem(eqx.Module):
         tau = self.noise.drift_time(increments.dW)
         return dt if tau is None else dt + tau
 
-    @renamed_arguments(noise="increments")
     def step_gradient_of(self, y, dt, increments):
         r"""$x \mapsto \nabla K(x)$ for one step (`step_gradient`), for the iterations of an
         implicit step near the state `y`: the noise's part computed once where it does not
