@@ -17,6 +17,7 @@ initial vorticity of degrees l = 1..4 (coefficients N(0, 1), seed 0), step h = 0
   largest difference between its final state (solved to 1e-13) and ours (the same scheme).
 - Conservation over 10^4 steps at N = 32: the largest relative drift of tr W^2, |tr W^3|,
   tr W^4 and of the energy along one path, for each method.
+- `--final-update`: the final update's crossover (`final_update`).
 - `--check-quflow`: quflow's `shr2mat`, `mat2shr`, `solve_poisson`, `energy_euler`,
   `enstrophy` against ours (N = 5, 8, 16), and the order of its `isomp` against our exact
   flow `drift_flow` (the same time units).
@@ -56,6 +57,7 @@ H = 0.01
 STEPS = {8: 64, 16: 64, 32: 32, 64: 16, 128: 8, 256: 4}
 ENSEMBLE = 16
 TOL = 64 * float(np.finfo(np.float64).eps)  # the implicit methods' default tolerance
+FINAL_SAMPLES = {8: 32, 16: 32, 32: 32, 64: 8}  # (--final-update's ensembles)
 EIGENBASIS_MAX_N = 512  # its table: N^3 numbers, 1.1 GB at N = 512 in float64
 
 
@@ -452,6 +454,54 @@ def economy(ns, dtypes, n_steps, write, options=None, members=0, member_ns=()):
     return rows
 
 
+FINAL_UPDATES = {  # the default's Cayley rotation against the explicit update of quflow's form
+    "cayley (default)": dict(),
+    "explicit, round-off": dict(rtol=0.0, final_update="explicit"),
+    "explicit, rtol 2^-26": dict(final_update="explicit"),
+}
+
+
+def final_update(ns, n_steps, write):
+    """Where the explicit final update solved to round-off would beat the Cayley rotation:
+    an ensemble (`FINAL_SAMPLES`) of `EulerZeitlin(N, c=0.1)` through `simulate`, `n_steps`
+    steps of h = 2^-9, 2^-7 and 0.64/N s from the smooth state; us per sample-step (median),
+    updates per step and the Casimirs' drift over the run, for each of `FINAL_UPDATES`."""
+    rows = []
+    for N in ns:
+        w0, system = initial(N), sj.EulerZeitlin(N, c=0.1)
+        samples = FINAL_SAMPLES.get(N, 1)
+        for h in (2.0**-9, 2.0**-7, 0.64 / N):
+            for name, options in FINAL_UPDATES.items():
+                method = sj.IsospectralMidpoint(**options)
+
+                def run(method=method, h=h):
+                    return sj.simulate(
+                        system,
+                        w0,
+                        t1=n_steps * h,
+                        dt=h,
+                        n_samples=samples,
+                        key=jax.random.key(0),
+                        method=method,
+                        newton_stats=True,
+                    )
+
+                seconds, _, _, sol = _common.time_call(run)
+                row = dict(
+                    N=N,
+                    h=h,
+                    samples=samples,
+                    update=name,
+                    us_per_sample_step=1e6 * seconds / (samples * n_steps),
+                    updates=float(sol.stats["newton_iterations_mean"]),
+                    casimir_drift=_casimir_drift(w0, np.asarray(sol.ys).reshape(-1, N, N)[0]),
+                )
+                rows.append(row)
+                _print(row)
+                write(rows)
+    return rows
+
+
 def store_cost(N, n_steps, save_every, n_samples, directory):
     """A run to disk against the same run in memory: `EulerZeitlin(N)`, deterministic,
     `n_samples` states, `n_steps` steps of h = 0.64/N and a snapshot every `save_every`;
@@ -745,6 +795,12 @@ def main(argv=None):
         "complex128 and complex64; --sizes to choose), into zeitlin_economy.*",
     )
     p.add_argument(
+        "--final-update",
+        action="store_true",
+        help="only the final update's crossover: Cayley against the explicit update "
+        "solved to round-off (N = 8 ... 128; with --fast 8), into zeitlin_final_update.*",
+    )
+    p.add_argument(
         "--options",
         help="with --economy: a ';'-separated subset of its options (default: all)",
     )
@@ -757,6 +813,18 @@ def main(argv=None):
         f"quflow {info['quflow']}, {info['date']}",
         flush=True,
     )
+    if args.final_update:
+        cols = ["N", "h", "samples", "update", "us_per_sample_step", "updates", "casimir_drift"]
+        write = _writer(
+            args.out,
+            "zeitlin_final_update",
+            info,
+            "; EulerZeitlin(N, c=0.1) through simulate, an ensemble, from the smooth state.",
+            cols,
+            {"h": ".4g", "us_per_sample_step": ".3g", "updates": ".3g", "casimir_drift": ".1e"},
+        )
+        final_update((8,) if args.fast else (8, 16, 32, 64, 128), 16 if args.fast else 128, write)
+        return
     if args.breakdown:
         write_breakdown = _writer(
             args.out,

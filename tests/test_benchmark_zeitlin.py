@@ -92,3 +92,19 @@ def test_zeitlin_economy(tmp_path):
     store = json.loads((tmp_path / "zeitlin_store.json").read_text())["row"]
     assert store["s_per_step_store"] > 0 < store["s_per_step_memory"]
     assert store["bytes_written"] > 64 * 16 * 9 * 2  # (the states alone: 9 snapshots of 2)
+
+
+def test_zeitlin_final_update(tmp_path):
+    """`--final-update` (cut to N = 8, 16 steps): each final update at each step, its cost
+    and updates; the rotation and the explicit update solved to round-off keep the Casimirs
+    to 1e-13 with the same root (more updates for round-off), the explicit update at
+    sqrt(eps) does not."""
+    run_script("zeitlin.py", tmp_path, "--final-update")
+    rows = json.loads((tmp_path / "zeitlin_final_update.json").read_text())["rows"]
+    assert len(rows) == 9 and all(r["us_per_sample_step"] > 0 for r in rows)
+    for h in {r["h"] for r in rows}:
+        at = {r["update"]: r for r in rows if r["h"] == h}
+        assert at["cayley (default)"]["casimir_drift"] < 1e-13
+        assert at["explicit, round-off"]["casimir_drift"] < 1e-13
+        assert at["explicit, rtol 2^-26"]["casimir_drift"] > 1e-14
+        assert at["explicit, round-off"]["updates"] > at["cayley (default)"]["updates"]
