@@ -4,8 +4,10 @@
 - Cost (one state, complex128, h = 0.64/N s, 16 steps from the smooth state of
   `benchmarks/zeitlin.py`): ms per step of `EulerZeitlin(N)` and of the forced-dissipative
   `EulerZeitlin(N, nu, p=2, alpha, forcing=F)` (a Strang splitting around the same
-  isospectral step, the linear substep exact in the quantised harmonics), median of >= 3
-  calls of `simulate` after one that compiles, and their ratio; with quflow installed,
+  isospectral step, the linear substep exact in the quantised harmonics, consecutive steps
+  joining their half substeps), timed alternately in three rounds of >= 3 calls of
+  `simulate` after one that compiles (medians), their ratio and the fixed point's updates
+  per step; with quflow installed,
   its `isomp` at its defaults with its Strang splitting of `solve_viscdamp` (theta = 1/2,
   in the same seconds as ours, its viscosity nu Delta with p = 1: the same work per step
   whatever p) on the same state, and our ratio to it.
@@ -83,26 +85,46 @@ def _quflow_splitting(N, nu_q, alpha_q, force_q):
     return split
 
 
-def _ms_per_step(system, w0, h, n_steps):
-    run = lambda: (
-        sj.simulate(
-            system, w0, t1=n_steps * h, dt=h, n_samples=1, key=jax.random.key(0), throw=False
-        ).ys
-    )
+def _runner(system, w0, h, n_steps):
+    """`simulate`'s one path of `n_steps` steps of `h` (a function of nothing), its first
+    call's seconds, and its fixed point's updates per step."""
+
+    def run(stats=False):
+        sol = sj.simulate(
+            system,
+            w0,
+            t1=n_steps * h,
+            dt=h,
+            n_samples=1,
+            key=jax.random.key(0),
+            throw=False,
+            newton_stats=stats,
+        )
+        return sol if stats else sol.ys
+
     start = time.perf_counter()
     jax.block_until_ready(run())
     first = time.perf_counter() - start
-    med = _common.time_call(run, repeats=3, warmup=False)[0]
-    return 1e3 * med / n_steps, first - med
+    updates = float(run(stats=True).stats["newton_iterations_mean"])
+    return run, first, updates
 
 
-def cost(ns, n_steps=16):
+def cost(ns, n_steps=16, rounds=3):
+    """The inviscid and the forced step, timed alternately in `rounds` rounds (a machine
+    whose speed drifts moves both alike); medians over all calls."""
     rows = []
     for N in ns:
         h = 0.64 / N
         w0 = initial(N)
-        plain, c_plain = _ms_per_step(sj.EulerZeitlin(N), w0, h, n_steps)
-        forced, c_forced = _ms_per_step(_model(N), w0, h, n_steps)
+        runs = [_runner(system, w0, h, n_steps) for system in (sj.EulerZeitlin(N), _model(N))]
+        times = ([], [])
+        for _ in range(rounds):
+            for (run, _, _), out in zip(runs, times):
+                out.append(_common.time_call(run, repeats=3, warmup=False)[0])
+        plain, forced = (1e3 * float(np.median(t)) / n_steps for t in times)
+        c_plain, c_forced = (
+            first - t / 1e3 * n_steps for (_, first, _), t in zip(runs, (plain, forced))
+        )
         flow = jax.jit(lambda system, w: system.linear_flow(w, 0.5 * h))
         substep = 1e3 * _common.time_call(flow, _model(N), w0)[0]
         row = dict(
@@ -110,6 +132,8 @@ def cost(ns, n_steps=16):
             inviscid_ms=plain,
             forced_ms=forced,
             forced_vs_inviscid=forced / plain,
+            updates_inviscid=runs[0][2],
+            updates_forced=runs[1][2],
             linear_substep_ms=substep,
             compile_s_inviscid=c_plain,
             compile_s_forced=c_forced,

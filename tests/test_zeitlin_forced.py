@@ -365,3 +365,101 @@ def test_a_run_whose_steps_are_mostly_redone_warns_once_and_names_a_step_that_is
             assert int(sol.stats["n_retried_steps"]) == 0
     with pytest.raises(ValueError, match="safety"):
         system.step_guide(w, safety=0)
+
+
+def test_joined_linear_flows_are_the_strang_steps():
+    # The driver joins each step's last half linear flow to the next one's first
+    # (L_a L_b = L_{a + b}): the saved states are those of the full Strang steps one by one,
+    # through the retry too (a rough start at a large step: every step redone as substeps).
+    N = 8
+    rng = np.random.default_rng(3)
+    forcing = _degree(N, 3, seed=5)
+    system = sj.EulerZeitlin(
+        N,
+        nu=1e-2,
+        p=2,
+        alpha=0.2,
+        forcing=forcing,
+        omega=1.5,
+        additive=sj.AdditiveForcing((2, 4), 0.3),
+    )
+    method = sj.IsospectralMidpoint(rtol=0.0)
+    step = jax.jit(lambda y, h, w: system_step(method, system, y, h, w))
+    for w0, h, n, retried in ((_rough(N), 0.02, 12, False), (6.0 * _rough(N), 0.2, 6, True)):
+        dW = jnp.asarray(rng.normal(size=(n, system.n_noises)) * np.sqrt(h))
+        got = sj.integrate(system, w0, dW, h, method=method, save_every=3, throw=False)
+        y, want = jnp.asarray(w0), [jnp.asarray(w0)]
+        for k in range(n):  # (full steps: each with both half flows; substeps as the driver's)
+            y = _strang_with_substeps(step, y, h, dW[k])
+            if (k + 1) % 3 == 0:
+                want.append(y)
+        want = np.stack(want)
+        assert np.max(np.abs(np.asarray(got) - want)) <= 1e-12 * np.max(np.abs(want)), retried
+
+
+def _strang_with_substeps(step, y, h, dW, k=4):
+    """One step of full Strang steps (`step`), redone as k, k^2 ... substeps where it fails."""
+    for m in (1, k, k * k, k**3):
+        ys, ok = y, True
+        for _ in range(m):
+            ys, info = step(ys, h / m, dW / m)
+            ok = ok and int(info.result) == 0
+        if ok:
+            return ys
+    raise AssertionError("every attempt failed")
+
+
+def test_gradient_through_joined_and_retried_steps_matches_finite_differences():
+    # d/d(nu) of a functional of simulate's final state, where the first step is redone as
+    # substeps (the retry's Jacobians carry the joined linear flows' debt) and the others
+    # are not: against central differences.
+    N = 8
+    base = dict(p=2, alpha=3.0, forcing=_degree(N, 3, seed=4))
+
+    def loss(nu):
+        sol = sj.simulate(
+            sj.EulerZeitlin(N, nu=nu, **base),
+            4.0 * _rough(N),
+            t1=0.4,
+            dt=0.1,
+            n_samples=1,
+            key=jax.random.key(1),
+            newton_stats=True,
+            method=sj.IsospectralMidpoint(rtol=0.0),
+        )
+        return jnp.sum(jnp.abs(sol.ys) ** 2), sol.stats["n_retried_steps"]
+
+    (_, retried), grad = jax.value_and_grad(loss, has_aux=True)(1e-2)
+    assert 0 < int(retried) < 4
+    e = 1e-5
+    fd = (loss(1e-2 + e)[0] - loss(1e-2 - e)[0]) / (2 * e)
+    assert abs(float(grad) - float(fd)) <= 1e-6 * abs(float(fd)), (grad, fd)
+
+
+def test_step_size_gradient_through_a_retried_step_after_a_joined_one():
+    # d/d(dt) of integrate's final state where the second step (a large transport
+    # increment) is redone as substeps: its start owes the first step's half linear flow,
+    # dt/2, whose derivative the retry's Jacobians carry. Against central differences.
+    N = 8
+    system = sj.EulerZeitlin(
+        N,
+        nu=1e-2,
+        p=2,
+        alpha=1.0,
+        forcing=_degree(N, 3, seed=4),
+        noise=sj.salt_noise(jnp.stack([_degree(N, 2, seed=7)])),
+    )
+    dW = jnp.asarray([[0.01], [2.0], [0.01], [0.01]])
+    method = sj.IsospectralMidpoint(rtol=0.0)
+
+    def loss(dt):
+        return jnp.sum(jnp.abs(sj.integrate(system, _rough(N), dW, dt, method=method)) ** 2)
+
+    step = jax.jit(lambda y, w: system_step(method, system, y, 0.05, w))
+    y1, info = step(jnp.asarray(_rough(N)), dW[0])
+    assert int(info.result) == 0
+    assert int(step(y1, dW[1])[1].result) != 0  # (the second step is redone)
+    grad = jax.grad(loss)(0.05)
+    e = 1e-6
+    fd = (loss(0.05 + e) - loss(0.05 - e)) / (2 * e)
+    assert abs(float(grad) - float(fd)) <= 1e-6 * abs(float(fd)), (grad, fd)

@@ -32,6 +32,7 @@ from .plan import (
 )
 from .retry import robust_step, step_with_history
 from .sharding import as_given, automatic, sharded_keys
+from .splitting import apply_pending, has_linear_terms
 
 
 def _highest_precision(fn):
@@ -51,7 +52,9 @@ def _highest_precision(fn):
 @functools.partial(jax.jit, static_argnames=("method", "want_stats", "retry"))
 @_highest_precision
 def _step(method, system, dt, carry, dW, live, *, want_stats, retry):
-    """One step of one sample, with the failure bookkeeping of `_path`.
+    """One step of one sample, with the failure bookkeeping of `_path`. `carry = (the
+    sample's carry, pending)`, `pending` the linear flow its state owes (`system_step`:
+    consecutive steps of a system with linear terms join their half flows), or `None`.
 
     `live = False` marks a padding slot of the loop layout (`_layout`): the sample idles
     there like a failed one (no state change, no step counted, no failure).
@@ -61,28 +64,25 @@ def _step(method, system, dt, carry, dW, live, *, want_stats, retry):
     jaxpr once. Tracing LiePoisson's solver takes over a second
     (thousands of scalar operations); XLA inlines the call, so the compiled loop is unchanged.
     """
-    y, result, fail_step, n, n_retried, acc, history = carry
+    (y, result, fail_step, n, n_retried, acc, history), pending = carry
     dtype = real_dtype(y.dtype)
     live = jnp.asarray(live)  # (a Python bool under jax.disable_jit)
     act = (result == RESULTS.successful) & live
     if retry is None or not method.can_fail:
         # A failed sample idles at its last good state: with dt = dW = 0 every method's
         # step is trivial, so it costs no Newton iterations.
+        h = jnp.where(act, dt, 0.0).astype(dtype)
         y_new, info = step_with_history(
-            method,
-            system,
-            y,
-            jnp.where(act, dt, 0.0).astype(dtype),
-            _brownian.where(act, dW),
-            history,
+            method, system, y, h, _brownian.where(act, dW), history, pending
         )
         code = finite_result(y_new, info.result)
         it = jnp.where(act, info.iterations, 0)
         res = jnp.where(act & (code == RESULTS.successful), info.residual, 0.0)
         first, new_history = info.result, info.history
+        owed = None if pending is None else 0.5 * h
     else:
-        y_new, code, it, res, retried, first, new_history = robust_step(
-            method, system, y, dt, dW, act, retry, history
+        y_new, code, it, res, retried, first, new_history, owed = robust_step(
+            method, system, y, dt, dW, act, retry, history, pending
         )
         n_retried = n_retried + retried.astype(jnp.int32)
     ok = code == RESULTS.successful
@@ -97,10 +97,10 @@ def _step(method, system, dt, carry, dW, live, *, want_stats, retry):
             acc[3] + at_max.astype(jnp.int32),
         )
     y = jnp.where(act & ok, y_new, y)
-    history = jax.tree_util.tree_map(
-        lambda new, old: jnp.where(act & ok, new, old), new_history, history
+    history, pending = jax.tree_util.tree_map(
+        lambda new, old: jnp.where(act & ok, new, old), (new_history, owed), (history, pending)
     )
-    return y, result, fail_step, n + live.astype(n.dtype), n_retried, acc, history
+    return (y, result, fail_step, n + live.astype(n.dtype), n_retried, acc, history), pending
 
 
 def _path(method, system, y0, dt, draw, n_blocks, block_len, want_stats, retry=None, like=()):
@@ -171,9 +171,14 @@ def run_blocks(method, system, dt, draw, carry0, n_blocks, block_len, want_stats
         # step instead lets XLA's CPU backend fuse the random-number generator into the
         # method's arithmetic, which it then re-evaluates many times over (Strang in
         # `simulate`: 150x slower).
+        # A system with linear terms: the steps of the block join their half linear flows
+        # (`system_step`'s `pending`), settled at its end, so that a state leaves the block
+        # whole (`apply_pending`).
         inner, state = carry
         state, dWs = draw_block(state, inner[3], length, n_live)
-        inner = jax.lax.fori_loop(
+        y = inner[0]
+        pending = jnp.zeros_like(jnp.real(y[(0,) * y.ndim])) if has_linear_terms(system) else None
+        inner, pending = jax.lax.fori_loop(
             0,
             length,
             lambda i, c: _step(
@@ -186,8 +191,10 @@ def run_blocks(method, system, dt, draw, carry0, n_blocks, block_len, want_stats
                 want_stats=want_stats,
                 retry=retry,
             ),
-            inner,
+            (inner, pending),
         )
+        if pending is not None:
+            inner = (apply_pending(system, inner[0], pending), *inner[1:])
         return inner, state
 
     def block(carry, _):

@@ -45,51 +45,60 @@ from .splitting import system_step
 RETRY_LEVELS = 3
 
 
-def step_with_history(method, system, y, dt, dW, history):
+def step_with_history(method, system, y, dt, dW, history, pending=None):
     """The system's step by `method` (`system_step`), given the method's `history` where it
-    keeps one (`AbstractMethod.initial_history`)."""
+    keeps one (`AbstractMethod.initial_history`), and the linear flow `y` owes (`pending`)."""
     if not jax.tree_util.tree_leaves(history):
         history = ()
-    return system_step(method, system, y, dt, dW, history)
+    return system_step(method, system, y, dt, dW, history, pending)
 
 
-def _attempts(method, system, y, dt, dW, act, k, m0, history=(), jacobians=False):
+def _attempts(method, system, y, dt, dW, act, k, m0, history=(), jacobians=False, pending=None):
     """Step `y` by `(dt, dW)` where `act`, as `m0` substeps; on failure as `k` times as many,
     up to `k^RETRY_LEVELS`. The method's `history` serves the first attempt of one step
-    (`m0 = 1`); substeps start without it.
+    (`m0 = 1`); substeps start without it. With `pending` (the linear flow `y` owes:
+    `system_step`), each substep joins its first half linear flow to the debt before it,
+    and the result owes half a substep.
 
-    **Returns:** `(y_next, code, iterations, residual, retried, first, history, J)`: `code`
-    the `RESULTS` code of the last failure if every attempt failed; the iterations of every
-    attempt; the largest residual of a successful substep; `retried`: the first attempt
-    failed; `first`: the first attempt's code; `history` the method's after the step, reset
-    (`initial_history`) where it was retried. With `jacobians`, `J` is the derivative of the
-    substeps that succeeded with respect to `(y, dt, dW, the system's inexact leaves)`, as
-    matrices with the state flattened (see `_jacobian_tools`); else `()`.
+    **Returns:** `(y_next, code, iterations, residual, retried, first, history, J, pending,
+    m)`: `code` the `RESULTS` code of the last failure if every attempt failed; the
+    iterations of every attempt; the largest residual of a successful substep; `retried`:
+    the first attempt failed; `first`: the first attempt's code; `history` the method's after
+    the step, reset (`initial_history`) where it was retried; `pending` what `y_next` owes
+    (`None` without `pending`); `m` the substeps of the last attempt. With `jacobians`, `J`
+    is the derivative of the substeps that succeeded with respect to `(y, dt, dW, the
+    system's inexact leaves, pending)`, as matrices with the state flattened (see
+    `_jacobian_tools`); else `()`.
     """
     dtype = real_dtype(y.dtype)
     m_max = k**RETRY_LEVELS
     zero_i = jnp.zeros((), jnp.int32)
     cold = method.initial_history(system, y)
     substep, j0, chain = (
-        _jacobian_tools(method, system, y, dW)
+        _jacobian_tools(method, system, y, dW, pending)
         if jacobians
         else (
-            lambda ys, h, w, hist: (*step_with_history(method, system, ys, h, w, hist), ()),
+            lambda ys, h, w, hist, owed: (
+                *step_with_history(method, system, ys, h, w, hist, owed),
+                (),
+            ),
             (),
             None,
         )
     )
 
     def body(s):
-        i, m, yc, code, its, res, going, jac, first, hist = s
+        i, m, yc, code, its, res, going, jac, first, hist, owed = s
         mf = m.astype(dtype)
         once = (m == 1) & (i == 0)  # the step itself, not a substep
+        h = jnp.where(going, dt / mf, 0.0).astype(dtype)
         # (dt/m, dW/m, A/m): the step's noise split evenly (`_brownian.scale_noise`)
         y2, info, d = substep(
             yc,
-            jnp.where(going, dt / mf, 0.0).astype(dtype),
+            h,
             _brownian.where(going, _brownian.scale_noise(dW, 1.0 / mf)),
             jax.tree_util.tree_map(lambda a, b: jnp.where(once, a, b), history, cold),
+            owed,
         )
         c2 = finite_result(y2, info.result)
         ok = going & (c2 == RESULTS.successful)
@@ -101,20 +110,23 @@ def _attempts(method, system, y, dt, dW, act, k, m0, history=(), jacobians=False
         )
         its = its + jnp.where(going, info.iterations, 0)
         res = jnp.maximum(res, jnp.where(ok, info.residual, 0.0).astype(dtype))
-        i = jnp.where(ok, i + 1, jnp.where(refine, 0, i))
-        yc = jnp.where(ok, y2, jnp.where(refine, y, yc))
         if jacobians:  # chained where a substep succeeded, restarted where it is refined
             assert chain is not None
             jac = jax.tree_util.tree_map(
                 lambda new, start, old: jnp.where(ok, new, jnp.where(refine, start, old)),
-                chain(jac, d, mf),
+                chain(jac, d, mf, i == 0),
                 j0,
                 jac,
             )
+        i = jnp.where(ok, i + 1, jnp.where(refine, 0, i))
+        yc = jnp.where(ok, y2, jnp.where(refine, y, yc))
+        owed = jax.tree_util.tree_map(
+            lambda start, old: jnp.where(ok, 0.5 * h, jnp.where(refine, start, old)), pending, owed
+        )
         m = jnp.where(refine, m * k, m)
         code = jnp.where(fail & ~refine, c2, code)
         going = going & ~(fail & ~refine) & (i < m)
-        return i, m, yc, code, its, res, going, jac, first, hist
+        return i, m, yc, code, its, res, going, jac, first, hist, owed
 
     init = batched_like(
         (
@@ -128,14 +140,15 @@ def _attempts(method, system, y, dt, dW, act, k, m0, history=(), jacobians=False
             j0,
             jnp.asarray(RESULTS.successful, jnp.int32),
             cold,
+            pending,
         ),
         (y, act, history),
     )
-    _, m, y_next, code, its, res, _, jac, first, hist = jax.lax.while_loop(
+    _, m, y_next, code, its, res, _, jac, first, hist, owed = jax.lax.while_loop(
         lambda s: s[6], body, init
     )
     retried = act & ((m > m0) | (code != RESULTS.successful))
-    return y_next, code, its, res, retried, first, hist, jac
+    return y_next, code, its, res, retried, first, hist, jac, owed, m
 
 
 def _real(x):
@@ -154,11 +167,13 @@ def _unreal(v, like):
     return jnp.reshape(v, jnp.shape(like)).astype(like.dtype)
 
 
-def _jacobian_tools(method, system, y, dW):
-    """For `_attempts` with Jacobians: `substep(ys, h, w) -> (y_next, info, derivatives)`
-    (one `jacfwd` of the step with respect to `(ys, h, w, the system's inexact leaves)`), the
-    Jacobians of no step at all (the identity in `y`), and `chain(J, derivatives, m)`, the
-    Jacobians after one more substep of `(dt/m, dW/m)`."""
+def _jacobian_tools(method, system, y, dW, pending=None):
+    """For `_attempts` with Jacobians: `substep(ys, h, w, history, owed) -> (y_next, info,
+    derivatives)` (one `jacfwd` of the step with respect to `(ys, h, w, the system's inexact
+    leaves, owed)`, `owed` the linear flow `ys` owes or `None`), the Jacobians of no step at
+    all (the identity in `y`), and `chain(J, derivatives, m, first)`, the Jacobians after one
+    more substep of `(dt/m, dW/m)`, the `first` of its attempt where `owed` is the step's
+    `pending` (after it, half the substep before, `dt/2m`)."""
     leaves, treedef, idx = differentiable_leaves(system)
     p0 = [leaves[i] for i in idx]
     # (on real coordinates: a complex state or leaf as its real and imaginary parts)
@@ -166,29 +181,46 @@ def _jacobian_tools(method, system, y, dW):
     # the step's noise (increments, and areas when present) as one flat vector
     w0, unravel = ravel_pytree(dW)
 
-    def step(yr, h, w, pr):
+    def step(yr, h, w, pr, owed):
         full = list(leaves)
         for i, leaf in zip(idx, pr):
             full[i] = _unreal(leaf, leaves[i])
-        y2, info = system_step(method, treedef.unflatten(full), _unreal(yr, y), h, unravel(w))
+        y2, info = system_step(
+            method, treedef.unflatten(full), _unreal(yr, y), h, unravel(w), (), owed
+        )
         return _real(y2), (y2, info)
 
-    def substep(ys, h, w, history=()):  # (substeps start without the method's history)
-        (a, b, c, e), (y2, info) = jax.jacfwd(step, argnums=(0, 1, 2, 3), has_aux=True)(
-            _real(ys), h, ravel_pytree(w)[0], [_real(p) for p in p0]
+    def substep(ys, h, w, history=(), owed=None):  # (substeps start without the history)
+        owing = pending is not None
+        derivatives, (y2, info) = jax.jacfwd(
+            step, argnums=(0, 1, 2, 3, 4) if owing else (0, 1, 2, 3), has_aux=True
+        )(
+            _real(ys),
+            h,
+            ravel_pytree(w)[0],
+            [_real(p) for p in p0],
+            jnp.asarray(owed, dtype) if owing else None,
         )
-        return y2, info, (a, b, c, e)
+        # (its history: the one given, unchanged; only a step's first attempt learns, and
+        # the derivatives are taken for retried steps alone)
+        info = info._replace(history=history)
+        return y2, info, derivatives if owing else (*derivatives, None)
 
-    def chain(jac, derivatives, mf):
-        jy, jdt, jdw, jp = jac
-        a, b, c, e = derivatives
+    def chain(jac, derivatives, mf, first):
+        jy, jdt, jdw, jp, jo = jac
+        a, b, c, e, o = derivatives
         a = a.reshape(d, d)
-        # (h, w) = (dt/m, dW/m): d/d(dt) = (d/dh) / m
+        # (h, w) = (dt/m, dW/m): d/d(dt) = (d/dh) / m; the debt: the step's `pending` at
+        # the first substep of an attempt, dt/2m after it
+        o = None if o is None else o.reshape(d)
         return (
             a @ jy,
-            a @ jdt + b.reshape(d) / mf,
+            a @ jdt
+            + b.reshape(d) / mf
+            + (0.0 if o is None else jnp.where(first, 0.0, o / (2 * mf))),
             a @ jdw + c.reshape(d, -1) / mf,
             [a @ j + ei.reshape(d, -1) for j, ei in zip(jp, e)],
+            None if o is None else a @ jo + jnp.where(first, o, 0.0),
         )
 
     j0 = (
@@ -196,42 +228,51 @@ def _jacobian_tools(method, system, y, dW):
         jnp.zeros(d, dtype),
         jnp.zeros((d, w0.size), dtype),
         [jnp.zeros((d, _real(p).size), dtype) for p in p0],
+        None if pending is None else jnp.zeros(d, dtype),
     )
     return substep, j0, chain
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0, 6))
-def robust_step(method, system, y, dt, dW, act, k, history=()):
+def robust_step(method, system, y, dt, dW, act, k, history=(), pending=None):
     """One step of one sample where `act`, redone as `k, k^2, k^3` substeps if it fails.
-    **Returns** `(y_next, code, iterations, residual, retried, first, history)` (see
-    `_attempts`). The method's history is data, not a variable: no derivative flows through
-    it (it only starts an iteration whose root does not depend on the start)."""
-    return _attempts(method, system, y, dt, dW, act, k, 1, history)[:7]
+    **Returns** `(y_next, code, iterations, residual, retried, first, history, pending)`
+    (see `_attempts`; `pending`: what `y_next` owes of the linear flow, `None` without).
+    The method's history is data, not a variable: no derivative flows through it (it only
+    starts an iteration whose root does not depend on the start)."""
+    out = _attempts(method, system, y, dt, dW, act, k, 1, history, pending=pending)
+    return (*out[:7], out[8])
 
 
 @robust_step.defjvp
 def _robust_step_jvp(method, k, primals, tangents):
-    system, y, dt, dW, act, history = primals
-    t_model, t_y, t_dt, t_dW, _, _ = tangents
+    system, y, dt, dW, act, history, pending = primals
+    t_model, t_y, t_dt, t_dW, _, _, t_pending = tangents
     dtype = real_dtype(y.dtype)
     h, w = jnp.where(act, dt, 0.0).astype(dtype), _brownian.where(act, dW)
     (y1, info), (t_y1, _) = jax.jvp(
-        lambda mdl, ys, h, w: step_with_history(method, mdl, ys, h, w, history),
-        (system, y, h, w),
-        (t_model, t_y, jnp.where(act, t_dt, 0.0), _brownian.where(act, t_dW)),
+        lambda mdl, ys, h, w, owed: step_with_history(method, mdl, ys, h, w, history, owed),
+        (system, y, h, w, pending),
+        (t_model, t_y, jnp.where(act, t_dt, 0.0), _brownian.where(act, t_dW), t_pending),
     )
     code1 = finite_result(y1, info.result)
     need = act & (code1 != RESULTS.successful)
     # Retried samples: the attempts again (a loop that runs only while some sample of the
     # batch needs it), now with the Jacobians of the substeps that succeed.
-    y2, code2, its2, res2, _, _, _, jacobians = _attempts(
-        method, system, y, dt, dW, need, k, k, jacobians=True
+    y2, code2, its2, res2, _, _, _, jacobians, owed2, m2 = _attempts(
+        method, system, y, dt, dW, need, k, k, history, jacobians=True, pending=pending
     )
-    jy, jdt, jdw, jp = cast(tuple, jacobians)
+    jy, jdt, jdw, jp, jo = cast(tuple, jacobians)
     leaves, idx = differentiable_leaves(t_model)[0], differentiable_leaves(system)[2]
     t_re = jy @ _real(t_y) + jdt * t_dt + jdw @ ravel_pytree(t_dW)[0]
     for i, j in zip(idx, jp):
         t_re = t_re + j @ _real(leaves[i]).astype(dtype)
+    if pending is not None:  # (the debt: the step's, then half of a substep)
+        t_re = t_re + jo * t_pending
+        owed = jnp.where(need, owed2, jnp.where(act, 0.5 * h, pending))
+        t_owed = jnp.where(
+            need, 0.5 * t_dt / m2.astype(dtype), jnp.where(act, 0.5 * t_dt, t_pending)
+        )
     y_next = jnp.where(need, y2, y1)
     cold = method.initial_history(system, y)
     out = (
@@ -247,8 +288,10 @@ def _robust_step_jvp(method, k, primals, tangents):
             history,
             cold,
         ),
+        None if pending is None else owed,
     )
-    return out, _zero_tangents(out, jnp.where(need, _unreal(t_re, y), t_y1))
+    tangents = _zero_tangents(out[:-1], jnp.where(need, _unreal(t_re, y), t_y1))
+    return out, (*tangents, None if pending is None else t_owed)
 
 
 def _zero_tangents(out, t_y):
