@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import functools
-import hashlib
 from typing import Any
 
 import jax
@@ -12,7 +11,7 @@ import numpy as np
 
 from .. import _brownian
 from .._support.progress import progress_bar
-from .._support.store import RunStore, open_run
+from .._support.store import RunStore, digest, open_run
 from .integrate import _highest_precision, initial_carry, run_blocks
 from .plan import plan_ensemble
 
@@ -277,20 +276,17 @@ def _carry_dict(leaves):
 def _fingerprint(p, keys, fns, save_states):
     """What makes a run this run (`RunStore` compares it on `resume`): the system and its
     numbers, the initial state, the step, the method, the noise, the key, the diagnostics."""
-    digest = hashlib.sha256()
-    for leaf in jax.tree_util.tree_leaves(p.system):
-        digest.update(np.asarray(leaf).tobytes())
     return {
         "dt": float(p.dt),
         "save_every": int(p.save_every),
         "system": repr(p.system),
-        "system_numbers": digest.hexdigest(),
-        "y0": hashlib.sha256(np.asarray(p.y0).tobytes()).hexdigest(),
+        "system_numbers": digest(*jax.tree_util.tree_leaves(p.system)),
+        "y0": digest(p.y0),
         "dtype": str(p.y0.dtype),
         "method": repr(p.method),
         "n_samples": int(p.n_samples),
         "noise": _describe(p.path),
-        "key": hashlib.sha256(np.asarray(jax.random.key_data(keys)).tobytes()).hexdigest(),
+        "key": digest(jax.random.key_data(keys)),
         "retry_substeps": p.retry,
         "diagnostics": sorted(fns),
         "save_states": bool(save_states),
@@ -299,8 +295,5 @@ def _fingerprint(p, keys, fns, save_states):
 
 def _describe(path):
     """The noise's description: its kind and its numbers (a hash), stable across processes."""
-    digest = hashlib.sha256()
     leaves, treedef = jax.tree_util.tree_flatten(path)
-    for leaf in leaves:
-        digest.update(np.asarray(leaf).tobytes())
-    return f"{type(path).__name__} {treedef} {digest.hexdigest()}"
+    return f"{type(path).__name__} {treedef} {digest(*leaves)}"

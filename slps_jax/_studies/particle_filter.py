@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import hashlib
 from typing import Any, NamedTuple
 
 import jax
@@ -20,7 +19,7 @@ from .._driver.sharding import as_given, automatic, check_sharding
 from .._support.checks import check_count
 from .._support.progress import progress_bar
 from .._support.solution import RESULTS
-from .._support.store import RunStore, open_run
+from .._support.store import RunStore, digest, digest_bytes, open_run
 from .assimilation import _prepare, _start, _State, assimilate
 
 
@@ -255,13 +254,13 @@ def particle_filter_to_store(
         "save_every": m,
         "t0": float(t0),
         "system": repr(system),
-        "system_numbers": _digest(*jax.tree_util.tree_leaves(system)),
-        "particles": _digest(x),
-        "observe": _digest(jax.vmap(observe)(x)),
-        "obs_std": _digest(run.std),
+        "system_numbers": digest(*jax.tree_util.tree_leaves(system)),
+        "particles": digest(x),
+        "observe": digest(jax.vmap(observe)(x)),
+        "obs_std": digest(run.std),
         "dtype": str(x.dtype),
         "method": repr(setup.method),
-        "key": _digest(key_data),
+        "key": digest(key_data),
         "key_impl": str(jax.random.key_impl(key)),
         "options": [ess_threshold, jitter_steps, jitter_rho, lag, setup.retry],
         "driver": repr(driver),
@@ -296,7 +295,7 @@ def particle_filter_to_store(
             }
             store.append(
                 {name: np.asarray(v) for name, v in record.items()},
-                _carry(cycle.state, lag, np.frombuffer(_digest_bytes(ys[:k]), np.uint8)),
+                _carry(cycle.state, lag, np.frombuffer(digest_bytes(ys[:k]), np.uint8)),
                 k * m,
             )
             bar.update(1)
@@ -413,18 +412,6 @@ def _setup(
     return _Setup(method, x, m, h, retry, chunk_size, sharding, lag, path)
 
 
-def _digest_bytes(*arrays):
-    digest = hashlib.sha256()
-    for a in arrays:
-        digest.update(np.ascontiguousarray(np.asarray(a)).tobytes())
-    return digest.digest()
-
-
-def _digest(*arrays):
-    """A hash of arrays' bytes, stable across processes (a store's fingerprint)."""
-    return _digest_bytes(*arrays).hex()
-
-
 def _carry(state, lag, observations):
     """A filter's `_State` as the store's carry: the windows padded to `lag` intervals, a
     particle's parts (its state, a driver's traces) one field each."""
@@ -457,7 +444,7 @@ def _restore(checkpoint, key, ys, m, like):
             f"particle_filter_to_store: the store holds {k} observations, more than the "
             f"{ys.shape[0]} given: resume with all of them."
         )
-    if _digest_bytes(ys[:k]) != np.asarray(c["observations"]).tobytes():
+    if digest_bytes(ys[:k]) != np.asarray(c["observations"]).tobytes():
         raise ValueError(
             f"particle_filter_to_store: the observations differ from the {k} the store has "
             "assimilated."

@@ -24,6 +24,7 @@ rather than HDF5: `benchmarks/store_format.py` (the numbers are in `benchmarks/R
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -52,6 +53,21 @@ def _zarr() -> Any:  # (zarr's JSON types do not help here: its objects are Any)
             f'The run store needs zarr >= 3, found {zarr.__version__}: pip install "slps-jax[store]"'
         )
     return zarr
+
+
+def digest_bytes(*arrays):
+    """SHA-256 of the arrays' bytes in C order, in turn: stable across processes and
+    machines of one byte order. The fingerprints of stored runs (`RunStore`) are made of
+    these."""
+    h = hashlib.sha256()
+    for a in arrays:
+        h.update(np.ascontiguousarray(np.asarray(a)).tobytes())
+    return h.digest()
+
+
+def digest(*arrays):
+    """`digest_bytes` as a hexadecimal string (a field of a store's fingerprint)."""
+    return digest_bytes(*arrays).hex()
 
 
 def _hook(point):
