@@ -78,10 +78,9 @@ def experiment(
     factor = 1.0
     if tune:
         factor = sj.tune_amplitude(
-            fit.noise,
+            sj.EulerZeitlin(N, noise=fit.noise),
             starts_n,
             after_n,
-            N=N,
             observe=lambda w: jnp.real(z.mat2shr(w))[..., 1:],
             lead=every,
             dt=h,

@@ -108,10 +108,9 @@ def experiment(M, N, h, train, tune, starts, lead, every, members, seed=0):
     forecast = dict(lead=lead, dt=h, every=every)
     tuning = {
         name: sj.tune_amplitude(
-            noise,
+            sj.EulerZeitlin(N, noise=noise),
             coarse(tune_at),
             coarse(tune_at[:, None] + times),
-            N=N,
             observe=main,
             members=members // 2,
             key=jax.random.key(seed + 1),

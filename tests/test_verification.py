@@ -78,10 +78,9 @@ def test_tuning_recovers_the_amplitude_of_data_from_the_model(model_world):
     a factor within a factor 2 of 1, and the extremes score worse."""
     w = model_world
     tuned = sj.tune_amplitude(
-        w["noise"],
+        sj.EulerZeitlin(w["N"], noise=w["noise"]),
         w["starts"],
         w["truth"],
-        N=w["N"],
         observe=lambda s: z.mat2shr(s)[..., 1:],
         lead=w["lead"],
         dt=w["h"],
@@ -94,10 +93,9 @@ def test_tuning_recovers_the_amplitude_of_data_from_the_model(model_world):
     assert tuned.crps[0] > tuned.crps.min() and tuned.crps[-1] > tuned.crps.min()
     with pytest.raises(ValueError, match="factors"):
         sj.tune_amplitude(
-            w["noise"],
+            sj.EulerZeitlin(w["N"], noise=w["noise"]),
             w["starts"],
             w["truth"],
-            N=w["N"],
             observe=lambda s: s,
             lead=w["lead"],
             dt=w["h"],
@@ -105,6 +103,18 @@ def test_tuning_recovers_the_amplitude_of_data_from_the_model(model_world):
             members=2,
             key=jax.random.key(3),
             factors=[1.0],
+        )
+    with pytest.raises(ValueError, match="no noise amplitudes"):
+        sj.tune_amplitude(
+            sj.EulerZeitlin(w["N"]),
+            w["starts"],
+            w["truth"],
+            observe=lambda s: s,
+            lead=w["lead"],
+            dt=w["h"],
+            every=w["every"],
+            members=2,
+            key=jax.random.key(3),
         )
 
 

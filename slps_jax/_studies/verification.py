@@ -8,6 +8,7 @@ import dataclasses
 import functools
 from typing import NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -27,7 +28,6 @@ from .._driver.plan import (
     check_system,
 )
 from .._support.checks import check_count, check_positive, check_retry
-from .._systems.euler_zeitlin import EulerZeitlin
 from .scores import crps_ensemble
 
 FACTORS = 2.0 ** np.arange(-3.0, 3.25, 0.5)  # 1/8 ... 8, ratios of sqrt 2
@@ -237,11 +237,10 @@ class AmplitudeTuning:
 
 
 def tune_amplitude(
-    noise,
+    system,
     starts,
     truth,
     *,
-    N,
     observe,
     lead,
     dt,
@@ -253,19 +252,20 @@ def tune_amplitude(
     method="auto",
     refine=True,
 ):
-    r"""One amplitude factor of a transport noise, tuned on forecasts: the factor among
-    `factors` whose ensembles (`forecast_ensembles` of `EulerZeitlin(N, noise=f * noise)`)
-    have the least mean fair CRPS of `observe` against `truth`. Use starts inside the
-    training period only, and score the tuned noise on held-out starts.
+    r"""One amplitude factor of a system's noise, tuned on forecasts: the factor among
+    `factors` whose ensembles (`forecast_ensembles` of `system` with its noise family
+    scaled by it, `scaled_noise`) have the least mean fair CRPS of `observe` against
+    `truth`. Use starts inside the training period only, and score the tuned noise on
+    held-out starts.
 
     **Arguments:**
 
-    - `noise`: the transport noise family to scale (`scaled_noise`), for example
-      `fit_transport_noise(...).noise`.
-    - `starts`: `(n_starts, N, N)`, the initial states, as for `forecast_ensembles`.
-    - `truth`: `(n_starts, lead // every, N, N)`, the truth at the lead times.
-    - `N`: the size of the `EulerZeitlin` system forecast.
-    - `observe`: states `(..., N, N)` to observables `(..., k)`, chosen before scoring.
+    - `system`: the system forecast, whose noise family is scaled, for example
+      `EulerZeitlin(N, noise=fit_transport_noise(...).noise)`.
+    - `starts`: `(n_starts, *state_shape)`, the initial states, as for `forecast_ensembles`.
+    - `truth`: `(n_starts, lead // every, *state_shape)`, the truth at the lead times.
+    - `observe`: states `(..., *state_shape)` to observables `(..., k)`, chosen before
+      scoring.
     - `factors`: the candidates (default `FACTORS`, 1/8 ... 8 in ratios of $\sqrt 2$),
       tried in ascending order until the CRPS has risen above its least value twice in a
       row, or a member fails (then larger factors are not tried); every factor uses the
@@ -279,6 +279,12 @@ def tune_amplitude(
     with its mean CRPS (`inf` where a member failed). Raises `RuntimeError` if every
     factor's forecasts had failed members.
     """
+    amplitudes = jax.tree_util.tree_leaves(getattr(system, "noise", None))
+    if not any(np.any(np.asarray(a) != 0) for a in amplitudes):
+        raise ValueError(
+            f"tune_amplitude: the system has no noise amplitudes to scale (none, or all "
+            f"zero): {system!r}."
+        )
     factors = np.asarray(FACTORS if factors is None else factors, dtype=float)
     if factors.ndim != 1 or factors.size < 2 or not np.all(np.isfinite(factors) & (factors > 0)):
         raise ValueError(
@@ -288,7 +294,7 @@ def tune_amplitude(
     def score(f):
         try:
             ens = forecast_ensembles(
-                EulerZeitlin(N, noise=scaled_noise(noise, f)),
+                eqx.tree_at(lambda s: s.noise, system, scaled_noise(system.noise, f)),
                 starts,
                 lead=lead,
                 dt=dt,
