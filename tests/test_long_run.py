@@ -161,8 +161,17 @@ def test_a_store_of_another_run_is_refused(tmp_path, uninterrupted):
         write(whole, dt=0.02, resume=True)
     with pytest.raises(ValueError, match="system_numbers"):
         write(whole, c=0.3, resume=True)
-    with pytest.raises(FileExistsError):
+    # the messages name what the user can pass to the function called (no mode= there)
+    with pytest.raises(FileExistsError, match=r"simulate_to_store\(\.\.\., resume=True\)") as e:
         write(whole)
+    assert "mode=" not in str(e.value)
+    # resuming into a folder that is not a store: a clear error, nothing touched
+    other = tmp_path / "notes"
+    other.mkdir()
+    (other / "notes.txt").write_text("mine")
+    with pytest.raises(ValueError, match="not a readable Zarr v3 store"):
+        write(str(other), resume=True)
+    assert os.listdir(other) == ["notes.txt"]
     longer = str(tmp_path / "longer.zarr")
     write(longer, t1=0.6)
     run = write(longer, t1=1.0, resume=True)

@@ -124,6 +124,7 @@ def simulate_to_store(
         snapshots,
         carry_spec,
         mode="resume" if resume else "create",
+        caller="simulate_to_store",
     )
     with store:
         leaves, start = leaves0, 0

@@ -225,7 +225,7 @@ def _write_commit(group, path, commit, durable):
         _fsync(os.path.join(path, "_commit"))
 
 
-def _read_commit(group, path):
+def _read_commit(group, path, restart="open it with mode='overwrite' to start again"):
     try:
         commit = group["_commit"].attrs.asdict()
         for key in ("records", "snapshots", "step", "slot"):
@@ -233,8 +233,7 @@ def _read_commit(group, path):
         return commit
     except KeyError:
         raise ValueError(
-            f"{path}: no commit record: its creation was interrupted "
-            "(open it with mode='overwrite' to start again)."
+            f"{path}: no commit record: its creation was interrupted ({restart})."
         ) from None
     except (ValueError, TypeError) as e:
         raise ValueError(
@@ -316,6 +315,8 @@ class RunStore:
       what is at `path`, if a run store, and create).
     - `durable`: `fsync` each record before its commit (default), so that a record survives
       a power cut as it survives a kill; `False` survives a kill of the process only.
+    - `caller`: the entry point that opens the store for the user (`"simulate_to_store"`),
+      whose `resume=True` its messages then name instead of the `mode`s (default `None`).
 
     After opening, `checkpoint` is the last complete record (`Checkpoint`: `carry`, `step`,
     `n_snapshots`), `None` when the store holds none. A record left incomplete by a kill is
@@ -324,7 +325,9 @@ class RunStore:
     other slot). The store is locked while open (one writer).
     """
 
-    def __init__(self, path, metadata, snapshots, carry, *, mode="create", durable=True):
+    def __init__(
+        self, path, metadata, snapshots, carry, *, mode="create", durable=True, caller=None
+    ):
         if mode not in _MODES:
             raise ValueError(f"mode must be one of {_MODES}, got {mode!r}.")
         zarr = _zarr()
@@ -335,11 +338,20 @@ class RunStore:
         self._carry = _normalise_spec(carry, "carry")
         if not self._snapshots:
             raise ValueError("snapshots: at least one field.")
+        # what a user can do, in the words of the function they called
+        self._restart = (
+            "mode='overwrite' starts again"
+            if caller is None
+            else f"delete {self.path} to start again"
+        )
         exists = os.path.exists(self.path)
         if exists and mode == "create":
-            raise FileExistsError(
-                f"{self.path} exists: mode='resume' to continue it, mode='overwrite' to replace it."
+            again = (
+                "mode='resume' to continue it, mode='overwrite' to replace it"
+                if caller is None
+                else f"{caller}(..., resume=True) continues the same run; delete it to start again"
             )
+            raise FileExistsError(f"{self.path} exists: {again}.")
         if exists and mode == "overwrite":
             if os.path.isdir(self.path) and not os.listdir(self.path):
                 pass
@@ -348,7 +360,10 @@ class RunStore:
                 shutil.rmtree(self.path)
             exists = False
         self._lock = None
+        if exists and mode == "resume" and os.path.isdir(self.path) and not os.listdir(self.path):
+            exists = False  # (an empty folder: the store is created in it)
         if exists:
+            _open_group(self.path, "r")  # (a clear error for a folder that is not a store)
             self._lock_store()
             self._group, self._commit, self.checkpoint = self._resume()
         else:
@@ -426,7 +441,7 @@ class RunStore:
             raise ValueError(
                 f"{self.path} was made by another run; not resumed:\n  " + "\n  ".join(problems)
             )
-        commit = _read_commit(group, self.path)
+        commit = _read_commit(group, self.path, self._restart)
         # leftovers of a kill: zarr's temporary files and ours
         for root, _, files in os.walk(self.path):
             for f in files:
@@ -441,7 +456,7 @@ class RunStore:
                 if previous is None:
                     raise ValueError(
                         f"{self.path}: its only record is damaged ({type(e).__name__}: {e}); "
-                        "nothing to resume from (mode='overwrite' starts again)."
+                        f"nothing to resume from ({self._restart})."
                     ) from e
                 try:
                     carry = _read_record(group, self.path, previous, self._snapshots)
