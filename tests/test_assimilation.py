@@ -3,6 +3,8 @@ independent fact: the ESS's formula, the tempering rule's guarantee (ESS at or a
 threshold at every stage, and the largest such step), systematic resampling's unbiasedness and
 its floor/ceil counts, and pCN's invariance of the increments' law (exact moments)."""
 
+from unittest import mock
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -293,7 +295,7 @@ def test_the_filter_on_disk_resumes_and_extends_bit_for_bit(so4_run, tmp_path, m
         sj.particle_filter_to_store(
             system, x, ys, path, obs_times=times, resume=True, **{**kw, "jitter_steps": 1}
         )
-    with pytest.raises(FileExistsError):
+    with pytest.raises(FileExistsError, match=r"particle_filter_to_store\(\.\.\., resume=True\)"):
         sj.particle_filter_to_store(system, x, ys, path, obs_times=times, **kw)
 
 
@@ -407,3 +409,56 @@ def test_an_ornstein_uhlenbeck_driver_keeps_orbits_and_resumes_from_disk(tmp_pat
         sj.particle_filter(
             system, x, ys, obs_times=[0.125, 0.25], **{**kw, "driver": sj.BrownianMotion()}
         )
+
+
+BAD_FILTER = [
+    (dict(obs_times=[0.5, 1.0, 1.5]), ValueError, "obs_times has 3 times for 4 observations"),
+    (dict(ess_threshold=1.5), ValueError, r"ess_threshold must be a number in \(0, 1\]"),
+    (dict(ess_threshold=-0.5), ValueError, "ess_threshold"),
+    (dict(jitter_steps=-1), ValueError, "jitter_steps must be an integer >= 0"),
+    (dict(jitter_steps=1.5), ValueError, "jitter_steps"),
+    (dict(jitter_rho=1.5), ValueError, r"jitter_rho must be a number in \[0, 1\]"),
+    (dict(key=0), TypeError, r"pass jax.random.key\(0\)"),
+    (dict(obs_std=[0.1, 0.1]), ValueError, r"obs_std must be a scalar or one error .*\(3,\)"),
+    (
+        dict(obs_std=[0.1, 1e-17, 0.1]),
+        ValueError,
+        r"obs_std is 1.0e-17 at observed quantities \[1\]",
+    ),
+    (dict(obs_std=-0.1), ValueError, "obs_std must be positive"),
+    (dict(particles="one"), ValueError, r"particles must be n >= 2 states .*one state"),
+]
+
+
+@pytest.mark.parametrize("bad,exc,match", BAD_FILTER)
+@pytest.mark.parametrize("caller", ["particle_filter", "particle_filter_to_store"])
+def test_particle_filter_refuses_bad_calls_by_name_before_any_forecast(
+    tmp_path, caller, bad, exc, match
+):
+    """Each bad call is refused before any forecast runs (the forecast is replaced by one
+    that fails), naming the function called and the argument."""
+    sj, system, y0 = _so4_setup()
+    kw = dict(
+        particles=np.broadcast_to(y0, (4, 4, 4)),
+        observations=np.zeros((4, 3)),
+        obs_times=[0.5, 1.0, 1.5, 2.0],
+        observe=lambda y: y[0, 1:],
+        obs_std=0.1,
+        dt=0.25,
+        key=jax.random.key(0),
+    )
+    kw.update(bad)
+    if isinstance(kw["particles"], str):  # (one state where the ensemble goes)
+        kw["particles"] = y0
+
+    def boom(*args, **kwargs):
+        raise AssertionError("a forecast ran before the arguments were checked")
+
+    args = (system, kw.pop("particles"), kw.pop("observations"))
+    with mock.patch("slps_jax._studies.particle_filter._forecast", boom):
+        with pytest.raises(exc, match=f"^{caller}: .*{match}"):
+            if caller == "particle_filter":
+                sj.particle_filter(*args, **kw)
+            else:
+                sj.particle_filter_to_store(*args, str(tmp_path / "run.zarr"), **kw)
+    assert not (tmp_path / "run.zarr").exists()

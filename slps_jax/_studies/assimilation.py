@@ -12,12 +12,15 @@ increments, so that a filter built from them moves particles only along coadjoin
 from __future__ import annotations
 
 import functools
+import math
 from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
-from .._support.checks import check_count
+from .._brownian import check_key
+from .._support.checks import check_count, is_int, is_real
 
 
 def effective_sample_size(log_weights):
@@ -186,12 +189,15 @@ def assimilate(
     - `particles`: the initial ensemble, `(n, *state)` (or a pytree of such arrays), `n >= 2`.
     - `observations`: `(n_obs, n_y)`, finite.
     - `observe(state) -> (n_y,)`: one state's observed quantities.
-    - `obs_std`: the Gaussian observation error, a positive scalar or `(n_y,)`.
+    - `obs_std`: the Gaussian observation error, a positive scalar or `(n_y,)`; none below
+      $\sqrt\epsilon$ of the observations' scale (a point-mass likelihood, which no
+      ensemble meets, is refused before any forecast).
     - `increments_shape`: the shape of one particle's increments between observations.
     - `dt`: the step of the increments (their variance).
     - `key`: a JAX key.
-    - `ess_threshold`, `jitter_steps`, `jitter_rho`: the tempering's least ESS share, the
-      pCN steps per stage, and pCN's $\rho$.
+    - `ess_threshold`, `jitter_steps`, `jitter_rho`: the tempering's least ESS share, in
+      (0, 1]; the pCN steps per stage, an integer >= 0; and pCN's $\rho$, in [0, 1] (1
+      leaves the increments as they are).
     - `jitter_lag`: the pCN moves' window, in observation intervals (1: the increments since
       the last observation). With $L > 1$ a move changes a particle's increments over the
       last $L$ intervals (fewer at the start) and re-runs it from its state $L$ observations
@@ -201,7 +207,43 @@ def assimilate(
 
     **Returns:** a `FilterResult`.
     """
-    run = _prepare(forecast, particles, observations, observe, obs_std, jitter_lag)
+    return _assimilate(
+        "assimilate",
+        forecast,
+        particles,
+        observations,
+        observe=observe,
+        obs_std=obs_std,
+        increments_shape=increments_shape,
+        dt=dt,
+        key=key,
+        ess_threshold=ess_threshold,
+        jitter_steps=jitter_steps,
+        jitter_rho=jitter_rho,
+        jitter_lag=jitter_lag,
+    )
+
+
+def _assimilate(
+    caller,
+    forecast,
+    particles,
+    observations,
+    *,
+    observe,
+    obs_std,
+    increments_shape,
+    dt,
+    key,
+    ess_threshold,
+    jitter_steps,
+    jitter_rho,
+    jitter_lag,
+):
+    """`assimilate`, its errors naming `caller` (the function the user called)."""
+    key = checked_key(caller, key)
+    check_filter_options(caller, ess_threshold, jitter_steps, jitter_rho)
+    run = _prepare(forecast, particles, observations, observe, obs_std, jitter_lag, caller)
     analyses, esses, temperatures, acceptance, evidence = [], [], [], [], []
     for cycle in run.cycles(
         _start(run, key),
@@ -270,31 +312,59 @@ class _Run(NamedTuple):
         return _cycles(self, state, increments_shape, dt, ess_threshold, jitter_steps, jitter_rho)
 
 
-def _prepare(forecast, particles, observations, observe, obs_std, jitter_lag):
-    """`assimilate`'s inputs checked, by name, before any work (`_Run`)."""
+def checked_key(caller, key):
+    """`key` as a typed JAX key (`_brownian.check_key`), its errors naming `caller`."""
+    try:
+        return check_key(key)
+    except (TypeError, ValueError) as e:
+        raise type(e)(f"{caller}: {e}") from None
+
+
+def check_filter_options(caller, ess_threshold, jitter_steps, jitter_rho):
+    """The tempering's and the jittering's options, refused by name before any work:
+    `ess_threshold` in (0, 1], `jitter_steps` an integer >= 0, `jitter_rho` in [0, 1]."""
+    if not is_real(ess_threshold) or not 0.0 < float(ess_threshold) <= 1.0:
+        raise ValueError(
+            f"{caller}: ess_threshold must be a number in (0, 1] (the least share of effective "
+            f"particles a tempering stage keeps), got {ess_threshold!r}."
+        )
+    if not is_int(jitter_steps) or int(jitter_steps) < 0:
+        raise ValueError(
+            f"{caller}: jitter_steps must be an integer >= 0 (pCN moves per stage), got "
+            f"{jitter_steps!r}."
+        )
+    if not is_real(jitter_rho) or not 0.0 <= float(jitter_rho) <= 1.0:
+        raise ValueError(
+            f"{caller}: jitter_rho must be a number in [0, 1] (pCN's correlation of the new "
+            f"increments with the old: 1 leaves them), got {jitter_rho!r}."
+        )
+
+
+def _prepare(forecast, particles, observations, observe, obs_std, jitter_lag, caller):
+    """`assimilate`'s inputs checked, by name, before any work (`_Run`); errors name
+    `caller`."""
     x = _map(jnp.asarray, particles)
     ys = jnp.asarray(observations)
     first = jax.tree_util.tree_leaves(x)[0]
     n = first.shape[0]
     if n < 2:
-        raise ValueError(f"assimilate: particles must hold at least 2 particles, got {n}.")
+        raise ValueError(f"{caller}: particles must hold at least 2 particles, got {n}.")
     if ys.ndim != 2 or not bool(jnp.all(jnp.isfinite(ys))):
-        raise ValueError("assimilate: observations must be a finite (n_obs, n_y) array.")
+        raise ValueError(
+            f"{caller}: observations must be a finite (n_obs, n_y) array, got shape {ys.shape}."
+        )
     real = jnp.zeros((), first.dtype).real.dtype  # (complex states: real increments, weights)
-    std = jnp.asarray(obs_std, real)
-    if not bool(jnp.all(std > 0)):
-        raise ValueError(f"assimilate: obs_std must be positive, got {obs_std!r}.")
+    std = _check_obs_std(caller, obs_std, ys, real)
     lag = check_count("jitter_lag", jitter_lag)
     got = jax.eval_shape(jax.vmap(observe), x).shape
     if got != (n, ys.shape[1]):
         raise ValueError(
-            f"assimilate: observe(state) must return shape ({ys.shape[1]},), the observations' "
+            f"{caller}: observe(state) must return shape ({ys.shape[1]},), the observations' "
             f"n_y; got {got[1:]}."
         )
     # (a function jitted already, or a partial of one, keeps its own cache of programs)
     if not hasattr(getattr(forecast, "func", forecast), "lower"):
         forecast = jax.jit(forecast)
-    std = std * jnp.ones(ys.shape[1], real)
 
     def advance(states, dw, y):
         """The forecast's states and their log-likelihoods (`-inf` where it failed)."""
@@ -303,6 +373,36 @@ def _prepare(forecast, particles, observations, observe, obs_std, jitter_lag):
         return states, ell if ok is None else jnp.where(ok, ell, -jnp.inf)
 
     return _Run(x, ys, std, lag, real, advance)
+
+
+def _check_obs_std(caller, obs_std, ys, real):
+    """`obs_std` as `(n_y,)` errors: positive and finite, a scalar or one per observed
+    quantity, and none so small against the observations' scale that the likelihood is a
+    point mass there (below sqrt(eps) of it): no ensemble meets one, and the tempering would
+    spend its stages on it (quantities that the dynamics conserve, such as the l = 1
+    coefficients of Euler–Zeitlin, have no spread to take 10 % of)."""
+    std = np.asarray(obs_std, dtype=float)
+    n_y = ys.shape[1]
+    if std.shape not in ((), (n_y,)):
+        raise ValueError(
+            f"{caller}: obs_std must be a scalar or one error per observed quantity, shape "
+            f"({n_y},); got shape {std.shape}."
+        )
+    if not np.all(np.isfinite(std) & (std > 0)):
+        raise ValueError(f"{caller}: obs_std must be positive and finite, got {obs_std!r}.")
+    std = np.broadcast_to(std, (n_y,))
+    scale = max(float(np.max(np.abs(np.asarray(ys)), initial=0.0)), float(np.max(std)))
+    floor = math.sqrt(float(jnp.finfo(real).eps)) * scale
+    tiny = np.flatnonzero(std < floor)
+    if tiny.size:
+        raise ValueError(
+            f"{caller}: obs_std is {float(np.min(std[tiny])):.1e} at observed quantities "
+            f"{tiny[:8].tolist()}{' ...' if tiny.size > 8 else ''}, below {floor:.1e} (sqrt(eps) "
+            f"of the observations' scale {scale:.2g}): the likelihood is a point mass there, "
+            "which no ensemble meets (a quantity the dynamics conserve has no spread to take a "
+            "share of). Give those quantities a larger error, or leave them out of observe."
+        )
+    return jnp.asarray(std, real)
 
 
 def _start(run, key):

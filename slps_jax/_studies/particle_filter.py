@@ -20,7 +20,14 @@ from .._support.checks import check_count
 from .._support.progress import progress_bar
 from .._support.solution import RESULTS
 from .._support.store import RunStore, digest, digest_bytes, open_run
-from .assimilation import _prepare, _start, _State, assimilate
+from .assimilation import (
+    _assimilate,
+    _prepare,
+    _start,
+    _State,
+    check_filter_options,
+    checked_key,
+)
 
 
 @functools.partial(jax.jit, static_argnames=("method", "m", "retry", "chunk_size", "auto"))
@@ -126,6 +133,7 @@ def particle_filter(
         "particle_filter",
         system,
         particles,
+        observations,
         obs_times=obs_times,
         dt=dt,
         t0=t0,
@@ -135,10 +143,13 @@ def particle_filter(
         sharding=sharding,
         jitter_lag=jitter_lag,
         driver=driver,
+        key=key,
+        options=(ess_threshold, jitter_steps, jitter_rho),
     )
-    key, x = setup.initial(key)
+    key, x = setup.initial(checked_key("particle_filter", key))
     with automatic(setup.sharding, (system, x)) as (auto, (system, x)):
-        result = assimilate(
+        result = _assimilate(
+            "particle_filter",
             setup.forecast(system, auto),
             x,
             observations,
@@ -209,6 +220,7 @@ def particle_filter_to_store(
         "particle_filter_to_store",
         system,
         particles,
+        observations,
         obs_times=obs_times,
         dt=dt,
         t0=t0,
@@ -218,14 +230,23 @@ def particle_filter_to_store(
         sharding=None,
         jitter_lag=jitter_lag,
         driver=driver,
+        key=key,
+        options=(ess_threshold, jitter_steps, jitter_rho),
     )
     if not isinstance(resume, bool):
-        raise TypeError(f"resume must be True or False, got {resume!r}.")
+        raise TypeError(f"particle_filter_to_store: resume must be True or False, got {resume!r}.")
     x, m, lag = setup.x, setup.m, setup.lag
+    key = checked_key("particle_filter_to_store", key)
     key_data = np.asarray(jax.random.key_data(key))
     key, x0 = setup.initial(key)
     run = _prepare(
-        setup.forecast(system, None), x0, observations, setup.observing(observe), obs_std, lag
+        setup.forecast(system, None),
+        x0,
+        observations,
+        setup.observing(observe),
+        obs_std,
+        lag,
+        "particle_filter_to_store",
     )
     n, ys, real = x.shape[0], run.ys, run.real
     increments = setup.increments(system)
@@ -265,7 +286,14 @@ def particle_filter_to_store(
         "options": [ess_threshold, jitter_steps, jitter_rho, lag, setup.retry],
         "driver": repr(driver),
     }
-    store = RunStore(path, fingerprint, snapshots, carry, mode="resume" if resume else "create")
+    store = RunStore(
+        path,
+        fingerprint,
+        snapshots,
+        carry,
+        mode="resume" if resume else "create",
+        caller="particle_filter_to_store",
+    )
     with store:
         state = _start(run, key)
         if store.checkpoint is not None:
@@ -355,6 +383,7 @@ def _setup(
     name,
     system,
     particles,
+    observations,
     *,
     obs_times,
     dt,
@@ -365,12 +394,22 @@ def _setup(
     sharding,
     jitter_lag,
     driver,
+    key,
+    options,
 ):
-    """The inputs of `particle_filter` (`name`) checked, by name, before any work."""
+    """The inputs of `particle_filter` (`name`) checked, by name, before any work (`key`
+    and the tempering's and jittering's `options` too, used later)."""
+    checked_key(name, key)
+    check_filter_options(name, *options)
     method = check_method(method, system)
     x = jnp.asarray(particles)
-    if x.ndim < 1 or x.shape[0] < 2:
-        raise ValueError(f"{name}: particles must be (n, *state) with n >= 2, got {x.shape}.")
+    shape = tuple(system.algebra.shape)
+    if x.shape[1:] != shape or x.shape[0] < 2:
+        one = " (one state: give n >= 2 of them)" if x.shape == shape else ""
+        raise ValueError(
+            f"{name}: particles must be n >= 2 states of {system.algebra.name}, shape "
+            f"(n, {', '.join(map(str, shape))}); got shape {x.shape}{one}."
+        )
     x = jnp.stack([check_y0(p, method, system) for p in np.asarray(x)])
     times = np.asarray(obs_times, dtype=float)
     h = float(dt)
@@ -380,6 +419,12 @@ def _setup(
     if times.ndim != 1 or times.size == 0 or np.any(gaps <= 0):
         raise ValueError(
             f"{name}: obs_times must be increasing and after t0 = {t0}, got {obs_times!r}."
+        )
+    n_obs = np.shape(observations)[0] if np.ndim(observations) else None
+    if n_obs is not None and times.size != n_obs:
+        raise ValueError(
+            f"{name}: obs_times has {times.size} times for {n_obs} observations; give one "
+            "time per observation."
         )
     steps = gaps / h
     m = int(round(steps[0]))
