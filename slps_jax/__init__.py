@@ -64,6 +64,7 @@ from ._methods.strang import Strang4 as Strang4
 
 # Studies
 from ._studies.assimilation import FilterResult as FilterResult
+from ._studies.assimilation import assimilate as assimilate
 from ._studies.calibrate import CalibrationResult as CalibrationResult
 from ._studies.calibrate import calibrate as calibrate
 from ._studies.calibrate import moments as moments
@@ -147,6 +148,7 @@ __all__ = [
     "Strang",
     "Strang4",
     "FilterResult",
+    "assimilate",
     "CalibrationResult",
     "calibrate",
     "moments",
