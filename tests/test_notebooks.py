@@ -1,4 +1,6 @@
-"""Every notebook in notebooks/ runs top to bottom at the small size (SLPS_NOTEBOOK_SIZE=small).
+"""Every notebook in notebooks/ runs top to bottom at the small size (SLPS_NOTEBOOK_SIZE=small),
+and, in the second tier of full-size checks (`-m full`, which `.ci/run` runs after the
+README's command), at its full size.
 
 The kernel is this interpreter's (`python3` from the environment running pytest), with this
 checkout first on PYTHONPATH, so the notebooks import the slps_jax under test even where an
@@ -55,16 +57,15 @@ _ctypes.CDLL("libc.so.6").malloc_trim(0)
 """
 
 
-@pytest.fixture(scope="module")
-def kernel():
-    """One kernel for all the notebooks: started once (its imports and JAX's start-up are
-    then paid once), each notebook run in a fresh namespace without the previous one's
-    compiled programs (`FRESH` first). It inherits this process's environment, set here; the
-    inline backend draws every figure, so a bad label (mathtext) fails too. Kernel
+def _kernel(size):
+    """One kernel for all the notebooks of a size: started once (its imports and JAX's
+    start-up are then paid once), each notebook run in a fresh namespace without the previous
+    one's compiled programs (`FRESH` first). It inherits this process's environment, set
+    here; the inline backend draws every figure, so a bad label (mathtext) fails too. Kernel
     "python3": jupyter_client starts it with sys.executable, this environment's python."""
     jupyter_client = pytest.importorskip("jupyter_client")
     with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("SLPS_NOTEBOOK_SIZE", "small")
+        mp.setenv("SLPS_NOTEBOOK_SIZE", size)
         mp.delenv("MPLBACKEND", raising=False)
         mp.setenv(
             "PYTHONPATH",
@@ -81,9 +82,29 @@ def kernel():
         km.shutdown_kernel(now=True)
 
 
-@pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
-def test_notebook_runs(path, kernel):
+@pytest.fixture(scope="module")
+def kernel():
+    yield from _kernel("small")
+
+
+@pytest.fixture(scope="module")
+def full_kernel():
+    yield from _kernel("full")
+
+
+def _run(path, km):
     nb = nbformat.read(path, as_version=4)
     nb.cells.insert(0, nbformat.v4.new_code_cell(FRESH))
-    client = nbclient.NotebookClient(nb, km=kernel, timeout=600, kernel_name="python3")
+    client = nbclient.NotebookClient(nb, km=km, timeout=1200, kernel_name="python3")
     client.execute()
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
+def test_notebook_runs(path, kernel):
+    _run(path, kernel)
+
+
+@pytest.mark.full
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
+def test_notebook_runs_at_full_size(path, full_kernel):
+    _run(path, full_kernel)
