@@ -106,6 +106,14 @@ def test_the_store_holds_simulate_and_its_diagnostics():
         traces = [np.trace(np.linalg.matrix_power(w, k)) for k in range(2, 7)]
         expect = [t.real if k % 2 == 0 else t.imag for k, t in zip(range(2, 7), traces)]
         np.testing.assert_allclose(run.read("casimirs")[-1, 1], expect, rtol=1e-12)
+        # the xarray view: named dimensions, the degrees and the time in seconds
+        ds = run.to_xarray()
+        assert ds["state"].dims == ("time", "sample", "row", "column")
+        assert ds["energy_spectrum"].dims == ("time", "sample", "degree")
+        np.testing.assert_array_equal(ds["degree"].values, np.arange(N))
+        np.testing.assert_array_equal(ds["energy_spectrum"].values, run.read("energy_spectrum"))
+        assert ds["time"].attrs["units"] == "s"
+        np.testing.assert_allclose(ds["time"].values, run.times, rtol=0, atol=0)
 
 
 KILLER = textwrap.dedent(

@@ -280,7 +280,8 @@ def test_xarray_opens_it(tmp_path):
     path = tmp_path / "run.zarr"
     write(path, 2)
     ds = open_run(path).to_xarray()
-    assert ds["state"].dims == ("time", "sample", "state_1", "state_2")
+    assert ds["state"].dims == ("time", "sample", "row", "column")
+    assert ds["time"].attrs["units"] == "s"
     np.testing.assert_array_equal(ds["time"].values, open_run(path).times)
     np.testing.assert_array_equal(ds["energy"].values, open_run(path).read("energy"))
     assert ds.attrs["fingerprint"] == MD["fingerprint"]

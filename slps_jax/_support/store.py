@@ -174,18 +174,28 @@ def _chunks(shape, itemsize):
 
 
 def _dimension_names(name, shape, n_samples):
-    """`time`, then `sample` (where the field has one per sample), then `{name}_{i}`; the
-    last axis of a field by degree (a name ending in `_spectrum` or `_flux`) is `degree`."""
+    """`time`, then `sample` (where the field has one per sample), then: the last axis of a
+    field by degree (a name ending in `_spectrum` or `_flux`) `degree`; a state's axes (the
+    fields `state` and `mean`) `row` and `column` for a matrix, `component` for a vector;
+    other axes `{name}_{i}`."""
     dims = ["time"]
     by_degree = name.endswith(("_spectrum", "_flux"))
-    for i, n in enumerate(shape):
-        if i == 0 and n_samples is not None and n == n_samples:
+    per_sample = bool(shape) and n_samples is not None and shape[0] == n_samples
+    rest = len(shape) - per_sample
+    state_axes = {2: ["row", "column"], 1: ["component"]}.get(rest) if name in _STATES else None
+    for i in range(len(shape)):
+        if i == 0 and per_sample:
             dims.append("sample")
         elif by_degree and i == len(shape) - 1:
             dims.append("degree")
+        elif state_axes is not None:
+            dims.append(state_axes[i - per_sample])
         else:
             dims.append(f"{name}_{i}")
     return dims
+
+
+_STATES = ("state", "mean")  # (the fields that hold states, whose axes are named by kind)
 
 
 def _differences(expected, found, what):
@@ -662,13 +672,22 @@ class StoredRun:
 
     def to_xarray(self):
         """The committed snapshots as an `xarray.Dataset` (read lazily: only what is
-        indexed and loaded comes off the disk). Needs xarray (`pip install xarray`)."""
+        indexed and loaded comes off the disk): dimensions `time` (a coordinate, in
+        seconds), `sample`, `degree` (a coordinate, 0, 1, ..., on spectra and fluxes), a
+        state's `row` and `column` (or `component`); the run's metadata as attributes.
+        Needs xarray (`pip install "slps-jax[store]"`)."""
         try:
             import xarray as xr  # pyright: ignore[reportMissingImports]
         except ImportError as e:
-            raise ImportError("StoredRun.to_xarray needs xarray: pip install xarray") from e
+            raise ImportError(
+                'StoredRun.to_xarray needs xarray: pip install "slps-jax[store]" (or xarray)'
+            ) from e
         ds = xr.open_zarr(self.path, consolidated=False, zarr_format=3, chunks=None)
         ds = ds.isel(time=slice(0, self._n))
+        if "degree" in ds.dims:
+            ds = ds.assign_coords(degree=np.arange(ds.sizes["degree"]))
+            ds["degree"].attrs["long_name"] = "degree l of the spherical harmonics"
+        ds["time"].attrs["units"] = "s"
         ds.attrs = dict(self.metadata)
         return ds
 

@@ -226,7 +226,8 @@ class EulerZeitlin(LiePoissonSystem):
         if self.c is None:  # (the noise's matrices are N x N: their count only)
             parts = [f"noise={type(self.noise).__name__} of {self.n_noises}"]
         else:
-            parts = [f"c={self.c!r}"]
+            c = concrete(self.c)
+            parts = [f"c={self.c!r}" if c is None else f"c={float(c):g}"]
         if self.linear is not None:
             parts.append(repr(self.linear))
         omega = None if self.omega is None else concrete(self.omega)
