@@ -22,6 +22,7 @@ The library in four layers:
 
 # Public helper modules
 from . import so3 as so3
+from . import sphere as sphere
 from . import zeitlin as zeitlin
 
 # Algebras
@@ -116,6 +117,7 @@ from ._systems.system import LiePoissonSystem as LiePoissonSystem
 # The public names: everything above, and nothing else (tests/test_api.py checks it).
 __all__ = [
     "so3",
+    "sphere",
     "zeitlin",
     "SO3",
     "AbstractAlgebra",
@@ -196,7 +198,7 @@ __all__ = [
 # units of its own layer or below (tests/test_layering.py reads this).
 _LAYERS = (
     ("_support", "zeitlin"),  # leaves: import nothing of the package
-    ("_brownian", "_algebra", "so3"),
+    ("_brownian", "_algebra", "so3", "sphere"),
     ("_systems",),
     ("_methods",),
     ("_driver",),

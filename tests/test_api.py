@@ -11,7 +11,7 @@ import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "slps_jax"
-PUBLIC_MODULES = ["slps_jax", "slps_jax.zeitlin", "slps_jax.so3"]
+PUBLIC_MODULES = ["slps_jax", "slps_jax.zeitlin", "slps_jax.so3", "slps_jax.sphere"]
 
 
 def _public_modules_on_disk():
