@@ -89,6 +89,8 @@ from ._studies.verification import model_error_variance as model_error_variance
 from ._studies.verification import scaled_noise as scaled_noise
 from ._studies.verification import start_crps as start_crps
 from ._studies.verification import tune_amplitude as tune_amplitude
+from ._support.saving import load as load
+from ._support.saving import save as save
 
 # Results: the failure codes, a run's Solution
 from ._support.solution import RESULTS as RESULTS
@@ -180,6 +182,8 @@ __all__ = [
     "RunStore",
     "StoredRun",
     "open_run",
+    "load",
+    "save",
     "AdditiveForcing",
     "EulerZeitlin",
     "drift_flow",

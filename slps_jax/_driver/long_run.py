@@ -11,7 +11,7 @@ import numpy as np
 
 from .. import _brownian
 from .._support.progress import progress_bar
-from .._support.store import RunStore, digest, open_run
+from .._support.store import RunStore, digest, keep_system, open_run
 from .integrate import _highest_precision, initial_carry, run_blocks
 from .plan import plan_ensemble
 
@@ -127,6 +127,7 @@ def simulate_to_store(
         caller="simulate_to_store",
     )
     with store:
+        keep_system(path, p.system, "simulate_to_store")
         leaves, start = leaves0, 0
         if store.checkpoint is not None:
             leaves = [

@@ -19,7 +19,7 @@ from .._driver.sharding import as_given, automatic, check_sharding
 from .._support.checks import check_count
 from .._support.progress import progress_bar
 from .._support.solution import RESULTS
-from .._support.store import RunStore, digest, digest_bytes, open_run
+from .._support.store import RunStore, digest, digest_bytes, keep_system, open_run
 from .assimilation import (
     _assimilate,
     _prepare,
@@ -295,6 +295,7 @@ def particle_filter_to_store(
         caller="particle_filter_to_store",
     )
     with store:
+        keep_system(path, system, "particle_filter_to_store")
         state = _start(run, key)
         if store.checkpoint is not None:
             state = _restore(store.checkpoint, key, ys, m, x0)

@@ -35,6 +35,9 @@ from typing import Any
 
 import numpy as np
 
+from . import saving
+from .checks import user_stacklevel
+
 _FORMAT = "slps-jax run store"
 _VERSION = 1
 _RESERVED = frozenset({"time", "step", "_carry", "_commit"})
@@ -68,6 +71,26 @@ def digest_bytes(*arrays):
 def digest(*arrays):
     """`digest_bytes` as a hexadecimal string (a field of a store's fingerprint)."""
     return digest_bytes(*arrays).hex()
+
+
+SYSTEM_FILE = "system.pickle"  # (in a store's folder: the run's system, `keep_system`)
+
+
+def keep_system(path, system, caller):
+    """Save the run's `system` in the store at `path` (`SYSTEM_FILE`), once; where it
+    cannot be pickled, warn that `open_run(path).system` will not give it back."""
+    target = os.path.join(os.fspath(path), SYSTEM_FILE)
+    if os.path.exists(target):
+        return
+    try:
+        saving.save(target, system)
+    except TypeError as e:
+        warnings.warn(
+            f"{caller}: the system is not kept in the store, so open_run(path).system will "
+            f"not give it back: {e}",
+            RuntimeWarning,
+            stacklevel=user_stacklevel(),
+        )
 
 
 def _hook(point):
@@ -646,6 +669,19 @@ class StoredRun:
 
     def __len__(self):
         return self._n
+
+    @property
+    def system(self):
+        """The system that made the run, as it was, bit for bit (`sj.load` of the store's
+        `system.pickle`, which `simulate_to_store` and `particle_filter_to_store` write);
+        a `ValueError` where the store holds none."""
+        path = os.path.join(self.path, SYSTEM_FILE)
+        if not os.path.exists(path):
+            raise ValueError(
+                f"{self.path} holds no saved system (a store written by RunStore itself, or "
+                "by a run whose system could not be pickled)."
+            )
+        return saving.load(path)
 
     def read(self, name, index=slice(None)):
         """Snapshots `index` (an int, a slice, or an array of indices into the committed
