@@ -529,6 +529,12 @@ class OrnsteinUhlenbeck:
     """
 
     def __init__(self, correlation_time):
+        kind = np.asarray(correlation_time).dtype.kind
+        if kind not in "iuf" or isinstance(correlation_time, (bool, np.bool_)):
+            raise TypeError(
+                f"OrnsteinUhlenbeck: correlation_time must be numbers (seconds), a scalar or "
+                f"(s,), got {correlation_time!r}."
+            )
         T = np.asarray(correlation_time, dtype=float)
         if T.ndim > 1 or T.size == 0 or not np.all(np.isfinite(T) & (T > 0)):
             raise ValueError(

@@ -33,6 +33,9 @@ def test_ou_increments_have_the_exact_moments():
     assert one.shape == (n, 1)
     with pytest.raises(ValueError, match="correlation_time"):
         sj.ou_increments(jax.random.key(0), n, h, [0.5, -1.0])
+    for bad in ("0.5", ["0.5"], True):  # (a string converts to a number: refused as not one)
+        with pytest.raises(TypeError, match="correlation_time must be numbers"):
+            sj.OrnsteinUhlenbeck(bad)
     with pytest.raises(ValueError, match="dt"):
         sj.ou_increments(jax.random.key(0), n, 0.0, 0.5)
 
