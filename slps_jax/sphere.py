@@ -224,7 +224,7 @@ def animate(
     def frame(k):
         mesh.set_array(np.ma.masked_where(~visible, f[k]))
         if times is not None:
-            ax.set_title(title(k))
+            ax.set_title(f"t = {float(times[k]):.3g} s")
         return (mesh,)
 
     movie = animation.FuncAnimation(fig, frame, frames=W.shape[0], blit=False)

@@ -269,7 +269,7 @@ def _robust_step_jvp(method, k, primals, tangents):
         t_re = t_re + j @ _real(leaves[i]).astype(dtype)
     if pending is not None:  # (the debt: the step's, then half of a substep)
         t_re = t_re + jo * t_pending
-        owed = jnp.where(need, owed2, jnp.where(act, 0.5 * h, pending))
+        owed = jnp.where(need, cast(jax.Array, owed2), jnp.where(act, 0.5 * h, pending))
         t_owed = jnp.where(
             need, 0.5 * t_dt / m2.astype(dtype), jnp.where(act, 0.5 * t_dt, t_pending)
         )
