@@ -3,7 +3,7 @@ with `mkdocs build --strict`, which reports broken links and anchors):
 
 - every public name has an entry `::: slps_jax.NAME` in the API reference (`docs/api/*.md`):
   the package's public names (its `__all__` if it has one, else every public name it
-  binds that is not a module), and those of `slps_jax.so3` and `slps_jax.zeitlin` (their
+  binds that is not a module), and those of `slps_jax.so3`, `slps_jax.zeitlin` and `slps_jax.sphere` (their
   `__all__`, else the functions and classes they define and their public constants), as
   `::: slps_jax.so3.NAME`;
 - every page in `docs/` and every notebook in `notebooks/` is in the site's nav;
@@ -23,6 +23,9 @@ import types
 import pytest
 
 import slps_jax
+
+# the public modules: the package and its toolkits (tests/test_api.py checks the list)
+MODULES = [slps_jax, slps_jax.so3, slps_jax.zeitlin, slps_jax.sphere]
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
@@ -61,9 +64,7 @@ def _nav_paths():
     return set(re.findall(r"([\w./-]+\.(?:md|ipynb))[ \t]*(?:#.*)?$", nav.group(1), re.M))
 
 
-@pytest.mark.parametrize(
-    "module", [slps_jax, slps_jax.so3, slps_jax.zeitlin], ids=lambda m: m.__name__
-)
+@pytest.mark.parametrize("module", MODULES, ids=lambda m: m.__name__)
 def test_every_public_name_has_an_api_entry(module):
     names = _public_names(module)
     assert names, f"{module.__name__}: no public names found"
@@ -71,9 +72,7 @@ def test_every_public_name_has_an_api_entry(module):
     assert not missing, f"no `::: NAME` entry in docs/api/*.md for: {', '.join(missing)}"
 
 
-@pytest.mark.parametrize(
-    "module", [slps_jax, slps_jax.so3, slps_jax.zeitlin], ids=lambda m: m.__name__
-)
+@pytest.mark.parametrize("module", MODULES, ids=lambda m: m.__name__)
 def test_every_public_name_has_a_docstring(module):
     """At run time too (`help`, an editor's hover), not only in the site: a summary line at
     least."""
@@ -89,11 +88,9 @@ def test_every_public_name_has_a_docstring(module):
 def test_api_entries_name_public_objects():
     """An entry that names nothing public (a removed or renamed name) is caught here, not only
     by the site build."""
-    public = {
-        f"{m.__name__}.{n}"
-        for m in (slps_jax, slps_jax.so3, slps_jax.zeitlin)
-        for n in _public_names(m)
-    } | {"slps_jax.so3", "slps_jax.zeitlin"}
+    public = {f"{m.__name__}.{n}" for m in MODULES for n in _public_names(m)} | {
+        m.__name__ for m in MODULES[1:]
+    }
     stale = sorted(_api_entries() - public)
     assert not stale, f"docs/api/*.md has entries for names that are not public: {stale}"
 
@@ -147,9 +144,7 @@ def _takes_parameters(obj):
     return any(p.name != "self" for p in parameters.values())
 
 
-@pytest.mark.parametrize(
-    "module", [slps_jax, slps_jax.so3, slps_jax.zeitlin], ids=lambda m: m.__name__
-)
+@pytest.mark.parametrize("module", MODULES, ids=lambda m: m.__name__)
 def test_public_functions_follow_the_house_style(module):
     """Every public function has `**Arguments:**` (when it takes parameters) and
     `**Returns:**`; every public class a user constructs has `**Arguments:**` for its

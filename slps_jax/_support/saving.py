@@ -69,8 +69,18 @@ def loads(data, what="the data"):
 
 
 def save(path, obj):
-    """Save `obj` (a system, a noise family) to the file `path`, written whole or not at all
-    (a temporary file renamed). **Returns:** `path`."""
+    """Save a system or a noise family to a file, written whole or not at all (a temporary
+    file renamed), to be loaded back bit for bit by `load`.
+
+    **Arguments:**
+
+    - `path`: the file to write (replaced if it exists).
+    - `obj`: a system (`EulerZeitlin`, `RigidBody`, ...), a noise family (a fitted one
+      too), or any equinox Module of the library; functions in it must be defined at a
+      module's top level (a lambda is refused with a `TypeError`).
+
+    **Returns:** `path`.
+    """
     data = dumps(obj)
     path = os.fspath(path)
     tmp = f"{path}.partial"
@@ -83,9 +93,16 @@ def save(path, obj):
 
 
 def load(path):
-    """The object saved at `path` (`save`), bit for bit: its arrays JAX arrays of the saved
-    dtypes (double precision needs `jax_enable_x64`, or a `ValueError` says so). Load only
-    files you trust: a pickle runs the code it names."""
+    """Load what `save` saved, bit for bit. Load only files you trust: a pickle runs the code
+    it names.
+
+    **Arguments:**
+
+    - `path`: a file written by `save` (another file is a `ValueError`).
+
+    **Returns:** the saved object, its arrays JAX arrays of the saved dtypes (double
+    precision needs `jax_enable_x64` enabled first, or a `ValueError` says so).
+    """
     path = os.fspath(path)
     with open(path, "rb") as fh:
         return loads(fh.read(), what=path)
