@@ -2,6 +2,8 @@
 run store keeping the system of its run (`open_run(path).system`): the same pytree
 structure, the same bytes and dtypes in every array, the same paths when run again."""
 
+import warnings
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -93,6 +95,13 @@ def test_the_run_store_keeps_its_system(tmp_path):
     run = sj.simulate_to_store(system, w0, str(tmp_path / "run.zarr"), **kw)
     assert _same(sj.open_run(tmp_path / "run.zarr").system, system)
     assert _same(run.system, system)
+    # kept where xarray does not see it: no variable of it, and no warning
+    xr = pytest.importorskip("xarray")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        ds = xr.open_zarr(tmp_path / "run.zarr", consolidated=False)
+        assert set(ds.data_vars) == set(run.fields) | {"step"}
+        run.to_xarray()
     # a system that cannot be pickled: the run is stored, with a warning that says so
     with pytest.warns(RuntimeWarning, match="not kept in the store"):
         sj.simulate_to_store(_lambda_system(), sj.PAPER_Y0, str(tmp_path / "rb.zarr"), **kw)

@@ -73,17 +73,18 @@ def digest(*arrays):
     return digest_bytes(*arrays).hex()
 
 
-SYSTEM_FILE = "system.pickle"  # (in a store's folder: the run's system, `keep_system`)
+_SAVED = "_saved/system"  # (the run's system, `keep_system`: a subgroup, unseen by xarray)
 
 
 def keep_system(path, system, caller):
-    """Save the run's `system` in the store at `path` (`SYSTEM_FILE`), once; where it
-    cannot be pickled, warn that `open_run(path).system` will not give it back."""
-    target = os.path.join(os.fspath(path), SYSTEM_FILE)
-    if os.path.exists(target):
+    """Save the run's `system` in the store at `path` (the bytes of `saving.dumps` as an
+    array of the subgroup `_saved`, with their SHA-256), once; where it cannot be pickled,
+    warn that `open_run(path).system` will not give it back."""
+    group = _zarr().open_group(os.fspath(path), mode="r+", zarr_format=3)
+    if _saved_system_bytes(group) is not None:
         return
     try:
-        saving.save(target, system)
+        data = np.frombuffer(saving.dumps(system), np.uint8)
     except TypeError as e:
         warnings.warn(
             f"{caller}: the system is not kept in the store, so open_run(path).system will "
@@ -91,6 +92,28 @@ def keep_system(path, system, caller):
             RuntimeWarning,
             stacklevel=user_stacklevel(),
         )
+        return
+    array = group.require_group("_saved").create_array(
+        "system",
+        shape=data.shape,
+        dtype=np.uint8,
+        chunks=(max(1, min(data.size, 1 << 24)),),
+        overwrite=True,
+    )
+    array[:] = data
+    array.attrs["sha256"] = digest(data)
+
+
+def _saved_system_bytes(group):
+    """The bytes of the system kept in the store's `group`, or `None` (none, or incomplete:
+    their SHA-256 differs)."""
+    try:
+        array = group[_SAVED]
+        data = np.asarray(array[:], np.uint8)
+        expected = array.attrs.get("sha256")
+    except (KeyError, FileNotFoundError):
+        return None
+    return data.tobytes() if expected == digest(data) else None
 
 
 def _hook(point):
@@ -672,16 +695,16 @@ class StoredRun:
 
     @property
     def system(self):
-        """The system that made the run, as it was, bit for bit (`sj.load` of the store's
-        `system.pickle`, which `simulate_to_store` and `particle_filter_to_store` write);
-        a `ValueError` where the store holds none."""
-        path = os.path.join(self.path, SYSTEM_FILE)
-        if not os.path.exists(path):
+        """The system that made the run, as it was, bit for bit (as `sj.load` gives it;
+        `simulate_to_store` and `particle_filter_to_store` keep it in the store); a
+        `ValueError` where the store holds none."""
+        data = _saved_system_bytes(self._group)
+        if data is None:
             raise ValueError(
                 f"{self.path} holds no saved system (a store written by RunStore itself, or "
                 "by a run whose system could not be pickled)."
             )
-        return saving.load(path)
+        return saving.loads(data, what=f"{self.path}'s system")
 
     def read(self, name, index=slice(None)):
         """Snapshots `index` (an int, a slice, or an array of indices into the committed
