@@ -241,6 +241,29 @@ def test_newton_iterations(tmp_path):
     assert "usually 3 updates" in stdout
 
 
+@pytest.mark.full
+def test_newton_fusion(tmp_path):
+    """The Newton loops with and without `one_kernel`: the same iterates, the same states to
+    round-off (bit for bit for `unroll`, which only moves the loop's first bodies)."""
+    run_script("newton_fusion.py", tmp_path)
+    rows = {
+        r["method"]: r for r in json.loads((tmp_path / "newton_fusion.json").read_text())["rows"]
+    }
+    assert set(rows) == {
+        "Midpoint",
+        "LiePoisson",
+        "LiePoisson(unroll=3)",
+        "Midpoint, no one_kernel",
+        "LiePoisson, no one_kernel",
+    }
+    for name in ("Midpoint", "LiePoisson"):
+        for stat in ("newton_iterations_mean", "newton_iterations_max"):
+            assert rows[f"{name}, no one_kernel"][stat] == rows[name][stat]
+        assert rows[f"{name}, no one_kernel"]["max_diff_to_kernel"] <= 1e-13
+    assert rows["LiePoisson(unroll=3)"]["max_diff_to_kernel"] == 0.0
+    assert all(r["fused_instructions"] > 0 and r["median_ms"] > 0 for r in rows.values())
+
+
 def test_gradients(tmp_path):
     run_script("gradients.py", tmp_path)
     summary = json.loads((tmp_path / "gradients.json").read_text())

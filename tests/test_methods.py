@@ -214,3 +214,30 @@ def test_auto_is_midpoint_on_so3_and_isospectral_midpoint_on_matrix_algebras():
     for bad in ("fast", None):
         with pytest.raises(TypeError, match="'auto' or an instance"):
             sj.simulate(paper, y0, method=bad, **kw)
+
+
+def test_one_kernel_returns_its_inputs_unchanged():
+    """The Newton body's next state goes through `one_kernel` (a variadic reduce of each value
+    with a zero, on a CPU): every value, signed zeros, infinities, NaN and integers included,
+    comes back bit for bit, under `jit` and `vmap`, with its dtype. (Subnormals are left
+    out: XLA:CPU flushes them to zero in every arithmetic operation, as in `x + y` and `x * y`
+    of any jitted function.)"""
+    from slps_jax._methods.newton import one_kernel
+
+    x = jnp.array([1.5, -0.0, jnp.inf, -jnp.inf, jnp.nan, 2.3e-308, -1.7976931348623157e308])
+    n = jnp.array([-3, 0, 7, 2**31 - 1, -(2**31), 1, 2], jnp.int32)
+    a, b = jax.jit(jax.vmap(lambda u, k: one_kernel(u, k)))(x, n)
+    assert a.dtype == x.dtype and b.dtype == n.dtype
+    bits = np.asarray(a).view(np.int64)
+    np.testing.assert_array_equal(np.delete(bits, 4), np.delete(np.asarray(x).view(np.int64), 4))
+    assert np.isnan(a[4])
+    np.testing.assert_array_equal(b, n)
+    c = one_kernel(jnp.float32(2.5), jnp.ones((2, 3), jnp.float32))  # broadcast, not batched
+    assert c[0].shape == (2, 3) and c[0].dtype == jnp.float32 and float(c[0][1, 2]) == 2.5
+    d = one_kernel(jnp.float32(2.5), jnp.float64(-1.0))  # two precisions: passed as they are
+    assert (d[0].dtype, float(d[0]), d[1].dtype, float(d[1])) == (
+        jnp.float32,
+        2.5,
+        jnp.float64,
+        -1.0,
+    )

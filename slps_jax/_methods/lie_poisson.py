@@ -245,8 +245,8 @@ def solve_on_branch(sine_fn, z, *, tol, max_iter, feasible=True, unroll=0):
     `sine_fn(v, lam, jacobian=True)` is the residual in the sine chart (and `dR/dv`) of the
     in-map with its step scaled by `lam` (`tau -> lam tau`, `kappa -> lam^2 kappa`), whose
     root at `lam = 0` is `v = z`. Newton in the sine chart from `v = z`: one loop whose body
-    is one update (usually three updates, and the fourth residual passes the test); `unroll`
-    updates before it as straight-line code (`newton`).
+    is one update (usually three updates, and the fourth residual passes the test); its first
+    `unroll` bodies before it as straight-line code (`newton`).
     A sample whose attempt fails (no convergence in `max_iter` updates, a non-finite
     residual, or a root off the chart `|v| < 1`, near the fold at large steps) starts again
     and follows the roots from `lam = 0` to `lam = 1` in 2, 4, 8, then 16 stages (`newton`'s
@@ -368,10 +368,10 @@ class LiePoisson(AbstractMethod):
       of (41) for one noise and the $S_{rq}$ terms for several (default `True`). They make
       the scheme converge to the Stratonovich solution; `False` shows their effect, a bias
       that does not shrink with the step (`tests/test_several_noises.py`).
-    - `unroll`: Newton updates made as straight-line code before the loop (default 0).
-      `unroll=3` (the updates almost every step needs) makes a step on a CPU about 1.5x
-      faster at about three times the compile time (`benchmarks/compile_time.py`): worth it for
-      large ensembles, not for a notebook's studies, where compilation dominates.
+    - `unroll`: the Newton loop's first bodies made as straight-line code before it (default
+      0): the same iterates and results. `unroll=3` (the updates almost every step needs)
+      makes a step on a CPU about 10 % faster at about twice the compile time
+      (`benchmarks/newton_fusion.py`): worth it only for large ensembles.
 
     Reference: Q. Liu and L. Wang, *Lie–Poisson numerical method for a class of stochastic
     Lie–Poisson systems*, scheme (42).

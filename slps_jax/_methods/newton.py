@@ -89,15 +89,14 @@ def newton(fn, x0, *, tol, max_iter, active=True, admissible=None, continuation=
       non-finite residual) starts again from `x0` and follows the family: `lam = 1/2, 1`,
       then `lam = 1/4, 1/2, 3/4, 1`, ..., each root the start of the next stage, up to
       `2^continuation` stages.
-    - `unroll`: updates made as straight-line code before the loop, without a test (for
-      problems where fewer never suffice). XLA fuses straight-line updates, and on a CPU
-      they run markedly faster than loop iterations, but each is one more copy of `fn` to
-      compile.
+    - `unroll`: the loop's first `unroll` bodies as straight-line code before it: the same
+      iterates, and on a CPU somewhat faster, but each is one more copy of `fn` to compile.
 
     One `while_loop` whose body is one evaluation of `r` and `J`, the test, and one update
     (a linear solve): the continuation is data in the loop state, not code, so `fn` is
     compiled once. Under `vmap` the loop runs until every sample stops; stopped samples stay
-    unchanged.
+    unchanged. Where `J` is given as rows (not a function), the body's next state is computed
+    in one kernel on a CPU (`one_kernel`).
 
     **Returns:** the final `NewtonState`; `residual` is that of the returned `x` (for a
     successful sample), and a failed sample reports the reason of its last attempt.
@@ -139,16 +138,17 @@ def newton(fn, x0, *, tol, max_iter, active=True, admissible=None, continuation=
     def test(s, rnorm):
         inside = jnp.ones((), bool) if admissible is None else admissible(s.x)
         small = rnorm <= tol
-        result = jnp.select(
-            [small & inside, small, ~jnp.isfinite(rnorm), s.updates >= max_iter],
-            [
-                RESULTS.successful,
-                RESULTS.off_branch,
-                RESULTS.nonfinite,
-                RESULTS.max_iterations_reached,
-            ],
-            _RUNNING,
-        ).astype(jnp.int32)
+        # (nested `where`, elementwise: `jnp.select` is an argmax, a reduce of its own, into
+        # which XLA:CPU would copy the residual's graph once more; see `one_kernel`)
+        result = _RUNNING
+        for cond, code in (
+            (s.updates >= max_iter, RESULTS.max_iterations_reached),
+            (~jnp.isfinite(rnorm), RESULTS.nonfinite),
+            (small, RESULTS.off_branch),
+            (small & inside, RESULTS.successful),
+        ):  # the last condition that holds wins: the first of `jnp.select`'s order
+            result = jnp.where(cond, code, result)
+        result = jnp.asarray(result, jnp.int32)
         result = jnp.where(s.result == _RUNNING, result, s.result)
         if continuation:
             done = result == RESULTS.successful
@@ -166,23 +166,57 @@ def newton(fn, x0, *, tol, max_iter, active=True, admissible=None, continuation=
             residual=jnp.where(s.result == _RUNNING, rnorm, s.residual), result=result
         )
 
-    def update(s, r, jac, go):
-        delta = cast(tuple, jac(r)) if callable(jac) else solve_linear(jac, r)
-        x = tuple(jnp.where(go, xi - di, xi) for xi, di in zip(s.x, delta))
-        return s._replace(x=x, iterations=s.iterations + go, updates=s.updates + go)
-
     def body(s):
         r, jac = evaluate(s)
+        delta = cast(tuple, jac(r)) if callable(jac) else solve_linear(jac, r)
         t = test(s, max_norm(r))
         # no update where the test stopped the sample or began a new continuation stage
         # (`r`, `J` belong to the old one)
         go = (t.result == _RUNNING) & (t.level == s.level) & (t.stage == s.stage)
-        return update(t, r, jac, go)
+        x = tuple(jnp.where(go, xi - di, xi) for xi, di in zip(t.x, delta))
+        t = t._replace(x=x, iterations=t.iterations + go, updates=t.updates + go)
+        if callable(jac):
+            return t
+        # the whole next state in one kernel on a CPU (`one_kernel`)
+        leaves, tree = jax.tree_util.tree_flatten(t)
+        return jax.tree_util.tree_unflatten(tree, one_kernel(*leaves))
 
     s = init
     for _ in range(unroll):  # straight-line code: XLA fuses it across updates, a loop not
-        s = update(s, *evaluate(s), s.result == _RUNNING)
+        s = body(s)
     return jax.lax.while_loop(lambda s: s.result == _RUNNING, body, s)
+
+
+def _sum_pairs(a, b):
+    return tuple(x + y for x, y in zip(a, b))
+
+
+def _through_one_reduce(*xs):
+    xs = jnp.broadcast_arrays(*xs)
+    if len({x.dtype for x in xs if jnp.issubdtype(x.dtype, jnp.inexact)}) > 1:
+        return tuple(xs)  # (XLA allows one floating-point precision per reduce)
+    # (-0.0, not 0.0, for floats: x + (-0.0) is x for every x, x = -0.0 included)
+    zeros = [jnp.asarray(-0.0 if jnp.issubdtype(x.dtype, jnp.inexact) else 0, x.dtype) for x in xs]
+    pairs = [jnp.stack([x, jnp.broadcast_to(z, x.shape)]) for x, z in zip(xs, zeros)]
+    return tuple(jax.lax.reduce(pairs, zeros, _sum_pairs, (0,)))
+
+
+def one_kernel(*xs):
+    """`xs` unchanged, computed on a CPU as the outputs of one variadic reduce.
+
+    XLA:CPU has no multi-output loop fusion: values that share one graph (a residual and its
+    Jacobian) and are read by several elementwise consumers (the test's norm and each
+    component of the update) get a copy of that graph fused into each consumer, so a Newton
+    update is evaluated once per consumer. A variadic `lax.reduce` is one kernel with several
+    outputs: with every consumer among its inputs, the shared graph is fused into it once.
+    Each value is paired with a zero and the pair summed, which leaves it unchanged (`x + (-0.0)
+    = x`, signed zeros, NaN and infinities included). XLA:CPU emits that kernel as scalar code,
+    not vectors, so it pays where the graph is large (scheme (42)'s residual and Jacobian:
+    its step takes half the time) and about breaks even where it is small (`Midpoint` on so(3)). Elsewhere
+    (GPUs fuse several outputs) the values pass as they are. `benchmarks/newton_fusion.py`
+    measures both and watches that the kernel stays one.
+    """
+    return jax.lax.platform_dependent(*xs, cpu=_through_one_reduce, default=lambda *xs: xs)
 
 
 def _as_component(r, jac):
