@@ -370,7 +370,7 @@ class LiePoisson(AbstractMethod):
       that does not shrink with the step (`tests/test_several_noises.py`).
     - `unroll`: the Newton loop's first bodies made as straight-line code before it (default
       0): the same iterates and results. `unroll=3` (the updates almost every step needs)
-      makes a step on a CPU about 10 % faster at about twice the compile time
+      makes a step on a CPU 10–15 % faster at about twice the compile time
       (`benchmarks/newton_fusion.py`): worth it only for large ensembles.
 
     Reference: Q. Liu and L. Wang, *Lie–Poisson numerical method for a class of stochastic

@@ -192,7 +192,7 @@ def _sum_pairs(a, b):
 
 
 def _through_one_reduce(*xs):
-    xs = jnp.broadcast_arrays(*xs)
+    xs = jnp.broadcast_arrays(*xs)  # (the pairs' axis first: see `one_kernel`)
     if len({x.dtype for x in xs if jnp.issubdtype(x.dtype, jnp.inexact)}) > 1:
         return tuple(xs)  # (XLA allows one floating-point precision per reduce)
     # (-0.0, not 0.0, for floats: x + (-0.0) is x for every x, x = -0.0 included)
@@ -210,11 +210,11 @@ def one_kernel(*xs):
     update is evaluated once per consumer. A variadic `lax.reduce` is one kernel with several
     outputs: with every consumer among its inputs, the shared graph is fused into it once.
     Each value is paired with a zero and the pair summed, which leaves it unchanged (`x + (-0.0)
-    = x`, signed zeros, NaN and infinities included). XLA:CPU emits that kernel as scalar code,
-    not vectors, so it pays where the graph is large (scheme (42)'s residual and Jacobian:
-    its step takes half the time) and about breaks even where it is small (`Midpoint` on so(3)). Elsewhere
-    (GPUs fuse several outputs) the values pass as they are. `benchmarks/newton_fusion.py`
-    measures both and watches that the kernel stays one.
+    = x`, signed zeros, NaN and infinities included). The pair's axis comes first, so that
+    under `vmap` the batch is the reduce's contiguous axis and XLA:CPU emits vector code.
+    Elsewhere (GPUs fuse several outputs) the values pass as they are.
+    `benchmarks/newton_fusion.py` measures the loops with and without it, and watches that
+    the kernel stays one.
     """
     return jax.lax.platform_dependent(*xs, cpu=_through_one_reduce, default=lambda *xs: xs)
 
