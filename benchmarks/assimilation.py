@@ -189,6 +189,12 @@ def experiment(
         stages=np.array([len(t) for t in res.temperatures]),
         ranks=np.bincount(ranks, minlength=n + 1),
         casimir_drift=drift,
+        # (the last observation time's states: the truth, and each ensemble's mean)
+        final=dict(
+            truth=np.asarray(truth[-1]),
+            filter=np.asarray(res.particles[-1]).mean(0),
+            free=np.asarray(free[:, -1]).mean(0),
+        ),
     )
     row = dict(
         M=M,
