@@ -172,3 +172,70 @@ def test_public_functions_follow_the_house_style(module):
         f"{module.__name__}: public names whose docstring lacks a house-style section: "
         + "; ".join(missing)
     )
+
+
+def _offline_hooks():
+    """docs/offline.py, the site's hooks (the docs extra: mkdocs, latex2mathml)."""
+    pytest.importorskip("mkdocs")
+    pytest.importorskip("latex2mathml")
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("docs_offline", DOCS / "offline.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_offline_check_finds_every_kind_of_load(tmp_path):
+    """`mkdocs build` fails on anything a page fetches from another host
+    (`offline.external_loads`): scripts, stylesheets, images, CSS `url()` and `@import`, a
+    script's `import()`; a link a reader follows is not a load."""
+    offline = _offline_hooks()
+    (tmp_path / "page").mkdir()
+    (tmp_path / "page" / "index.html").write_text(
+        '<script src="https://cdn.example/a.js"></script>'
+        '<link rel="stylesheet" href="//fonts.example/b.css">'
+        "<img src='http://img.example/c.png'>"
+        '<a href="https://doi.org/10.1017/jfm.2019.944">a citation</a>'
+        '<script src="../assets/local.js"></script>'
+        '<script>if (x) import("https://cdnjs.example/mermaid.js")</script>',
+        encoding="utf-8",
+    )
+    (tmp_path / "style.css").write_text(
+        '@import "https://fonts.example/d.css"; p { background: url(https://e.example/e.png) }',
+        encoding="utf-8",
+    )
+    found = offline.external_loads(tmp_path)
+    assert sorted(found) == sorted(
+        [
+            "page/index.html: https://cdn.example/a.js",
+            "page/index.html: //fonts.example/b.css",
+            "page/index.html: http://img.example/c.png",
+            "page/index.html: https://cdnjs.example/mermaid.js",
+            "style.css: https://fonts.example/d.css",
+            "style.css: https://e.example/e.png",
+        ]
+    )
+
+
+def test_page_math_becomes_mathml():
+    """The pages' formulas (arithmatex's spans and divs, a notebook cell's `$...$` outside
+    code) are replaced by MathML at build time, HTML entities read as TeX; a formula the
+    converter cannot read fails the build, naming the page."""
+    offline = _offline_hooks()
+    page = types.SimpleNamespace(file=types.SimpleNamespace(src_uri="x.md"))
+    out = offline.on_post_page(
+        '<p>a <span class="arithmatex">\\(x &lt; \\tfrac12\\)</span> b</p>'
+        '<div class="arithmatex">\\[\\sum_r \\Delta W_r\\]</div>'
+        '<div class="jp-RenderedHTMLCommon jp-RenderedMarkdown">'
+        "<p>cost $O(N^3)$ and <code>$HOME</code></p></div>",
+        page,
+        None,
+    )
+    assert "arithmatex" not in out and "\\(" not in out and "$O(N^3)$" not in out
+    assert out.count("<math") == 3 and out.count('display="block"') == 1
+    assert "&lt;</mo>" in out or "&#x0003C;</mo>" in out  # the entity read as "<"
+    assert "<code>$HOME</code>" in out
+    for bad in ("\\left( x", "\\foo x"):  # (unbalanced; a command it does not know)
+        with pytest.raises(Exception, match="x.md"):
+            offline.on_post_page(f'<span class="arithmatex">\\({bad}\\)</span>', page, None)
