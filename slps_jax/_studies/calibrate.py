@@ -25,7 +25,8 @@ from .._driver.plan import (
     plan_ensemble,
 )
 from .._methods.base import AbstractMethod
-from .._systems.noise import _ParameterNoise
+from .._support.checks import steps_on_grid
+from .._systems.noise import _AbstractParameterNoise
 from .._systems.rigid_body import RigidBody
 
 
@@ -270,7 +271,7 @@ def calibrate(
         raise TypeError(f"init must be a RigidBody, got {type(init).__name__}.")
     if init.c is not None and not float(np.asarray(init.c)) > 0:
         raise ValueError(f"init.c must be positive (c is fitted on a log scale), got {init.c}.")
-    if init.c is None and not isinstance(init.noise, _ParameterNoise):
+    if init.c is None and not isinstance(init.noise, _AbstractParameterNoise):
         raise TypeError(
             "calibrate fits the parameters of a noise family (salt_noise, "
             "random_inertia_noise); a noise given as a function has none."
@@ -280,8 +281,8 @@ def calibrate(
     ts = np.asarray(ts, float)
     if ts.ndim != 1 or len(ts) < 1 or not np.all(np.diff(ts) > 0) or ts[0] <= 0:
         raise ValueError(f"ts must be increasing positive times, got {ts}.")
-    idx = np.rint(ts / dt).astype(int)
-    if not np.allclose(idx * dt, ts, rtol=1e-9, atol=0):
+    idx, on_grid = steps_on_grid(ts, dt)
+    if not np.all(on_grid):
         raise ValueError(f"ts must be multiples of dt={dt}, got {ts}.")
     every = math.gcd(*idx.tolist())
     observed = jnp.asarray(observed)

@@ -32,6 +32,7 @@ from .._support.checks import (
     check_positive,
     check_retry,
     real_dtype,
+    steps_on_grid,
     user_stacklevel,
 )
 from .._systems.capabilities import NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
@@ -109,9 +110,8 @@ def _time_changed_flow(system, y0, t1, w_t):
 
 
 def _fine_steps(dt, fine_dt, name):
-    ratio = dt / fine_dt
-    s = int(round(ratio))
-    if s < 1 or abs(ratio - s) > 1e-9 * ratio:
+    s, ok = steps_on_grid(dt, fine_dt)
+    if not ok:
         raise ValueError(f"{name}={dt} must be an integer multiple of the finest step {fine_dt}.")
     return s
 

@@ -13,10 +13,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._brownian import BrownianStep, OrnsteinUhlenbeck, ou_step
-from .._driver.integrate import _integrate_jit
+from .._driver.integrate import path_of_noise
 from .._driver.plan import check_method, check_retry, check_y0
 from .._driver.sharding import as_given, automatic, check_sharding
-from .._support.checks import check_count
+from .._support.checks import check_count, steps_on_grid
 from .._support.progress import progress_bar
 from .._support.solution import RESULTS
 from .._support.store import RunStore, digest, digest_bytes, keep_system, open_run
@@ -42,7 +42,7 @@ def _forecast(method, system, states, dws, step, path, *, m, retry, chunk_size, 
         y, eta = state if path is not None else (state, None)
         if path is not None:
             eta, dw = jax.lax.scan(lambda e, z: ou_step(path.consts, e, z), eta, dw)
-        ys, _, result, _, _ = _integrate_jit(
+        ys, _, result, _, _ = path_of_noise(
             method, system, y, BrownianStep(dw, None), step, m, False, retry
         )
         ok = result == RESULTS.successful
@@ -427,9 +427,9 @@ def _setup(
             f"{name}: obs_times has {times.size} times for {n_obs} observations; give one "
             "time per observation."
         )
-    steps = gaps / h
-    m = int(round(steps[0]))
-    if m < 1 or np.any(np.abs(steps - m) > 1e-6 * m):
+    steps, on_grid = steps_on_grid(gaps, h)
+    m = int(steps[0])
+    if not np.all(on_grid) or np.any(steps != m):
         raise ValueError(
             f"{name}: obs_times must be equally spaced on the grid of dt from t0 "
             f"(dt = {h}); their gaps are {gaps.tolist()} s."

@@ -124,6 +124,19 @@ def check_throw(throw):
         raise TypeError(f"throw must be True or False, got {throw!r}.")
 
 
+GRID_RTOL = 1e-9  # how far from the grid a time may be (relative), for rounding
+
+
+def steps_on_grid(span, dt):
+    """`(n, ok)`: the whole numbers of steps `dt` nearest `span / dt` (a number or an array),
+    and whether each span is a positive multiple of `dt` to within `GRID_RTOL` relative.
+    The one grid check of the library: the run's `t1`, a study's steps, observation times."""
+    ratio = np.asarray(span, dtype=float) / float(dt)
+    n = np.rint(ratio).astype(int)
+    ok = (n >= 1) & (np.abs(ratio - n) <= GRID_RTOL * np.maximum(1.0, ratio))
+    return (int(n), bool(ok)) if n.ndim == 0 else (n, ok)
+
+
 def check_grid(caller, t1, dt):
     """`(dt, n_steps)` as Python numbers, for concrete positive `t1 = n_steps dt`."""
     dt = check_positive("dt", dt)
@@ -134,13 +147,11 @@ def check_grid(caller, t1, dt):
             "call it outside jax.jit, or use integrate inside."
         )
     dt, t1 = float(dt), float(t1)
-    ratio = t1 / dt
-    n_steps = int(round(ratio))
-    if n_steps < 1 or abs(ratio - n_steps) > 1e-9 * max(1.0, ratio):
-        near = max(1, n_steps)
+    n_steps, ok = steps_on_grid(t1, dt)
+    if not ok:
         raise ValueError(
-            f"t1={t1} must be a positive multiple of dt={dt} (t1/dt = {ratio}); "
-            f"for example dt={t1 / near!r}."
+            f"t1={t1} must be a positive multiple of dt={dt} (t1/dt = {t1 / dt}); "
+            f"for example dt={t1 / max(1, n_steps)!r}."
         )
     return dt, n_steps
 
