@@ -225,3 +225,30 @@ def test_every_system_has_a_noise_family():
     ]
     assert not wrong, f"code that asks whether a system has a noise family: {wrong}"
     assert pattern.search("if self.noise is None:") and pattern.search("x.noise is not None")
+
+
+def test_no_private_name_of_the_driver_is_imported_from_outside():
+    """The other subpackages reach the time loop through `_driver`'s documented interface
+    (`run_ensemble`, `path_of_noise`, ...), never a private name of one of its modules."""
+    found = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        if _unit(path) == "_driver":
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and "_driver" in (node.module or "").split("."):
+                found += [
+                    f"{path.relative_to(ROOT)}: {node.module}.{a.name}"
+                    for a in node.names
+                    if a.name.startswith("_")
+                ]
+            elif isinstance(node, ast.Attribute) and node.attr.startswith("_"):
+                base = node.value
+                if (
+                    isinstance(base, ast.Attribute)
+                    and base.attr
+                    in ("integrate", "plan", "retry", "splitting", "stream", "long_run", "failures")
+                    and isinstance(base.value, ast.Name)
+                    and base.value.id == "_driver"
+                ):
+                    found.append(f"{path.relative_to(ROOT)}: _driver.{base.attr}.{node.attr}")
+    assert not found, "private names of _driver used outside it: " + "; ".join(found)

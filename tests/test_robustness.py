@@ -232,7 +232,7 @@ def no_compile():
     def boom(*args, **kwargs):
         raise AssertionError("compiled before validating")
 
-    targets = ["ensemble_jit", "_integrate_jit", "ensemble_dynamic_jit"]
+    targets = ["ensemble_jit", "path_of_noise", "ensemble_dynamic_jit"]
     patches = [mock.patch(f"slps_jax._driver.integrate.{t}", boom) for t in targets]
     patches.append(mock.patch("slps_jax._studies.convergence.ensemble_dynamic_jit", boom))
     for p in patches:

@@ -313,7 +313,16 @@ def _index(noise, i):
 
 
 @functools.partial(jax.jit, static_argnames=("method", "save_every", "want_stats", "retry"))
-def _integrate_jit(method, system, y0, noise, dt, save_every, want_stats, retry=None):
+def path_of_noise(method, system, y0, noise, dt, save_every, want_stats, retry=None):
+    """One sample's path for given noise, jitted: the driver's loop under `integrate`, and the
+    documented door to it for the other subpackages (the filter's forecasts, the
+    verification's reruns). `noise` is a `BrownianStep` with one row per step (areas or
+    `None`); `save_every` divides the number of steps; `want_stats` adds the Newton
+    statistics; `retry` is `check_retry`'s.
+
+    **Returns:** `(ys, fail_step, result, n_retried, stats)` as `_path` gives them: the saved
+    states, the step of failure (-1 if none), its `RESULTS` code, the retried steps and the
+    Newton statistics (`()` without `want_stats`)."""
     return _path(
         method,
         system,
@@ -437,7 +446,7 @@ def integrate(
     dtype = real_dtype(y0.dtype)
     dt = jnp.asarray(dt if dt_np is None else float(dt_np), dtype)
     noise = _brownian.BrownianStep(dW.astype(dtype), None if area is None else area.astype(dtype))
-    ys, fail_step, result, _, _ = _integrate_jit(method, system, y0, noise, dt, k, False, retry)
+    ys, fail_step, result, _, _ = path_of_noise(method, system, y0, noise, dt, k, False, retry)
     if throw:
         report("integrate", True, retry is not None, fail_step, result)
     if save_every is None:

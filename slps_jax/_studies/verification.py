@@ -20,7 +20,7 @@ from .._brownian import (
     brownian_increments,
     ou_increments,
 )
-from .._driver.integrate import _integrate_jit
+from .._driver.integrate import path_of_noise
 from .._driver.plan import (
     check_driver,
     check_levy_option,
@@ -147,7 +147,7 @@ def _forecasts(method, system, starts, noise, dt, every, retry):
     states after the start and each member's failed step (-1: none)."""
 
     def member(y0, step_noise):
-        ys, fail_step, *_ = _integrate_jit(method, system, y0, step_noise, dt, every, False, retry)
+        ys, fail_step, *_ = path_of_noise(method, system, y0, step_noise, dt, every, False, retry)
         return ys, fail_step
 
     return jax.vmap(jax.vmap(member, in_axes=(None, 0)))(starts, noise)
