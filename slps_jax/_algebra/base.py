@@ -293,7 +293,7 @@ class AbstractAlgebra(eqx.Module):
         return self.name
 
 
-class SquareMatrixAlgebra(AbstractAlgebra):
+class AbstractSquareMatrixAlgebra(AbstractAlgebra):
     """An algebra of `(n, n)` matrices given by their size: its one field, `n`, is static
     (so(n), su(N))."""
 

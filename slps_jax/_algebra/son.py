@@ -7,10 +7,10 @@ import functools
 import jax.numpy as jnp
 import numpy as np
 
-from .base import SquareMatrixAlgebra, adjoint, skew_from_upper, upper_indices
+from .base import AbstractSquareMatrixAlgebra, adjoint, skew_from_upper, upper_indices
 
 
-class SOnAlgebra(SquareMatrixAlgebra):
+class SOnAlgebra(AbstractSquareMatrixAlgebra):
     r"""so(n)* for $n \ge 3$: states are skew-symmetric `(n, n)` matrices $Y$.
 
     - Pairing $\langle X, Y\rangle = \tfrac12\operatorname{tr}(X^TY) = \sum_{i<j}X_{ij}Y_{ij}$

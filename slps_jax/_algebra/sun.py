@@ -7,10 +7,10 @@ import functools
 import jax.numpy as jnp
 import numpy as np
 
-from .base import SquareMatrixAlgebra, adjoint, skew_from_upper, upper_indices
+from .base import AbstractSquareMatrixAlgebra, adjoint, skew_from_upper, upper_indices
 
 
-class SUnAlgebra(SquareMatrixAlgebra):
+class SUnAlgebra(AbstractSquareMatrixAlgebra):
     r"""su(N)* for $N \ge 2$: states are traceless skew-Hermitian `(N, N)` complex matrices
     $W$ (complex64 or complex128, following the system's real dtype).
 

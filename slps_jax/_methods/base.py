@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import abc
 from typing import Any, ClassVar, NamedTuple
 
 import equinox as eqx
@@ -101,6 +102,7 @@ class AbstractMethod(eqx.Module):
         """Whether the step uses the Lévy areas (`strong_orders.areas` is not `None`)."""
         return cls.strong_orders.areas is not None
 
+    @abc.abstractmethod
     def step(self, system, y, dt, dW):
         """Advance one sample by one step.
 
@@ -112,7 +114,6 @@ class AbstractMethod(eqx.Module):
 
         **Returns:** `(y_next, StepInfo)`.
         """
-        raise NotImplementedError
 
     def initial_history(self, system, y0):
         """What the method keeps from one step to the next before the first step (a pytree

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -76,21 +78,23 @@ def _check_unit_ball(name, y0):
         )
 
 
-class _SymmetricLiePoisson(AbstractMethod):
+class _AbstractSymmetricLiePoisson(AbstractMethod):
+    """The symmetric compositions of scheme (42)'s first-order map: each concrete method
+    gives its options and the weights of its stages (`_stages`, a step's fractions)."""
+
     requires = frozenset({SO3_VECTORS})  # (the sine chart of so(3); so(n): LiePoisson)
     # (each stage with weight w gets the increments and areas times w: `_brownian.scale_noise`)
     strong_orders = StrongOrders(one=1.0, increments=0.5, areas=1.0)
     poisson = True
-    tol: float | None  # (the subclasses' fields)
-    max_iter: int
+    tol: eqx.AbstractVar[float | None]
+    max_iter: eqx.AbstractVar[int]
+    _stages: eqx.AbstractClassVar[tuple[float, ...]]
 
     def __post_init__(self):
         check_options(self)
 
     def check_initial(self, system, y0):
         _check_unit_ball(type(self).__name__, y0)
-
-    _stages = (1.0,)
 
     def step(self, system, y, dt, dW):
         dtype = y.dtype
@@ -105,7 +109,7 @@ class _SymmetricLiePoisson(AbstractMethod):
         )
 
 
-class LiePoissonSym2(_SymmetricLiePoisson):
+class LiePoissonSym2(_AbstractSymmetricLiePoisson):
     r"""The symmetric composition of the generating-function step of scheme (42) with its
     adjoint: strong order 1, and a Poisson map that keeps the Casimir $|y|$ to round-off.
 
@@ -139,9 +143,10 @@ class LiePoissonSym2(_SymmetricLiePoisson):
 
     tol: float | None = eqx.field(default=None, static=True)
     max_iter: int = eqx.field(default=12, static=True)
+    _stages: ClassVar[tuple[float, ...]] = (1.0,)
 
 
-class LiePoissonSym4(_SymmetricLiePoisson):
+class LiePoissonSym4(_AbstractSymmetricLiePoisson):
     r"""Yoshida's triple jump of `LiePoissonSym2`: deterministic order 4, strong order 2.
 
     $$y_{n+1} = \Phi_{\gamma_1\tau_n} \circ \Phi_{\gamma_0\tau_n} \circ
@@ -163,5 +168,5 @@ class LiePoissonSym4(_SymmetricLiePoisson):
 
     tol: float | None = eqx.field(default=None, static=True)
     max_iter: int = eqx.field(default=12, static=True)
-    _stages = TRIPLE_JUMP
+    _stages: ClassVar[tuple[float, ...]] = TRIPLE_JUMP
     strong_orders = StrongOrders(one=2.0, increments=0.5, areas=1.0)

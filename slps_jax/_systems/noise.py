@@ -14,6 +14,7 @@ unless it has a closed form (`salt_noise`, `random_inertia_noise`).
 
 from __future__ import annotations
 
+import abc
 from collections.abc import Callable
 from typing import ClassVar
 
@@ -51,19 +52,24 @@ class AbstractNoise(eqx.Module):
 
     linear = False  # all H_r linear: u does not depend on y (SALT; enables closed forms)
     takes_areas = True  # the step's Lévy areas enter it (not with one noise)
-    c = None  # the amplitude of a noise proportional to the drift (`ProportionalNoise`)
+
+    def drift_amplitude(self):
+        """The amplitude $c$ of a noise proportional to the drift (`ProportionalNoise`), else
+        `None`."""
+        return None
 
     def drift_time(self, w):
         r"""$\tau(w)$: how far the weights `w` move the drift's time (`None`: not at all)."""
         return None
 
     @property
+    @abc.abstractmethod
     def n_noises(self) -> int:
         """The number $s$ of noises."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def values(self, y, params):
-        raise NotImplementedError
+        r"""$(H_1(y), \dots, H_s(y))$, shape `(s,)`, at one state `y`."""
 
     def gradient(self, y, w, params, algebra):
         raise NotImplementedError
@@ -108,6 +114,9 @@ class ProportionalNoise(AbstractNoise):
 
     def __repr__(self):
         return f"proportional_noise({self.c!r})"
+
+    def drift_amplitude(self):
+        return self.c
 
     def drift_time(self, w):
         return self.c * jnp.reshape(w, ())
@@ -190,12 +199,12 @@ def _parameter_matrix(name, x, what, matrices=False):
     return x
 
 
-class _ParameterNoise(AbstractNoise):
+class _AbstractParameterNoise(AbstractNoise):
     """A family whose one parameter is an `(s, 3)` array, one row per noise, stored under
     `parameter_name` (a pytree leaf; `calibrate` fits it by that name)."""
 
-    parameter_name: ClassVar[str]
-    builder: ClassVar[str]  # the public function that builds it, for the repr
+    parameter_name: eqx.AbstractClassVar[str]
+    builder: eqx.AbstractClassVar[str]  # the public function that builds it, for the repr
 
     def __init__(self, value):
         setattr(self, self.parameter_name, value)
@@ -226,12 +235,13 @@ class _ParameterNoise(AbstractNoise):
             raise TypeError(f"{self.builder}: {self.parameter_name} must be real.")
 
 
-class SaltNoise(_ParameterNoise):
+class SaltNoise(_AbstractParameterNoise):
     r"""Stochastic advection by Lie transport: $H_r(y) = \chi_r \cdot y$, so the noise field
     $y \times \chi_r$ rotates $y$ about the fixed axis $\chi_r$. Build with `salt_noise`."""
 
     linear = True
-    parameter_name, builder = "chi", "salt_noise"
+    parameter_name: ClassVar[str] = "chi"
+    builder: ClassVar[str] = "salt_noise"
     chi: jax.Array
 
     def values(self, y, params):
@@ -273,11 +283,12 @@ def salt_noise(chi):
     return SaltNoise(_parameter_matrix("chi", chi, "the axis of each noise", matrices=True))
 
 
-class RandomInertiaNoise(_ParameterNoise):
+class RandomInertiaNoise(_AbstractParameterNoise):
     r"""Random inertia: $H_r(y) = \tfrac12 \sum_j \sigma_{rj} y_j^2$. Build with
     `random_inertia_noise`."""
 
-    parameter_name, builder = "sigma", "random_inertia_noise"
+    parameter_name: ClassVar[str] = "sigma"
+    builder: ClassVar[str] = "random_inertia_noise"
     sigma: jax.Array
 
     def values(self, y, params):

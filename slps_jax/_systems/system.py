@@ -125,7 +125,7 @@ class LiePoissonSystem(eqx.Module):
     @property
     def c(self):
         """The amplitude $c$ of one noise proportional to the drift (`c=`), else `None`."""
-        return self.noise.c
+        return self.noise.drift_amplitude()
 
     # What the system states in closed form, for the algebra's fast paths (`SO3Algebra`).
     quadratic_drift = None
