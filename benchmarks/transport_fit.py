@@ -13,7 +13,9 @@ per sample: larger N need a matrix-free solve, not built):
 
 Writes `transport_fit.json` and `transport_fit.md` into --out (default benchmarks/results).
 
-    python benchmarks/transport_fit.py [--fast] [--out DIR]
+    python benchmarks/transport_fit.py [--fast] [--out DIR] [--sizes 64:16] [--windows 80]
+
+(`--windows 80`: 4001 snapshots, the size of `docs/data-driven-noise.md`'s su(64) fit.)
 """
 
 from __future__ import annotations
@@ -80,14 +82,16 @@ def case(M, N, windows=WINDOWS, window=WINDOW, members=MEMBERS):
 
 def main(argv=None):
     p = _common.parser(__doc__, "a smoke run: M = 12, N = 6, small sizes")
+    p.add_argument("--sizes", default="32:8,64:16", help="M:N pairs, comma-separated")
+    p.add_argument("--windows", type=int, default=WINDOWS, help="windows of 50 snapshots")
     args = p.parse_args(argv)
     os.makedirs(args.out, exist_ok=True)
     info = _common.machine_info()
     device = _common.device_name(info)
-    sizes = [(32, 8), (64, 16)]
+    sizes = [tuple(int(k) for k in pair.split(":")) for pair in args.sizes.split(",")]
     rows = []
     for M, N in [(12, 6)] if args.fast else sizes:
-        extra = dict(windows=4, window=10, members=4) if args.fast else {}
+        extra = dict(windows=4, window=10, members=4) if args.fast else dict(windows=args.windows)
         rows.append(case(M, N, **extra))
         print(rows[-1], flush=True)
     _common.write_json(os.path.join(args.out, "transport_fit.json"), dict(machine=info, rows=rows))
