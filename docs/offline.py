@@ -6,6 +6,9 @@
   Python, the docs extra). Browsers render MathML themselves: no script, no CDN. A formula
   it cannot convert, or with a command it does not know, fails the build, naming the page
   and the formula.
+- **No diagram loader.** mkdocs-jupyter adds to every notebook page a script that imports
+  mermaid.js from a CDN when the page has a Mermaid diagram; the notebooks have none, and
+  the script is dropped (a diagram would show as its source).
 - **Nothing loaded from another host.** After the build, every page and stylesheet is
   scanned for a script, stylesheet, image, font or import fetched from an absolute URL
   (`http:`, `https:`, `//`); one fails the build, naming the file and the URL. Links that a
@@ -28,6 +31,8 @@ _NOTEBOOK_MARKDOWN = re.compile(
     r'(<div class="[^"]*\bjp-RenderedMarkdown\b[^"]*"[^>]*>)(.*?)(</div>)', re.S
 )
 _UNKNOWN = re.compile(r">(\\[A-Za-z]+)<")
+# mkdocs-jupyter's module script that imports mermaid.js from a CDN for Mermaid cells
+_MERMAID_LOADER = re.compile(r'<script type="module">(?:(?!</script>).)*?mermaid.*?</script>', re.S)
 _CODE = re.compile(r"(<(code|pre)\b.*?</\2>)", re.S)
 _DOLLARS = re.compile(r"\$\$(.+?)\$\$|(?<![\\$])\$(?!\s)([^$\n]+?)(?<!\s)\$(?!\d)", re.S)
 # what a page or stylesheet loads: src=, a stylesheet's or icon's href, CSS url() and
@@ -78,6 +83,7 @@ def on_post_page(output: str, page, config) -> str:
     output = _ARITHMATEX.sub(
         lambda m: _mathml(html.unescape(m.group(3)), m.group(2) == "[", where), output
     )
+    output = _MERMAID_LOADER.sub("", output)
     return _NOTEBOOK_MARKDOWN.sub(
         lambda m: m.group(1) + _notebook_math(m.group(2), where) + m.group(3), output
     )

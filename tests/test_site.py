@@ -221,14 +221,18 @@ def test_the_offline_check_finds_every_kind_of_load(tmp_path):
 def test_page_math_becomes_mathml():
     """The pages' formulas (arithmatex's spans and divs, a notebook cell's `$...$` outside
     code) are replaced by MathML at build time, HTML entities read as TeX; a formula the
-    converter cannot read fails the build, naming the page."""
+    converter cannot read fails the build, naming the page. mkdocs-jupyter's script that
+    would import mermaid.js from a CDN is dropped, other scripts kept."""
     offline = _offline_hooks()
     page = types.SimpleNamespace(file=types.SimpleNamespace(src_uri="x.md"))
     out = offline.on_post_page(
         '<p>a <span class="arithmatex">\\(x &lt; \\tfrac12\\)</span> b</p>'
         '<div class="arithmatex">\\[\\sum_r \\Delta W_r\\]</div>'
         '<div class="jp-RenderedHTMLCommon jp-RenderedMarkdown">'
-        "<p>cost $O(N^3)$ and <code>$HOME</code></p></div>",
+        "<p>cost $O(N^3)$ and <code>$HOME</code></p></div>"
+        '<script type="module">if (d.length) { const mermaid = (await import('
+        '"https://cdnjs.example/mermaid.esm.min.mjs")).default; }</script>'
+        "<script>keep()</script>",
         page,
         None,
     )
@@ -236,6 +240,7 @@ def test_page_math_becomes_mathml():
     assert out.count("<math") == 3 and out.count('display="block"') == 1
     assert "&lt;</mo>" in out or "&#x0003C;</mo>" in out  # the entity read as "<"
     assert "<code>$HOME</code>" in out
+    assert "cdnjs" not in out and "<script>keep()</script>" in out  # (mkdocs-jupyter's loader)
     for bad in ("\\left( x", "\\foo x"):  # (unbalanced; a command it does not know)
         with pytest.raises(Exception, match="x.md"):
             offline.on_post_page(f'<span class="arithmatex">\\({bad}\\)</span>', page, None)
