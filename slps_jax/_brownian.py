@@ -16,9 +16,10 @@ no increment uses.
 
 from __future__ import annotations
 
+import abc
 import functools
 import math
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import equinox as eqx
 import jax
@@ -265,7 +266,57 @@ def draw_joined(sample_key, n, fine_steps, fine_dt, bound, dtype, n_noises, term
     )
 
 
-class BrownianPath(eqx.Module):
+class AbstractDraws:
+    """The steps' noise of one sample, as the driver's loop draws it: `init`, the state
+    before the first step (`()` for none), and `block(state, n0, length, n_live)`, the noises
+    of steps `n0 ... n0 + length - 1` (a `BrownianStep` with a leading axis) and the state
+    after the first `n_live` of them (the rest are the loop's padding)."""
+
+    init: Any = ()
+
+    @abc.abstractmethod
+    def block(self, state, n0, length, n_live):
+        """`(state, noises)` of the steps `n0 ... n0 + length - 1`."""
+
+
+class IndexedDraws(AbstractDraws):
+    """Noise drawn by step index, with no state: a Brownian path's, or given increments.
+    `draw(n)` is step `n`'s `BrownianStep` (`n` may be traced)."""
+
+    def __init__(self, draw):
+        self.draw = draw
+
+    def block(self, state, n0, length, n_live):
+        return state, jax.vmap(lambda j: self.draw(n0 + j))(jnp.arange(length, dtype=n0.dtype))
+
+
+class AbstractPath(eqx.Module):
+    """A driver's steps of one size, as the driver's loop asks for them (`AbstractDriver.path`):
+    `draws(key)` is the noise of the sample whose key is `key` (an `AbstractDraws`). A pytree:
+    its step `dt` and constants are leaves.
+
+    - `coarsens`: whether `coarsened(m, dt)` gives the same noise in steps of `m` of its
+      own (what the convergence studies need).
+    """
+
+    dt: eqx.AbstractVar[Any]
+    coarsens: eqx.AbstractClassVar[bool]
+
+    @property
+    @abc.abstractmethod
+    def has_areas(self) -> bool:
+        """Whether the steps' noises carry their Lévy areas."""
+
+    @abc.abstractmethod
+    def without_areas(self) -> AbstractPath:
+        """The same noise without the Lévy areas."""
+
+    @abc.abstractmethod
+    def draws(self, key) -> AbstractDraws:
+        """The noise of the steps of the sample whose key is `key`."""
+
+
+class BrownianPath(AbstractPath):
     r"""The Brownian motions of an ensemble, as the driver asks for them: the noise of step
     `n` of the sample whose key is `key` is `sampler(key)(n)`, a `BrownianStep`. Everything
     that decides it lives here: the step, the truncation of the increments, the Lévy areas
@@ -284,6 +335,7 @@ class BrownianPath(eqx.Module):
     An `equinox.Module`: `dt`, `bound` and a traced `fine_steps` are its leaves.
     """
 
+    coarsens: ClassVar[bool] = True
     dt: Any
     bound: Any
     n_noises: int = eqx.field(static=True)
@@ -339,6 +391,9 @@ class BrownianPath(eqx.Module):
         here, once, not at every step."""
         fine_dt = self.dt / self.fine_steps
         return lambda n: self._draw(key, n, self.fine_steps, fine_dt)
+
+    def draws(self, key):
+        return IndexedDraws(self.sampler(key))
 
     def joined(self, key, n_steps):
         r"""The noise of the first `n_steps` steps (a Python int) of the sample whose key is
@@ -457,7 +512,49 @@ def _brownian_paths(key, path, *, n_samples, n_steps, one_noise, levy_area):
     return jax.tree_util.tree_map(lambda x: x[0], out) if n_samples is None else out
 
 
-class BrownianMotion:
+class AbstractDriver:
+    """What draws an ensemble's noise (`simulate(..., driver=)`): its options, and
+    `path(dt, n_noises, dtype, *, levy_area)`, its steps of size `dt` as the driver's loop
+    asks for them (an `AbstractPath`); `increments(...)`, the same noise materialised for
+    `integrate`. Code outside this module asks a driver, never which driver it is.
+
+    - `levy_area`: the Lévy-area option (`"auto"`, `True`, `False`, or a dict per method in
+      the studies); `False` for a driver without areas.
+    - `carries_state`: whether a sample's next step depends on its earlier ones (a state the
+      loop carries: Ornstein–Uhlenbeck traces).
+    - `coarsens`: whether its paths at a step are the same noise as at a finer step joined
+      (`AbstractPath.coarsens`; what the convergence studies need).
+    """
+
+    levy_area: Any = False
+    carries_state: ClassVar[bool] = False
+    coarsens: ClassVar[bool] = False
+
+    @abc.abstractmethod
+    def path(self, dt, n_noises, dtype, *, levy_area=False) -> AbstractPath:
+        """The driver's steps of size `dt` (a Python float) for `n_noises` noises, with the
+        Lévy areas when `levy_area` (the option resolved for the method, a bool)."""
+
+    @abc.abstractmethod
+    def increments(self, key, n_steps, dt, *, n_samples, n_noises, dtype, levy_area=False):
+        """`n_samples` samples of `n_steps` steps, as `simulate` draws them with `key`: a
+        `BrownianStep` of increments `(n_samples, n_steps, n_noises)` and, with `levy_area`,
+        areas `(n_samples, n_steps, n_noises, n_noises)`."""
+
+
+def check_driver(driver):
+    """`driver` checked: `None` stands for `BrownianMotion()`."""
+    if driver is None:
+        return BrownianMotion()
+    if not isinstance(driver, AbstractDriver):
+        raise TypeError(
+            f"driver must be None, sj.BrownianMotion(...) or sj.OrnsteinUhlenbeck(...), got "
+            f"{driver!r}."
+        )
+    return driver
+
+
+class BrownianMotion(AbstractDriver):
     r"""The default driver of an ensemble: independent standard Brownian motions, one per
     noise, each step's increments drawn truncated, and with them, when asked for, the steps'
     Lévy areas. `simulate(system, y0, ..., driver=BrownianMotion(levy_area=True))`;
@@ -505,14 +602,27 @@ class BrownianMotion:
     def __hash__(self):  # (a TypeError for a dict option)
         return hash((BrownianMotion, self.truncate_k, self.levy_area))
 
-    def path(self, dt, n_noises, dtype, *, levy_area):
-        """The driver's steps of size `dt` (a Python float) for `n_noises` noises, with the
-        Lévy areas when `levy_area` (the option resolved for the method, a bool)."""
+    coarsens: ClassVar[bool] = True
+
+    def path(self, dt, n_noises, dtype, *, levy_area=False):
         check_truncation(dt, self.truncate_k)
         return BrownianPath.of(dt, n_noises, dtype, truncate_k=self.truncate_k, levy_area=levy_area)
 
+    def increments(self, key, n_steps, dt, *, n_samples, n_noises, dtype, levy_area=False):
+        out = brownian_increments(
+            key,
+            n_steps,
+            dt,
+            n_samples=n_samples,
+            n_noises=n_noises,
+            levy_area=levy_area,
+            dtype=dtype,
+            truncate_k=self.truncate_k,
+        )
+        return BrownianStep(*out) if levy_area else BrownianStep(out, None)
 
-class OrnsteinUhlenbeck:
+
+class OrnsteinUhlenbeck(AbstractDriver):
     r"""A smooth driver for `simulate`: unit-variance Ornstein–Uhlenbeck traces
     $d\eta_r = -\eta_r/T_r\,dt + \sqrt{2/T_r}\,dB_r$, started from their stationary law, each
     step's increment the integral $\int\eta_r\,dt$ over the step (a random ODE: no Lévy
@@ -546,8 +656,18 @@ class OrnsteinUhlenbeck:
     def __repr__(self):
         return f"OrnsteinUhlenbeck(correlation_time={self.correlation_time.tolist()})"
 
-    def path(self, dt, n_noises, dtype):
-        """The driver's steps of size `dt` (a Python float) for `n_noises` noises."""
+    carries_state: ClassVar[bool] = True
+
+    def increments(self, key, n_steps, dt, *, n_samples, n_noises, dtype, levy_area=False):
+        if levy_area:
+            raise ValueError("OrnsteinUhlenbeck: a smooth driver has no Lévy areas.")
+        T = np.broadcast_to(self.correlation_time, (n_noises,))
+        out = ou_increments(key, n_steps, dt, T, n_samples=n_samples, dtype=dtype)
+        return BrownianStep(out, None)
+
+    def path(self, dt, n_noises, dtype, *, levy_area=False):
+        if levy_area:
+            raise ValueError("OrnsteinUhlenbeck: a smooth driver has no Lévy areas.")
         T = np.broadcast_to(self.correlation_time, np.shape(self.correlation_time) or (n_noises,))
         if T.shape != (n_noises,):
             raise ValueError(
@@ -566,15 +686,19 @@ class OrnsteinUhlenbeck:
         return OrnsteinUhlenbeckPath(np.asarray(dt, dtype), consts)
 
 
-class OrnsteinUhlenbeckPath(eqx.Module):
+class OrnsteinUhlenbeckPath(AbstractPath):
     """The Ornstein–Uhlenbeck driver as the driver asks for it (`BrownianPath`'s sibling):
-    `sampler(key)` is a `StatefulDraws`, since a trace's next increment depends on its
+    `draws(key)` is a `StatefulDraws`, since a trace's next increment depends on its
     present value. Sample `key`'s path does not depend on how the steps are blocked: step
     `n` draws from `fold_in(key', n)`. A pytree: `dt` and the step's constants are leaves."""
 
-    has_areas = False
+    coarsens: ClassVar[bool] = False
     dt: Any
     consts: tuple
+
+    @property
+    def has_areas(self):
+        return False
 
     @property
     def n_noises(self):
@@ -583,11 +707,11 @@ class OrnsteinUhlenbeckPath(eqx.Module):
     def without_areas(self):
         return self
 
-    def sampler(self, key):
+    def draws(self, key):
         return StatefulDraws(self, key)
 
 
-class StatefulDraws:
+class StatefulDraws(AbstractDraws):
     """The steps' noise of one sample of a driver with a state: `init`, the state before the
     first step, and `block(state, n0, length, n_live)`, the noises of steps `n0 ...
     n0 + length - 1` (a `BrownianStep` with a leading axis) and the state after the first
@@ -659,7 +783,7 @@ def ou_increments(key, n_steps, dt, correlation_time, *, n_samples=None, dtype=N
 @functools.partial(jax.jit, static_argnames=("n_steps", "n_samples"))
 def _ou_paths(key, path, *, n_steps, n_samples):
     def one(k):
-        draws = path.sampler(k)
+        draws = path.draws(k)
         return draws.block(draws.init, jnp.uint32(0), n_steps, n_steps)[1].dW
 
     keys = sample_keys(key, 1 if n_samples is None else n_samples)

@@ -252,3 +252,41 @@ def test_no_private_name_of_the_driver_is_imported_from_outside():
                 ):
                     found.append(f"{path.relative_to(ROOT)}: _driver.{base.attr}.{node.attr}")
     assert not found, "private names of _driver used outside it: " + "; ".join(found)
+
+
+_DRIVER_CLASSES = {
+    "AbstractDriver",
+    "BrownianMotion",
+    "OrnsteinUhlenbeck",
+    "AbstractPath",
+    "BrownianPath",
+    "OrnsteinUhlenbeckPath",
+    "AbstractDraws",
+    "IndexedDraws",
+    "StatefulDraws",
+}
+
+
+def test_no_code_asks_which_driver_it_holds():
+    """Outside the drivers' module (`_brownian.py`), code asks a driver what it can do
+    (`path`, `increments`, `carries_state`, `coarsens`), never which class it is: no
+    `isinstance` names a driver, path or draws class."""
+    found = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        if path.name == "_brownian.py":
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if not (
+                isinstance(node, ast.Call)
+                and isinstance(node.func, ast.Name)
+                and node.func.id == "isinstance"
+                and len(node.args) == 2
+            ):
+                continue
+            names = {
+                n.attr if isinstance(n, ast.Attribute) else getattr(n, "id", None)
+                for n in ast.walk(node.args[1])
+            }
+            if names & _DRIVER_CLASSES:
+                found.append(f"{path.relative_to(ROOT)}:{node.lineno}")
+    assert not found, "isinstance on a driver class: " + ", ".join(found)

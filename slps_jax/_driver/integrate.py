@@ -103,12 +103,14 @@ def _step(method, system, dt, carry, dW, live, *, want_stats, retry):
     return (y, result, fail_step, n + live.astype(n.dtype), n_retried, acc, history), pending
 
 
-def _path(method, system, y0, dt, draw, n_blocks, block_len, want_stats, retry=None, like=()):
+def _path(method, system, y0, dt, draws, n_blocks, block_len, want_stats, retry=None, like=()):
     """Integrate one sample: `n_blocks` blocks of `block_len` steps, saving after each block.
 
-    `draw(n)` gives step n's increment (`n` traced). With a Python-int `block_len` the time loop is a
-    `lax.scan` (reverse-mode differentiable, checkpointed: see `_checkpointed_loop`); with a
-    traced one it is a `while_loop`, so one compilation serves every step count
+    `draws` is the sample's noise (`_brownian.AbstractDraws`: a Brownian path's, drawn by step
+    index; an Ornstein–Uhlenbeck path's, carrying its traces; or given increments). With a
+    Python-int `block_len` the time loop is a `lax.scan` (reverse-mode differentiable,
+    checkpointed: see `_checkpointed_loop`); with a traced one it is a `while_loop`, so one
+    compilation serves every step count
     (convergence studies). With `retry = k`, a step that fails is redone as `k`, then
     `k^2`, ... equal substeps (`_retry_step`, a `while_loop`: no reverse mode) before the
     sample is given up.
@@ -122,10 +124,10 @@ def _path(method, system, y0, dt, draw, n_blocks, block_len, want_stats, retry=N
     """
     if method.flow_in_time is not None:
         acc0 = _initial_stats(y0, want_stats)
-        return _time_change_path(method, system, y0, dt, draw, n_blocks, block_len, acc0, like)
-    carry0 = initial_carry(method, system, y0, draw, want_stats, like)
+        return _time_change_path(method, system, y0, dt, draws, n_blocks, block_len, acc0, like)
+    carry0 = initial_carry(method, system, y0, draws, want_stats, like)
     ((_, result, fail_step, _, n_retried, acc, _), _), ys = run_blocks(
-        method, system, dt, draw, carry0, n_blocks, block_len, want_stats, retry
+        method, system, dt, draws, carry0, n_blocks, block_len, want_stats, retry
     )
     return ys, fail_step, result, n_retried, acc
 
@@ -137,7 +139,7 @@ def _initial_stats(y0, want_stats):
     return (zero, zero_i, zero, zero_i) if want_stats else ()
 
 
-def initial_carry(method, system, y0, draw, want_stats, like=()):
+def initial_carry(method, system, y0, draws, want_stats, like=()):
     """The time loop's carry before the first step of one sample (`run_blocks`): `((y,
     result, fail_step, step, n_retried, stats, the method's history), the driver's state)`.
     The step counter stays unbatched: every sample is at the same step."""
@@ -152,18 +154,15 @@ def initial_carry(method, system, y0, draw, want_stats, like=()):
         ),
         like,
     )
-    return (y0, result0, fail0, jnp.array(0, jnp.int32), n_retried0, acc0, history0), _draws(draw)[
-        0
-    ]
+    return (y0, result0, fail0, jnp.array(0, jnp.int32), n_retried0, acc0, history0), draws.init
 
 
-def run_blocks(method, system, dt, draw, carry0, n_blocks, block_len, want_stats, retry):
+def run_blocks(method, system, dt, draws, carry0, n_blocks, block_len, want_stats, retry):
     """`n_blocks` blocks of `block_len` steps of one sample from `carry0` (`initial_carry`,
     or the carry a previous call returned: the loop goes on from its step counter, the
     increments drawn by absolute step, so a run cut into calls is the run in one).
 
     **Returns:** `(carry, states after each block)`."""
-    _, draw_block = _draws(draw)
 
     def steps(carry, length, n_live):
         # `length` (a Python int) slots from the carry's step counter, the first `n_live`
@@ -175,7 +174,7 @@ def run_blocks(method, system, dt, draw, carry0, n_blocks, block_len, want_stats
         # (`system_step`'s `pending`), settled at its end, so that a state leaves the block
         # whole (`apply_pending`).
         inner, state = carry
-        state, dWs = draw_block(state, inner[3], length, n_live)
+        state, dWs = draws.block(state, inner[3], length, n_live)
         y = inner[0]
         pending = jnp.zeros_like(jnp.real(y[(0,) * y.ndim])) if has_linear_terms(system) else None
         inner, pending = jax.lax.fori_loop(
@@ -204,31 +203,18 @@ def run_blocks(method, system, dt, draw, carry0, n_blocks, block_len, want_stats
     return jax.lax.scan(block, carry0, None, length=n_blocks)
 
 
-def _draws(draw):
-    """`(state0, block)`: the noise of a sample as the loop draws it,
-    `block(state, n0, length, n_live) -> (state, noises of steps n0 ... n0 + length - 1)`.
-    A driver with a state (`_brownian.StatefulDraws`: Ornstein–Uhlenbeck) carries it through
-    the loop; a Brownian path or given increments are drawn by step index, with no state."""
-    if isinstance(draw, _brownian.StatefulDraws):
-        return draw.init, draw.block
-    return (), lambda state, n0, length, n_live: (
-        state,
-        jax.vmap(lambda j: draw(n0 + j))(jnp.arange(length, dtype=n0.dtype)),
-    )
-
-
-def _time_change_path(method, system, y0, dt, draw, n_blocks, block_len, acc0, like):
+def _time_change_path(method, system, y0, dt, draws, n_blocks, block_len, acc0, like):
     """`_path` for a method whose steps compose in time (`flow_in_time`): the step with
     increments `(h, dW)` is the flow for the random time `h + c dW`, so between two saved
     states only the sum of the step times is needed. The loop draws the same increments
     and adds up the times; the flow is evaluated once per saved state (once in all for the
     final state only). It cannot fail (explicit), so the failure outputs are constant."""
     tau0 = batched_like(jnp.zeros((), y0.dtype), like)  # (built once, outside the loops)
-    state0, draw_block = _draws(draw)
+    state0 = draws.init
 
     def steps(carry, length, n_live):
         tau, n0, state = carry
-        state, dWs = draw_block(state, n0, length, n_live)
+        state, dWs = draws.block(state, n0, length, n_live)
         times = jax.vmap(lambda w: dt + system.noise_time(w))(dWs)
         live = jnp.arange(length) < n_live
         n = n0 + jnp.minimum(length, n_live)
@@ -328,7 +314,7 @@ def path_of_noise(method, system, y0, noise, dt, save_every, want_stats, retry=N
         system,
         y0,
         dt,
-        lambda n: _index(noise, n),
+        _brownian.IndexedDraws(lambda n: _index(noise, n)),
         noise.dW.shape[0] // save_every,
         save_every,
         want_stats,
@@ -347,7 +333,7 @@ def ensemble(method, system, y0, keys, path, n_blocks, block_len, want_stats, re
             system,
             y0,
             path.dt,
-            path.sampler(key),
+            path.draws(key),
             n_blocks,
             block_len,
             want_stats,

@@ -180,7 +180,7 @@ def _record_size(n_snapshots, at_most):
 def _initial_carries(method, system, y0, path, keys):
     return jax.vmap(
         lambda k: initial_carry(
-            method, system, y0, path.sampler(k), False, like=jax.random.key_data(k)
+            method, system, y0, path.draws(k), False, like=jax.random.key_data(k)
         )
     )(keys)
 
@@ -191,9 +191,7 @@ def _record(method, system, dt, path, keys, carry, n_blocks, block_len, retry):
     """One record of every sample: `n_blocks` snapshots `block_len` steps apart from `carry`."""
 
     def one(key, c):
-        return run_blocks(
-            method, system, dt, path.sampler(key), c, n_blocks, block_len, False, retry
-        )
+        return run_blocks(method, system, dt, path.draws(key), c, n_blocks, block_len, False, retry)
 
     return jax.vmap(one)(keys, carry)
 

@@ -138,23 +138,12 @@ def check_levy_option(levy_area, method, system):
     return bool(levy_area) and system.n_noises > 1
 
 
-def check_driver(driver):
-    """`driver` checked: `None` stands for `BrownianMotion()`."""
-    if driver is None:
-        return _brownian.BrownianMotion()
-    if not isinstance(driver, (_brownian.BrownianMotion, _brownian.OrnsteinUhlenbeck)):
-        raise TypeError(
-            f"driver must be None, sj.BrownianMotion(...) or sj.OrnsteinUhlenbeck(...), got "
-            f"{driver!r}."
-        )
-    return driver
+check_driver = _brownian.check_driver  # (the drivers' module checks what a driver is)
 
 
 def driver_path(driver, dt, method, system, dtype):
     """The path of a checked `driver` at steps `dt` for `method` on `system`: its Lévy-area
-    option resolved (`check_levy_option`) for a `BrownianMotion`."""
-    if isinstance(driver, _brownian.OrnsteinUhlenbeck):
-        return driver.path(dt, system.n_noises, dtype)
+    option resolved (`check_levy_option`)."""
     if isinstance(driver.levy_area, dict):
         raise TypeError(
             "BrownianMotion(levy_area={...}): a dict chooses per method in the convergence "

@@ -306,7 +306,7 @@ def calibrate(
     theta_all = params.theta
     method = check_method(method, init)
     brownian = check_driver(driver)
-    if not isinstance(brownian, _brownian.BrownianMotion):
+    if brownian.carries_state:
         raise TypeError(
             f"calibrate: driver must be None or sj.BrownianMotion(...), got {driver!r}."
         )

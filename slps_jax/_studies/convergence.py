@@ -179,7 +179,7 @@ def _study(
     and reference (see `strong_convergence`)."""
     check_system(system)
     driver = check_driver(driver)
-    if not isinstance(driver, _brownian.BrownianMotion):
+    if not driver.coarsens:
         raise TypeError(
             f"{caller}: driver must be None or sj.BrownianMotion(...) (a study integrates "
             f"Brownian paths at several steps), got {driver!r}."

@@ -446,7 +446,7 @@ def _setup(
     lag = check_count("jitter_lag", jitter_lag)
     path = None
     if driver is not None:
-        if not isinstance(driver, OrnsteinUhlenbeck):
+        if not getattr(driver, "carries_state", False):
             raise TypeError(
                 f"{name}: driver must be None (Brownian increments) or sj.OrnsteinUhlenbeck(T), "
                 f"got {type(driver).__name__}."

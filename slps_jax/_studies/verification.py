@@ -15,10 +15,7 @@ import numpy as np
 
 from .._brownian import (
     BrownianMotion,
-    BrownianStep,
     OrnsteinUhlenbeck,
-    brownian_increments,
-    ou_increments,
 )
 from .._driver.integrate import path_of_noise
 from .._driver.plan import (
@@ -100,33 +97,21 @@ def forecast_ensembles(
         )
     dtype, s = system.dtype, system.n_noises
     driver = check_driver(BrownianMotion(levy_area=False) if driver is None else driver)
-    areas = isinstance(driver, BrownianMotion) and check_levy_option(
-        driver.levy_area, method, system
-    )
+    areas = check_levy_option(driver.levy_area, method, system)
     # each start's increments as simulate draws them (its sample i: fold_in(fold_in(key, s), i))
-    dWs, As = [], []
-    for k in range(starts.shape[0]):
-        start_key = jax.random.fold_in(key, k)
-        if isinstance(driver, OrnsteinUhlenbeck):
-            dWs.append(
-                ou_increments(
-                    start_key, lead, dt, driver.correlation_time, n_samples=members, dtype=dtype
-                )
-            )
-        else:
-            out = brownian_increments(
-                start_key,
-                lead,
-                dt,
-                n_samples=members,
-                n_noises=s,
-                levy_area=areas,
-                dtype=dtype,
-                truncate_k=driver.truncate_k,
-            )
-            dWs.append(out[0] if areas else out)
-            As.append(out[1] if areas else None)
-    noise = BrownianStep(jnp.stack(dWs), jnp.stack(As) if areas else None)
+    per_start = [
+        driver.increments(
+            jax.random.fold_in(key, k),
+            lead,
+            dt,
+            n_samples=members,
+            n_noises=s,
+            dtype=dtype,
+            levy_area=areas,
+        )
+        for k in range(starts.shape[0])
+    ]
+    noise = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *per_start)
     y0 = starts.astype(system.algebra.state_dtype(dtype))
     ys, fail_step = _forecasts(
         method, system, y0, noise, jnp.asarray(dt, dtype), every, check_retry(retry_substeps)
