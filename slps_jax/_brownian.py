@@ -266,7 +266,7 @@ def draw_joined(sample_key, n, fine_steps, fine_dt, bound, dtype, n_noises, term
     )
 
 
-class AbstractDraws:
+class AbstractDraws(abc.ABC):
     """The steps' noise of one sample, as the driver's loop draws it: `init`, the state
     before the first step (`()` for none), and `block(state, n0, length, n_live)`, the noises
     of steps `n0 ... n0 + length - 1` (a `BrownianStep` with a leading axis) and the state
@@ -512,7 +512,7 @@ def _brownian_paths(key, path, *, n_samples, n_steps, one_noise, levy_area):
     return jax.tree_util.tree_map(lambda x: x[0], out) if n_samples is None else out
 
 
-class AbstractDriver:
+class AbstractDriver(abc.ABC):
     """What draws an ensemble's noise (`simulate(..., driver=)`): its options, and
     `path(dt, n_noises, dtype, *, levy_area)`, its steps of size `dt` as the driver's loop
     asks for them (an `AbstractPath`); `increments(...)`, the same noise materialised for
