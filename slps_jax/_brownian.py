@@ -315,6 +315,10 @@ class AbstractPath(eqx.Module):
     def draws(self, key) -> AbstractDraws:
         """The noise of the steps of the sample whose key is `key`."""
 
+    def coarsened(self, m, dt) -> AbstractPath:
+        """The same noise in steps `dt` of `m` of this path's steps (where `coarsens`)."""
+        raise TypeError(f"{type(self).__name__} does not coarsen its steps.")
+
 
 class BrownianPath(AbstractPath):
     r"""The Brownian motions of an ensemble, as the driver asks for them: the noise of step

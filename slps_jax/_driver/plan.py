@@ -192,7 +192,7 @@ class EnsemblePlan:
     save_every: int
     retry: int | None
     sharding: object
-    path: _brownian.BrownianPath | _brownian.OrnsteinUhlenbeckPath
+    path: _brownian.AbstractPath
 
     @property
     def dtype(self):

@@ -8,7 +8,7 @@ import functools
 import math
 import sys
 from collections.abc import Callable
-from typing import Any
+from typing import Any, cast
 
 import jax
 import jax.numpy as jnp
@@ -322,7 +322,7 @@ def calibrate(
         tuple((idx // every).tolist()),
         method,
         _brownian.BrownianMotion(
-            truncate_k=brownian.truncate_k,
+            truncate_k=cast(_brownian.BrownianMotion, brownian).truncate_k,
             levy_area=check_levy_option(brownian.levy_area, method, init),
         ),
         retry_substeps,

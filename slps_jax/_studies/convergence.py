@@ -9,7 +9,7 @@ import statistics
 import time
 import warnings
 from collections.abc import Callable
-from typing import Any
+from typing import Any, cast
 
 import jax
 import jax.numpy as jnp
@@ -110,7 +110,8 @@ def _time_changed_flow(system, y0, t1, w_t):
 
 
 def _fine_steps(dt, fine_dt, name):
-    s, ok = steps_on_grid(dt, fine_dt)
+    n, ok = steps_on_grid(dt, fine_dt)
+    s = int(n)
     if not ok:
         raise ValueError(f"{name}={dt} must be an integer multiple of the finest step {fine_dt}.")
     return s
@@ -184,6 +185,7 @@ def _study(
             f"{caller}: driver must be None or sj.BrownianMotion(...) (a study integrates "
             f"Brownian paths at several steps), got {driver!r}."
         )
+    driver = cast(_brownian.BrownianMotion, driver)  # (the driver that coarsens)
     truncate_k, levy_area = driver.truncate_k, driver.levy_area
     if isinstance(methods, dict):
         if not methods:

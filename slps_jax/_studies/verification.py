@@ -96,11 +96,11 @@ def forecast_ensembles(
             f"{system.algebra.name}, got shape {starts.shape}."
         )
     dtype, s = system.dtype, system.n_noises
-    driver = check_driver(BrownianMotion(levy_area=False) if driver is None else driver)
-    areas = check_levy_option(driver.levy_area, method, system)
+    drawer = check_driver(BrownianMotion(levy_area=False) if driver is None else driver)
+    areas = check_levy_option(drawer.levy_area, method, system)
     # each start's increments as simulate draws them (its sample i: fold_in(fold_in(key, s), i))
     per_start = [
-        driver.increments(
+        drawer.increments(
             jax.random.fold_in(key, k),
             lead,
             dt,

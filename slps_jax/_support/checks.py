@@ -127,14 +127,14 @@ def check_throw(throw):
 GRID_RTOL = 1e-9  # how far from the grid a time may be (relative), for rounding
 
 
-def steps_on_grid(span, dt):
-    """`(n, ok)`: the whole numbers of steps `dt` nearest `span / dt` (a number or an array),
-    and whether each span is a positive multiple of `dt` to within `GRID_RTOL` relative.
-    The one grid check of the library: the run's `t1`, a study's steps, observation times."""
+def steps_on_grid(span, dt) -> tuple[np.ndarray, np.ndarray]:
+    """`(n, ok)`, arrays of the shape of `span` (a number or an array): the whole numbers of
+    steps `dt` nearest `span / dt`, and whether each span is a positive multiple of `dt` to
+    within `GRID_RTOL` relative. The one grid check of the library: the run's `t1`, a
+    study's steps, observation times."""
     ratio = np.asarray(span, dtype=float) / float(dt)
     n = np.rint(ratio).astype(int)
-    ok = (n >= 1) & (np.abs(ratio - n) <= GRID_RTOL * np.maximum(1.0, ratio))
-    return (int(n), bool(ok)) if n.ndim == 0 else (n, ok)
+    return n, (n >= 1) & (np.abs(ratio - n) <= GRID_RTOL * np.maximum(1.0, ratio))
 
 
 def check_grid(caller, t1, dt):
@@ -147,7 +147,8 @@ def check_grid(caller, t1, dt):
             "call it outside jax.jit, or use integrate inside."
         )
     dt, t1 = float(dt), float(t1)
-    n_steps, ok = steps_on_grid(t1, dt)
+    n, ok = steps_on_grid(t1, dt)
+    n_steps = int(n)
     if not ok:
         raise ValueError(
             f"t1={t1} must be a positive multiple of dt={dt} (t1/dt = {t1 / dt}); "
