@@ -95,8 +95,9 @@ def newton(fn, x0, *, tol, max_iter, active=True, admissible=None, continuation=
     One `while_loop` whose body is one evaluation of `r` and `J`, the test, and one update
     (a linear solve): the continuation is data in the loop state, not code, so `fn` is
     compiled once. Under `vmap` the loop runs until every sample stops; stopped samples stay
-    unchanged. Where `J` is given as rows (not a function), the body's next state is computed
-    in one kernel on a CPU (`one_kernel`).
+    unchanged. Where `J` is given as rows (not a function), the residual's norm and the
+    update, every value that reads `r` and `J`, are computed in one kernel on a CPU
+    (`one_kernel`).
 
     **Returns:** the final `NewtonState`; `residual` is that of the returned `x` (for a
     successful sample), and a failed sample reports the reason of its last attempt.
@@ -168,18 +169,16 @@ def newton(fn, x0, *, tol, max_iter, active=True, admissible=None, continuation=
 
     def body(s):
         r, jac = evaluate(s)
-        delta = cast(tuple, jac(r)) if callable(jac) else solve_linear(jac, r)
-        t = test(s, max_norm(r))
+        if callable(jac):
+            rnorm, delta = max_norm(r), cast(tuple, jac(r))
+        else:  # every reader of `r` and `J` in one kernel on a CPU (`one_kernel`)
+            rnorm, *delta = one_kernel(max_norm(r), *solve_linear(jac, r))
+        t = test(s, rnorm)
         # no update where the test stopped the sample or began a new continuation stage
         # (`r`, `J` belong to the old one)
         go = (t.result == _RUNNING) & (t.level == s.level) & (t.stage == s.stage)
         x = tuple(jnp.where(go, xi - di, xi) for xi, di in zip(t.x, delta))
-        t = t._replace(x=x, iterations=t.iterations + go, updates=t.updates + go)
-        if callable(jac):
-            return t
-        # the whole next state in one kernel on a CPU (`one_kernel`)
-        leaves, tree = jax.tree_util.tree_flatten(t)
-        return jax.tree_util.tree_unflatten(tree, one_kernel(*leaves))
+        return t._replace(x=x, iterations=t.iterations + go, updates=t.updates + go)
 
     s = init
     for _ in range(unroll):  # straight-line code: XLA fuses it across updates, a loop not
