@@ -369,9 +369,8 @@ class LiePoisson(AbstractMethod):
       the scheme converge to the Stratonovich solution; `False` shows their effect, a bias
       that does not shrink with the step (`tests/test_several_noises.py`).
     - `unroll`: the Newton loop's first bodies made as straight-line code before it (default
-      0): the same iterates and results. `unroll=3` (the updates almost every step needs)
-      makes a step on a CPU 10–15 % faster at about twice the compile time
-      (`benchmarks/newton_fusion.py`): worth it only for large ensembles.
+      0): the same iterates and results, at about twice the compile time. On a CPU it does
+      not pay any more: 8 % slower than the loop (`benchmarks/newton_fusion.py`).
 
     Reference: Q. Liu and L. Wang, *Lie–Poisson numerical method for a class of stochastic
     Lie–Poisson systems*, scheme (42).

@@ -211,6 +211,8 @@ def one_kernel(*xs):
     Each value is paired with a zero and the pair summed, which leaves it unchanged (`x + (-0.0)
     = x`, signed zeros, NaN and infinities included). The pair's axis comes first, so that
     under `vmap` the batch is the reduce's contiguous axis and XLA:CPU emits vector code.
+    (Its values are floats of one precision: integers inside it made XLA:CPU's elemental
+    emitter at optimisation level 0 compile a float32 loop that never ended.)
     Elsewhere (GPUs fuse several outputs) the values pass as they are.
     `benchmarks/newton_fusion.py` measures the loops with and without it, and watches that
     the kernel stays one.
