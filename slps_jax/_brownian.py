@@ -663,10 +663,9 @@ class OrnsteinUhlenbeck(AbstractDriver):
     carries_state: ClassVar[bool] = True
 
     def increments(self, key, n_steps, dt, *, n_samples, n_noises, dtype, levy_area=False):
-        if levy_area:
-            raise ValueError("OrnsteinUhlenbeck: a smooth driver has no Lévy areas.")
-        T = np.broadcast_to(self.correlation_time, (n_noises,))
-        out = ou_increments(key, n_steps, dt, T, n_samples=n_samples, dtype=dtype)
+        # (the path's own checks: no areas, one correlation time per noise)
+        path = self.path(float(dt), n_noises, dtype, levy_area=levy_area)
+        out = _ou_paths(check_key(key), path, n_steps=int(n_steps), n_samples=n_samples)
         return BrownianStep(out, None)
 
     def path(self, dt, n_noises, dtype, *, levy_area=False):
