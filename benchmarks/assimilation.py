@@ -142,13 +142,12 @@ def experiment(
     res = sj.particle_filter(
         model,
         init,
-        ys,
-        obs_times=every * h * np.arange(1, n_obs + 1),
-        observe=observe,
-        obs_std=filter_std,
+        sj.Observations(
+            ys, times=every * h * np.arange(1, n_obs + 1), observe=observe, std=filter_std
+        ),
         dt=h,
         key=jax.random.key(seed),
-        jitter_lag=lag,
+        tempering=sj.Tempering(jitter_lag=lag),
     )
     filter_s = time.perf_counter() - t0
     # (the free ensemble: the filter's initial particles run on without observations)

@@ -52,10 +52,9 @@ def main(argv=None):
                     t1=1.0,
                     dt=dt,
                     n_samples=args.samples,
-                    chunk_size=chunk,
                     key=jax.random.key(0),
                     method=sj.LiePoisson(),
-                    progress=False,
+                    chunks=sj.Chunks(chunk, progress=False),
                 )
             seconds = time.perf_counter() - start
         us = 1e6 * seconds / (args.samples * 32)

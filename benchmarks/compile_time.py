@@ -108,7 +108,14 @@ def measure(name, how, n_samples, n_steps, retry=None, system_name="rigid"):
     else:
         # a class name, or a constructor call such as "LiePoisson(unroll=3)"
         method = eval(name if "(" in name else name + "()", {"__builtins__": {}}, vars(sj))
-        opts = {} if retry is None else {"retry_substeps": None if retry == "none" else int(retry)}
+        # (the failures' keywords: `failures=` now, `throw=`, `retry_substeps=` before it)
+        substeps = (
+            {} if retry is None else {"retry_substeps": None if retry == "none" else int(retry)}
+        )
+        if hasattr(sj, "Failures"):
+            opts = {"failures": sj.Failures(throw=False, **substeps)}
+        else:
+            opts = {"throw": False, **substeps}
         if how == "integrate":
             # (several noises: drawn with the library, with the areas for a method that uses them)
             areas = system.n_noises > 1 and method.uses_levy_area()
@@ -128,7 +135,13 @@ def measure(name, how, n_samples, n_steps, retry=None, system_name="rigid"):
             )
             fn = jax.vmap(
                 lambda dw, a=None: sj.integrate(
-                    system, y0, dw, dt, method=method, throw=False, **{named: a}, **opts
+                    system,
+                    y0,
+                    dw,
+                    dt,
+                    method=method,
+                    **{named: a},
+                    **opts,
                 )
             )
         else:
@@ -142,7 +155,6 @@ def measure(name, how, n_samples, n_steps, retry=None, system_name="rigid"):
                     n_samples=n_samples,
                     key=key,
                     method=method,
-                    throw=False,
                     **opts,
                 ).ys
 

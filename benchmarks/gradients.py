@@ -66,7 +66,11 @@ def main(argv=None):
     retry_kw = (
         {}
         if args.retry is None
-        else {"retry_substeps": None if args.retry == "none" else int(args.retry)}
+        else {
+            "failures": sj.Failures(
+                retry_substeps=None if args.retry == "none" else int(args.retry)
+            )
+        }
     )
     os.makedirs(args.out, exist_ok=True)
     n_samples, n_steps, dt = (50, 32, 2.0**-5) if args.fast else (500, 128, 2.0**-7)

@@ -80,7 +80,7 @@ def run_ours(method, system, y0, t1, h, n_samples, key, save_every):
             key=key,
             method=method,
             save_every=save_every,
-            throw=False,
+            failures=sj.Failures(throw=False),
         )
     ys = np.asarray(sol.ys)
     fail = np.asarray(sol.fail_step)

@@ -39,11 +39,10 @@ def run(n_samples, chunk_size, dt, retry):
             t1=1.0,
             dt=dt,
             n_samples=n_samples,
-            chunk_size=chunk_size,
             key=jax.random.key(0),
-            retry_substeps=retry,
             method=sj.LiePoisson(),
-            progress=False,
+            failures=sj.Failures(retry_substeps=retry),
+            chunks=sj.Chunks(chunk_size, progress=False),
         )
     return st.n_failed, time.perf_counter() - start
 

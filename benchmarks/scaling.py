@@ -64,7 +64,7 @@ def run_simulate(method, n_steps, n_samples, seed=0):
         n_samples=n_samples,
         key=jax.random.key(seed),
         method=METHODS[method],
-        throw=False,
+        failures=sj.Failures(throw=False),
     )
     return jax.block_until_ready(sol.ys)
 
@@ -104,7 +104,9 @@ def compiled_memory(method, n_steps, n_samples):
         def fn(key):
             dW = sj.brownian_increments(key, n_steps, DT, n_samples=n_samples)
             return jax.vmap(
-                lambda d: sj.integrate(system, y0, d, DT, method=sj.Strang(), throw=False)
+                lambda d: sj.integrate(
+                    system, y0, d, DT, method=sj.Strang(), failures=sj.Failures(throw=False)
+                )
             )(dW)
     else:
 
@@ -117,7 +119,7 @@ def compiled_memory(method, n_steps, n_samples):
                 n_samples=n_samples,
                 key=key,
                 method=METHODS[method],
-                throw=False,
+                failures=sj.Failures(throw=False),
             ).ys
 
     m = jax.jit(fn).lower(jax.random.key(0)).compile().memory_analysis()
@@ -164,7 +166,11 @@ def child_rss(method, n_steps, n_samples):
     if method == CONTROL:
         dW = sj.brownian_increments(key, n_steps, DT, n_samples=n_samples)
         ys = jax.jit(
-            jax.vmap(lambda d: sj.integrate(system, y0, d, DT, method=sj.Strang(), throw=False))
+            jax.vmap(
+                lambda d: sj.integrate(
+                    system, y0, d, DT, method=sj.Strang(), failures=sj.Failures(throw=False)
+                )
+            )
         )(dW)
         ys = jax.block_until_ready(ys)
     else:

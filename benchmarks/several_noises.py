@@ -166,10 +166,12 @@ def solver(system, y0, method, h, areas):
     """All samples' final states of `method` on given increments (and areas): one jit."""
     if areas:
         return lambda d, a: jax.vmap(
-            lambda di, ai: sj.integrate(system, y0, di, h, areas=ai, method=method, throw=False)
+            lambda di, ai: sj.integrate(
+                system, y0, di, h, areas=ai, method=method, failures=sj.Failures(throw=False)
+            )
         )(d, a)
     return lambda d, a: jax.vmap(
-        lambda di: sj.integrate(system, y0, di, h, method=method, throw=False)
+        lambda di: sj.integrate(system, y0, di, h, method=method, failures=sj.Failures(throw=False))
     )(d)
 
 
@@ -177,7 +179,14 @@ def count_failed(system, y0, method, h, areas, d, a):
     """Samples whose step failed: `integrate(throw=False)` freezes such a sample, so its last
     two saved states are identical (an untimed extra run)."""
     run = lambda di, ai: sj.integrate(
-        system, y0, di, h, method=method, save_every=1, throw=False, areas=ai if areas else None
+        system,
+        y0,
+        di,
+        h,
+        method=method,
+        save_every=1,
+        areas=ai if areas else None,
+        failures=sj.Failures(throw=False),
     )
     traj = jax.jit(jax.vmap(run))(d, a)
     return int(jnp.sum(jnp.all(traj[:, -1] == traj[:, -2], axis=tuple(range(1, traj.ndim - 1)))))
@@ -509,11 +518,10 @@ def main(argv=None):
                 n_samples=n_samples,
                 key=jax.random.key(0),
                 observable=observable,
-                reference=sj.Midpoint(),
-                reference_factor=factor,
-                retry_substeps=4,
                 methods=chosen,
                 driver=sj.BrownianMotion(levy_area=areas),
+                failures=sj.Failures(retry_substeps=4),
+                reference=sj.Reference(sj.Midpoint(), factor=factor),
             )
             weak.update({n: (res.order[n], res.bias[n], res.ci[n]) for n in chosen})
     for row in summary:
@@ -550,8 +558,8 @@ def main(argv=None):
                 key=key,
                 method=method,
                 save_every=int(round(1 / h_long)),
-                throw=False,
                 driver=sj.BrownianMotion(levy_area=areas),
+                failures=sj.Failures(throw=False),
             )
         ys = np.asarray(sol.ys)
         ok = np.asarray(sol.result) == 0  # failed samples (EulerMaruyama blows up) left out

@@ -71,7 +71,7 @@ def methods(n):
 
 def ours(system, y0, method, h):
     return lambda d: jax.vmap(
-        lambda di: sj.integrate(system, y0, di, h, method=method, throw=False)
+        lambda di: sj.integrate(system, y0, di, h, method=method, failures=sj.Failures(throw=False))
     )(d)
 
 
@@ -222,7 +222,13 @@ def casimirs(n_steps, n_paths):
         ys = jax.jit(
             jax.vmap(
                 lambda d: sj.integrate(
-                    system, y0, d, h, method=m, throw=False, save_every=n_steps // 10
+                    system,
+                    y0,
+                    d,
+                    h,
+                    method=m,
+                    save_every=n_steps // 10,
+                    failures=sj.Failures(throw=False),
                 )
             )
         )(dW)
@@ -273,8 +279,7 @@ def stress(fast):
                                     n_samples=8 if fast else 200,
                                     key=jax.random.key(0),
                                     method=m,
-                                    throw=False,
-                                    retry_substeps=retry,
+                                    failures=sj.Failures(retry_substeps=retry, throw=False),
                                 )
                             key = "failed" if retry is None else "failed_retry4"
                             row[key] = int(sol.stats["n_failed"])

@@ -52,11 +52,10 @@ def child(n_samples, chunk_size):
         t1=T1,
         dt=DT,
         n_samples=n_samples,
-        chunk_size=chunk_size,
         key=jax.random.key(0),
-        statistics=("mean", "var", "cov"),
         method=sj.LiePoisson(),
-        progress=False,
+        chunks=sj.Chunks(chunk_size, progress=False),
+        statistics=sj.Statistics(("mean", "var", "cov")),
     )
     seconds = time.perf_counter() - start
     hwm = scaling._status_kb("VmHWM")

@@ -212,9 +212,8 @@ def run_cell(settings, method_name, seed=0):
             n_samples=s["n_samples"],
             key=key,
             method=method,
-            throw=False,
             newton_stats=True,
-            retry_substeps=retry,
+            failures=sj.Failures(retry_substeps=retry, throw=False),
         )
         ys = np.asarray(jax.block_until_ready(sol.ys), np.float64)
     wall = time.perf_counter() - start
@@ -311,8 +310,7 @@ def run_noise_cell(settings, method_name, seed=0):
             n_samples=s["n_samples"],
             key=jax.random.key(seed),
             method=method,
-            throw=False,
-            retry_substeps=retry,
+            failures=sj.Failures(retry_substeps=retry, throw=False),
         )
         ys = np.asarray(jax.block_until_ready(sol.ys), np.float64)
     wall = time.perf_counter() - start

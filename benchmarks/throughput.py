@@ -85,7 +85,7 @@ def runner(name, system, y0):
                 n_samples=n_samples,
                 key=key,
                 method=method,
-                throw=False,
+                failures=sj.Failures(throw=False),
             )
             return jax.block_until_ready(sol.ys[:, -1])
 

@@ -44,7 +44,12 @@ def case(M, N, windows=WINDOWS, window=WINDOW, members=MEMBERS):
     h = 0.64 / M
     steps = windows * window  # (steps + 1 snapshots: windows windows and one left over)
     run = lambda w: sj.integrate(
-        sj.EulerZeitlin(M), w, np.zeros((steps, 1)), h, save_every=1, throw=False
+        sj.EulerZeitlin(M),
+        w,
+        np.zeros((steps, 1)),
+        h,
+        save_every=1,
+        failures=sj.Failures(throw=False),
     )
     w0 = initial(M, degrees=range(1, min(10, M - 1) + 1), decay=1)
     jax.block_until_ready(run(w0))  # (compiles)
@@ -60,7 +65,15 @@ def case(M, N, windows=WINDOWS, window=WINDOW, members=MEMBERS):
     system = sj.EulerZeitlin(N, noise=fit.noise)
     x0 = zeitlin.truncate(fine[-1], N)
     ensemble = lambda key: (
-        sj.simulate(system, x0, t1=window * h, dt=h, n_samples=members, key=key, throw=False).ys
+        sj.simulate(
+            system,
+            x0,
+            t1=window * h,
+            dt=h,
+            n_samples=members,
+            key=key,
+            failures=sj.Failures(throw=False),
+        ).ys
     )
     start = time.perf_counter()
     jax.block_until_ready(ensemble(jax.random.key(0)))

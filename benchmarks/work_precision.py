@@ -182,9 +182,11 @@ def build(name, system, y0, h, n_steps, h_fine, data):
         method = OURS[name]
 
         def fn(dW):
-            return jax.vmap(lambda d: sj.integrate(system, y0, d, h, method=method, throw=False))(
-                dW
-            )
+            return jax.vmap(
+                lambda d: sj.integrate(
+                    system, y0, d, h, method=method, failures=sj.Failures(throw=False)
+                )
+            )(dW)
 
         return fn, (data["coarse"](n_steps),), "shared"
     if name == SCAN_HEUN:
@@ -220,7 +222,11 @@ def count_failed(system, y0, dW, h, method):
     """Samples whose Newton solve failed: `integrate(throw=False)` freezes such a sample at
     its last good state, so its last two saved states are identical (an untimed extra run)."""
     traj = jax.jit(
-        jax.vmap(lambda d: sj.integrate(system, y0, d, h, method=method, save_every=1, throw=False))
+        jax.vmap(
+            lambda d: sj.integrate(
+                system, y0, d, h, method=method, save_every=1, failures=sj.Failures(throw=False)
+            )
+        )
     )(dW)
     return int(jnp.sum(jnp.all(traj[:, -1] == traj[:, -2], axis=-1)))
 

@@ -79,7 +79,9 @@ METHODS = {
 
 
 def _integrate(system, y0, method):
-    return lambda d: sj.integrate(system, y0, d, H, method=method, throw=False)
+    return lambda d: sj.integrate(
+        system, y0, d, H, method=method, failures=sj.Failures(throw=False)
+    )
 
 
 def _one_path(system, w0, method, n_steps, h=H, **kwargs):
@@ -261,13 +263,18 @@ def scale(ns, dtypes, budget_s, members, member_ns, write):
                 w,
                 d,
                 0.64 / N,
-                throw=False,
                 method=sj.IsospectralMidpoint(),
+                failures=sj.Failures(throw=False),
             )
             parts["step_ms"] = (step, (w0, jnp.zeros((1, 1), real)))
             ensemble = jax.vmap(  # (the model an argument: its tables are not compiled in)
                 lambda m, w, d: sj.integrate(
-                    m, w, d, 0.64 / N, throw=False, method=sj.IsospectralMidpoint()
+                    m,
+                    w,
+                    d,
+                    0.64 / N,
+                    method=sj.IsospectralMidpoint(),
+                    failures=sj.Failures(throw=False),
                 ),
                 in_axes=(None, 0, 0),
             )
@@ -280,7 +287,13 @@ def scale(ns, dtypes, budget_s, members, member_ns, write):
                 jax.random.key(N), 1, 0.64 / N, n_noises=8, levy_area=True
             )
             areas = lambda m, w, d, a: sj.integrate(
-                m, w, d, 0.64 / N, areas=a, throw=False, method=sj.IsospectralMidpoint()
+                m,
+                w,
+                d,
+                0.64 / N,
+                areas=a,
+                method=sj.IsospectralMidpoint(),
+                failures=sj.Failures(throw=False),
             )
             parts["step_8_areas_ms"] = (areas, (noisy, w0, dW8.astype(real), A8.astype(real)))
             if N in member_ns:
@@ -304,7 +317,7 @@ def scale(ns, dtypes, budget_s, members, member_ns, write):
                     None if ensemble_ms is None else ensemble_ms / (4 * members)
                 )
             if row["step_ms"] is not None:
-                sol = _one_path(system, w0, sj.IsospectralMidpoint(), 1, 0.64 / N, throw=False)
+                sol = _one_path(system, w0, sj.IsospectralMidpoint(), 1, 0.64 / N)
                 row["updates"] = float(sol.stats["newton_iterations_mean"])
                 final = 8 if sj.IsospectralMidpoint()._cayley(system, dtype) else 0
                 row["products"] = 2 * row["updates"] + final
@@ -408,7 +421,7 @@ def economy(ns, dtypes, n_steps, write, options=None, members=0, member_ns=()):
                     )
             for name, kw in options.items():
                 method = sj.IsospectralMidpoint(**kw)
-                run = lambda m=method: _one_path(system, w0, m, n_steps, h, throw=False)
+                run = lambda m=method: _one_path(system, w0, m, n_steps, h)
                 start = time.perf_counter()
                 jax.block_until_ready(run())
                 first = time.perf_counter() - start
@@ -433,7 +446,12 @@ def economy(ns, dtypes, n_steps, write, options=None, members=0, member_ns=()):
                 dWs = jnp.zeros((members, n_steps, 1), real)
                 fn = jax.vmap(
                     lambda s, w, d: sj.integrate(
-                        s, w, d, h, method=sj.IsospectralMidpoint(), throw=False
+                        s,
+                        w,
+                        d,
+                        h,
+                        method=sj.IsospectralMidpoint(),
+                        failures=sj.Failures(throw=False),
                     ),
                     in_axes=(None, 0, 0),
                 )
@@ -519,7 +537,7 @@ def store_cost(N, n_steps, save_every, n_samples, directory):
     def to_store():
         shutil.rmtree(path, ignore_errors=True)
         return sj.simulate_to_store(
-            system, w0, path, save_every=save_every, progress=False, **args
+            system, w0, sj.Store(path, progress=False), save_every=save_every, **args
         ).read("energy")
 
     out = dict(N=N, steps=n_steps, save_every=save_every, samples=n_samples)
@@ -580,7 +598,12 @@ def breakdown(N, members, big_N, write):
         for final in ("explicit", "cayley"):
             ensemble = jax.vmap(
                 lambda m, x, d, f=final: sj.integrate(
-                    m, x, d, 0.64 / N, throw=False, method=sj.IsospectralMidpoint(final_update=f)
+                    m,
+                    x,
+                    d,
+                    0.64 / N,
+                    method=sj.IsospectralMidpoint(final_update=f),
+                    failures=sj.Failures(throw=False),
                 ),
                 in_axes=(None, 0, 0),
             )
@@ -603,7 +626,12 @@ def breakdown(N, members, big_N, write):
     system = sj.EulerZeitlin(big_N, dtype=jnp.complex64)
     for final in ("explicit", "cayley"):
         step = lambda m, x, d, f=final: sj.integrate(
-            m, x, d, 0.64 / big_N, throw=False, method=sj.IsospectralMidpoint(final_update=f)
+            m,
+            x,
+            d,
+            0.64 / big_N,
+            method=sj.IsospectralMidpoint(final_update=f),
+            failures=sj.Failures(throw=False),
         )
         dW = jnp.zeros((2, 1), jnp.float32)
         timed(f"{label} step, {final}", jnp.complex64, step, system, w, dW, per=2)

@@ -97,8 +97,8 @@ def _runner(system, w0, h, n_steps):
             dt=h,
             n_samples=1,
             key=jax.random.key(0),
-            throw=False,
             newton_stats=stats,
+            failures=sj.Failures(throw=False),
         )
         return sol if stats else sol.ys
 
@@ -262,7 +262,9 @@ def transport(N=128, n_steps=32):
         ),
     ]
     dW, A = sj.brownian_increments(jax.random.key(1), n_steps, h, n_noises=8, levy_area=True)
-    given = jax.jit(lambda m, w, d, a: sj.integrate(m, w, d, h, areas=a, throw=False))
+    given = jax.jit(
+        lambda m, w, d, a: sj.integrate(m, w, d, h, areas=a, failures=sj.Failures(throw=False))
+    )
     med = _common.time_call(given, noisy, w0, dW, A, repeats=5)[0]
     rows.append(("8 noises with areas given (integrate)", 1e3 * med / n_steps, None))
     base = rows[0][1]

@@ -57,11 +57,9 @@ def run(sharding=None):
         t1=0.5,
         dt=2.0**-6,
         n_samples=200,
-        chunk_size=64,
         key=jax.random.key(2),
-        statistics=("mean", "var"),
-        sharding=sharding,
-        progress=False,
+        chunks=sj.Chunks(64, sharding=sharding, progress=False),
+        statistics=sj.Statistics(("mean", "var")),
     )
     return sol, stats
 

@@ -39,11 +39,14 @@ from ._brownian import brownian_increments as brownian_increments
 from ._brownian import ou_increments as ou_increments
 
 # Driver
+from ._driver.failures import Failures as Failures
 from ._driver.integrate import integrate as integrate
 from ._driver.integrate import simulate as simulate
 from ._driver.long_run import simulate_to_store as simulate_to_store
 from ._driver.plan import default_method as default_method
+from ._driver.stream import Chunks as Chunks
 from ._driver.stream import EnsembleStatistics as EnsembleStatistics
+from ._driver.stream import Statistics as Statistics
 from ._driver.stream import ensemble_statistics as ensemble_statistics
 
 # Methods
@@ -65,11 +68,16 @@ from ._methods.strang import Strang4 as Strang4
 
 # Studies
 from ._studies.assimilation import FilterResult as FilterResult
+from ._studies.assimilation import Observations as Observations
+from ._studies.assimilation import Tempering as Tempering
 from ._studies.assimilation import assimilate as assimilate
 from ._studies.calibrate import CalibrationResult as CalibrationResult
+from ._studies.calibrate import ObservedStatistics as ObservedStatistics
+from ._studies.calibrate import Optimisation as Optimisation
 from ._studies.calibrate import calibrate as calibrate
 from ._studies.calibrate import moments as moments
 from ._studies.convergence import ConvergenceResult as ConvergenceResult
+from ._studies.convergence import Reference as Reference
 from ._studies.convergence import WeakConvergenceResult as WeakConvergenceResult
 from ._studies.convergence import strong_convergence as strong_convergence
 from ._studies.convergence import weak_convergence as weak_convergence
@@ -82,6 +90,7 @@ from ._studies.scores import forecast_scores as forecast_scores
 from ._studies.scores import paired_comparison as paired_comparison
 from ._studies.transport_fit import TransportNoiseFit as TransportNoiseFit
 from ._studies.transport_fit import fit_transport_noise as fit_transport_noise
+from ._studies.verification import AmplitudeSearch as AmplitudeSearch
 from ._studies.verification import AmplitudeTuning as AmplitudeTuning
 from ._studies.verification import ModelErrorVariance as ModelErrorVariance
 from ._studies.verification import forecast_ensembles as forecast_ensembles
@@ -99,6 +108,7 @@ from ._support.solution import Solution as Solution
 # Long runs on disk (needs zarr: pip install "slps-jax[store]")
 from ._support.store import Checkpoint as Checkpoint
 from ._support.store import RunStore as RunStore
+from ._support.store import Store as Store
 from ._support.store import StoredRun as StoredRun
 from ._support.store import open_run as open_run
 
@@ -130,11 +140,14 @@ __all__ = [
     "OrnsteinUhlenbeck",
     "brownian_increments",
     "ou_increments",
+    "Failures",
     "integrate",
     "simulate",
     "simulate_to_store",
     "default_method",
+    "Chunks",
     "EnsembleStatistics",
+    "Statistics",
     "ensemble_statistics",
     "AbstractMethod",
     "StepInfo",
@@ -152,11 +165,16 @@ __all__ = [
     "Strang",
     "Strang4",
     "FilterResult",
+    "Observations",
+    "Tempering",
     "assimilate",
     "CalibrationResult",
+    "ObservedStatistics",
+    "Optimisation",
     "calibrate",
     "moments",
     "ConvergenceResult",
+    "Reference",
     "WeakConvergenceResult",
     "strong_convergence",
     "weak_convergence",
@@ -169,6 +187,7 @@ __all__ = [
     "paired_comparison",
     "TransportNoiseFit",
     "fit_transport_noise",
+    "AmplitudeSearch",
     "AmplitudeTuning",
     "ModelErrorVariance",
     "forecast_ensembles",
@@ -180,6 +199,7 @@ __all__ = [
     "Solution",
     "Checkpoint",
     "RunStore",
+    "Store",
     "StoredRun",
     "open_run",
     "load",

@@ -66,7 +66,7 @@ def summary(n_samples=500, fast=False, seed=0):
     for name, method in methods.items():
         start = time.perf_counter()
         sol = sj.simulate(
-            system, y0, t1=n_steps * dt, dt=dt, n_samples=n_inv, key=key, method=method, throw=False
+            system, y0, t1=n_steps * dt, dt=dt, n_samples=n_inv, key=key, method=method
         )
         y_end = sol.ys[:, -1]
         dc = float(jnp.max(jnp.abs(system.casimir(y_end) / c0 - 1)))
@@ -88,7 +88,6 @@ def summary(n_samples=500, fast=False, seed=0):
             key=key,
             method=sj.LiePoisson(),
             newton_stats=True,
-            throw=False,
         )
         s = sol.stats
         say(

@@ -187,7 +187,9 @@ def animate(
 
     if hasattr(states, "read") and hasattr(states, "fields"):
         if "state" not in states.fields:
-            raise ValueError("animate: this stored run kept no states (save_states=False).")
+            raise ValueError(
+                "animate: this stored run kept no states (Store(..., save_states=False))."
+            )
         times = states.times if times is None else times
         states = states.read("state")[:, sample]
     W = _states(states)

@@ -4,6 +4,7 @@ no deprecation shims (no release has had other names)."""
 
 import ast
 import importlib
+import inspect
 import pathlib
 import types
 
@@ -81,6 +82,47 @@ def test_no_deprecation_shims():
 
 def test_the_shim_check_sees_a_shim():
     assert _deprecations("import warnings\nwarnings.warn('old', DeprecationWarning)\n") == [2]
+
+
+MAX_PARAMETERS = 12  # a public function's parameters at most: options that recur are objects
+
+
+def _too_many_parameters(module):
+    """`name: count` of the public functions and public classes' constructors and methods
+    of `module` with more than `MAX_PARAMETERS` parameters (`self` not counted)."""
+    out = {}
+    for name in module.__all__:
+        value = getattr(module, name)
+        found = []
+        if isinstance(value, types.FunctionType):
+            found.append((name, value, 0))
+        elif isinstance(value, type) and value.__module__.startswith("slps_jax"):
+            found.append((name, value, 0))
+            for attr, fn in vars(value).items():
+                if isinstance(fn, types.FunctionType) and not attr.startswith("_"):
+                    found.append((f"{name}.{attr}", fn, 1))
+        for label, fn, bound in found:
+            try:
+                count = len(inspect.signature(fn).parameters) - bound
+            except (TypeError, ValueError):  # (a class without an inspectable constructor)
+                continue
+            if count > MAX_PARAMETERS:
+                out[label] = count
+    return out
+
+
+@pytest.mark.parametrize("name", PUBLIC_MODULES)
+def test_no_public_function_takes_more_than_twelve_parameters(name):
+    too_many = _too_many_parameters(importlib.import_module(name))
+    assert not too_many, f"{name}: more than {MAX_PARAMETERS} parameters: {too_many}"
+
+
+def test_the_parameter_check_sees_a_long_signature():
+    module = types.ModuleType("fake")
+    exec("def long(" + ", ".join(f"a{i}" for i in range(13)) + "): pass", vars(module))
+    exec("def short(a, b): pass", vars(module))
+    module.__all__ = ["long", "short"]
+    assert _too_many_parameters(module) == {"long": 13}
 
 
 # A Module subclassed by others although concrete, and why (the one left to split)

@@ -154,16 +154,11 @@ def test_a_linear_gaussian_model_gives_the_kalman_filter_within_monte_carlo_erro
     res = da.assimilate(
         forecast,
         x0,
-        ys,
-        observe=(lambda s: s[0]) if driven else (lambda s: s),
-        obs_std=np.sqrt(r),
+        da.Observations(ys, observe=(lambda s: s[0]) if driven else (lambda s: s), std=np.sqrt(r)),
         increments_shape=shape,
         dt=dt,
         key=jax.random.key(2),
-        ess_threshold=0.5,
-        jitter_steps=5,
-        jitter_rho=0.8,
-        jitter_lag=lag,
+        tempering=da.Tempering(ess_threshold=0.5, jitter_steps=5, jitter_rho=0.8, jitter_lag=lag),
     )
     particles = res.particles[0] if driven else res.particles
     m, p, log_z = m0, p0, 0.0
@@ -186,20 +181,26 @@ def test_a_linear_gaussian_model_gives_the_kalman_filter_within_monte_carlo_erro
 
 def test_assimilate_refuses_bad_input_by_name():
     forecast, _, _ = _ou_model()
-    kw = dict(
-        observe=lambda s: s, obs_std=0.1, increments_shape=(8,), dt=0.05, key=jax.random.key(0)
-    )
+    kw = dict(increments_shape=(8,), dt=0.05, key=jax.random.key(0))
     good, ys = np.zeros((4, 1)), np.zeros((2, 1))
+
+    def observed(values, observe=lambda s: s, std=0.1, **more):
+        return da.Observations(values, observe=observe, std=std, **more)
+
     with pytest.raises(ValueError, match="particles"):
-        da.assimilate(forecast, np.zeros((1, 1)), ys, **kw)
-    with pytest.raises(ValueError, match="observations"):
-        da.assimilate(forecast, good, np.array([[np.nan]]), **kw)
-    with pytest.raises(ValueError, match="obs_std"):
-        da.assimilate(forecast, good, ys, **{**kw, "obs_std": 0.0})
+        da.assimilate(forecast, np.zeros((1, 1)), observed(ys), **kw)
+    with pytest.raises(ValueError, match="observations' values"):
+        da.assimilate(forecast, good, observed(np.array([[np.nan]])), **kw)
+    with pytest.raises(ValueError, match="observations' std"):
+        da.assimilate(forecast, good, observed(ys, std=0.0), **kw)
     with pytest.raises(ValueError, match="observe"):
-        da.assimilate(forecast, good, ys, **{**kw, "observe": lambda s: jnp.concatenate([s, s])})
+        da.assimilate(forecast, good, observed(ys, lambda s: jnp.concatenate([s, s])), **kw)
+    with pytest.raises(ValueError, match="without times"):
+        da.assimilate(forecast, good, observed(ys, times=[1.0, 2.0]), **kw)
+    with pytest.raises(TypeError, match="Observations"):
+        da.assimilate(forecast, good, ys, **kw)
     with pytest.raises(ValueError, match="jitter_lag"):
-        da.assimilate(forecast, good, ys, **kw, jitter_lag=0)
+        da.assimilate(forecast, good, observed(ys), **kw, tempering=da.Tempering(jitter_lag=0))
 
 
 def _so4_setup():
@@ -230,17 +231,15 @@ def _so4_filter(system, y0, ys, n, obs_times, *, key, **options):
     return sj.particle_filter(
         system,
         np.broadcast_to(y0, (n, 4, 4)),
-        ys,
-        obs_times=obs_times,
-        observe=_observe,
-        obs_std=0.05,
+        sj.Observations(ys, times=obs_times, observe=_observe, std=0.05),
         dt=_H,
         key=jax.random.key(key),
         **options,
     )
 
 
-_STORED = dict(obs_times=[0.25, 0.5, 0.75], key=3, jitter_steps=2, jitter_lag=2)
+_TIMES = [0.25, 0.5, 0.75]
+_STORED = dict(key=3, tempering=da.Tempering(jitter_steps=2, jitter_lag=2))
 
 
 @pytest.fixture(scope="module")
@@ -249,8 +248,7 @@ def so4_run():
     sj, system, y0 = _so4_setup()
     truth = sj.integrate(system, y0, 0.1 * np.ones((16, 3)), _H)
     ys = np.stack([_observe(truth)] * 3) + 0.01
-    opts = {k: v for k, v in _STORED.items() if k != "obs_times"}
-    return sj, system, y0, ys, _so4_filter(system, y0, ys, 16, _STORED["obs_times"], **opts)
+    return sj, system, y0, ys, _so4_filter(system, y0, ys, 16, _TIMES, **_STORED)
 
 
 def test_every_analysis_particle_stays_on_its_coadjoint_orbit(so4_run):
@@ -276,50 +274,67 @@ def test_the_filter_on_disk_resumes_and_extends_bit_for_bit(so4_run, tmp_path, m
     monkeypatch.setattr(_progress, "interactive", lambda: True)
     sj, system, y0, ys, res = so4_run
     path = tmp_path / "filter"
-    times, kw = _STORED["obs_times"], dict(_STORED, key=jax.random.key(_STORED["key"]))
-    kw.update(observe=_observe, obs_std=0.05, dt=_H)
-    del kw["obs_times"]
+    kw = dict(_STORED, key=jax.random.key(_STORED["key"]), dt=_H)
+
+    def observed(values):
+        return sj.Observations(values, times=_TIMES[: len(values)], observe=_observe, std=0.05)
+
     x = np.broadcast_to(y0, (16, 4, 4))
-    first = sj.particle_filter_to_store(system, x, ys[:2], path, obs_times=times[:2], **kw)
+    first = sj.particle_filter_to_store(system, x, observed(ys[:2]), sj.Store(path), **kw)
     assert len(first) == 2 and "2/2" in capsys.readouterr().err
-    kw["progress"] = False
-    run = sj.particle_filter_to_store(system, x, ys, path, obs_times=times, resume=True, **kw)
+    resume = sj.Store(path, resume=True, progress=False)
+    run = sj.particle_filter_to_store(system, x, observed(ys), resume, **kw)
     assert capsys.readouterr().err == ""
     assert np.array_equal(run.read("state"), np.asarray(res.particles))
     assert np.array_equal(run.read("ess"), np.asarray(res.ess))
     assert np.array_equal(run.read("log_evidence"), np.asarray(res.log_evidence))
-    assert np.array_equal(run.read("observation"), ys) and np.allclose(run.times, times)
+    assert np.array_equal(run.read("observation"), ys) and np.allclose(run.times, _TIMES)
     with pytest.raises(ValueError, match="observations differ"):
-        sj.particle_filter_to_store(system, x, ys + 1e-3, path, obs_times=times, resume=True, **kw)
+        sj.particle_filter_to_store(system, x, observed(ys + 1e-3), resume, **kw)
     with pytest.raises(ValueError, match="options"):
+        other = {**kw, "tempering": sj.Tempering(jitter_steps=1, jitter_lag=2)}
+        sj.particle_filter_to_store(system, x, observed(ys), resume, **other)
+    with pytest.raises(ValueError, match="simulate_to_store's"):
         sj.particle_filter_to_store(
-            system, x, ys, path, obs_times=times, resume=True, **{**kw, "jitter_steps": 1}
+            system, x, observed(ys), sj.Store(path, resume=True, save_states=False), **kw
         )
-    with pytest.raises(FileExistsError, match=r"particle_filter_to_store\(\.\.\., resume=True\)"):
-        sj.particle_filter_to_store(system, x, ys, path, obs_times=times, **kw)
+    again = r"particle_filter_to_store\(\.\.\., Store\(\.\.\., resume=True\)\)"
+    with pytest.raises(FileExistsError, match=again):
+        sj.particle_filter_to_store(system, x, observed(ys), sj.Store(path), **kw)
 
 
 def test_particle_filter_refuses_bad_times_and_particles_by_name():
     sj, system, y0 = _so4_setup()
     x, ys = np.broadcast_to(y0, (4, 4, 4)), np.zeros((2, 3))
-    kw = dict(observe=lambda y: y[0, 1:], obs_std=0.1, dt=0.25, key=jax.random.key(0))
+    kw = dict(dt=0.25, key=jax.random.key(0))
+
+    def observed(times):
+        return sj.Observations(ys, times=times, observe=lambda y: y[0, 1:], std=0.1)
+
     for times, what in [
         ([0.5, 0.5], "increasing"),
         ([0.5, 0.25], "increasing"),
         ([0.3, 0.6], "grid"),
         ([0.5, 1.25], "equally spaced"),
     ]:
-        with pytest.raises(ValueError, match=f"obs_times must be .*{what}"):
-            sj.particle_filter(system, x, ys, obs_times=times, **kw)
+        with pytest.raises(ValueError, match=f"observation times must be .*{what}"):
+            sj.particle_filter(system, x, observed(times), **kw)
+    good = observed([0.5, 1.0])
+    with pytest.raises(ValueError, match="need their times"):
+        sj.particle_filter(
+            system, x, sj.Observations(ys, observe=lambda y: y[0, 1:], std=0.1), **kw
+        )
     with pytest.raises(ValueError, match="particles"):
-        sj.particle_filter(system, x[:1], ys, obs_times=[0.5, 1.0], **kw)
+        sj.particle_filter(system, x[:1], good, **kw)
     with pytest.raises(ValueError, match="y0"):  # a particle that is not a state
-        sj.particle_filter(system, np.ones((4, 4, 4)), ys, obs_times=[0.5, 1.0], **kw)
+        sj.particle_filter(system, np.ones((4, 4, 4)), good, **kw)
     one = jax.sharding.SingleDeviceSharding(jax.devices()[0])
     with pytest.raises(ValueError, match="chunk_size or sharding"):
-        sj.particle_filter(system, x, ys, obs_times=[0.5, 1.0], chunk_size=2, sharding=one, **kw)
+        sj.particle_filter(system, x, good, chunk_size=2, sharding=one, **kw)
+    with pytest.raises(ValueError, match="throw=True"):
+        sj.particle_filter(system, x, good, failures=sj.Failures(throw=True), **kw)
     with pytest.raises(ValueError, match="jitter_lag"):
-        sj.particle_filter(system, x, ys, obs_times=[0.5, 1.0], jitter_lag=0, **kw)
+        sj.particle_filter(system, x, good, **kw, tempering=sj.Tempering(jitter_lag=0))
 
 
 def test_complex_states_get_real_increments_and_keep_their_orbit():
@@ -335,13 +350,10 @@ def test_complex_states_get_real_increments_and_keep_their_orbit():
     res = sj.particle_filter(
         system,
         np.broadcast_to(w0, (n, N, N)),
-        ys,
-        obs_times=[0.2, 0.4],
-        observe=observe,
-        obs_std=0.05,
+        sj.Observations(ys, times=[0.2, 0.4], observe=observe, std=0.05),
         dt=h,
         key=jax.random.key(0),
-        jitter_steps=1,
+        tempering=sj.Tempering(jitter_steps=1),
     )
     assert res.particles.shape == (2, n, N, N) and jnp.iscomplexobj(res.particles)
     assert not jnp.iscomplexobj(res.ess) and not jnp.iscomplexobj(res.log_evidence)
@@ -355,8 +367,9 @@ def test_chunking_the_particles_does_not_change_the_filter():
     # the filter gives what it gives with every particle at once
     _, system, y0 = _so4_setup()
     ys = np.stack([np.asarray(_observe(y0))] * 2) + 0.01
+    one_move = da.Tempering(jitter_steps=1)
     run = lambda chunk: _so4_filter(
-        system, y0, ys, 8, [0.125, 0.25], key=5, jitter_steps=1, chunk_size=chunk
+        system, y0, ys, 8, [0.125, 0.25], key=5, tempering=one_move, chunk_size=chunk
     )
     whole, chunked = run(None), run(3)
     # another filter of the same configuration (other observations) compiles nothing again
@@ -364,7 +377,7 @@ def test_chunking_the_particles_does_not_change_the_filter():
     listener = lambda name, seconds, **kw: events.append(kw) if "backend_compile" in name else None
     jax.monitoring.register_event_duration_secs_listener(listener)
     try:
-        _so4_filter(system, y0, ys + 0.01, 8, [0.125, 0.25], key=6, jitter_steps=1)
+        _so4_filter(system, y0, ys + 0.01, 8, [0.125, 0.25], key=6, tempering=one_move)
     finally:
         jax.monitoring.unregister_event_duration_listener(listener)
     assert events == []
@@ -384,50 +397,57 @@ def test_an_ornstein_uhlenbeck_driver_keeps_orbits_and_resumes_from_disk(tmp_pat
     sj, system, y0 = _so4_setup()
     ys = np.stack([np.asarray(_observe(y0))] * 2) + 0.01
     x = np.broadcast_to(y0, (8, 4, 4))
-    kw = dict(observe=_observe, obs_std=0.05, dt=_H, key=jax.random.key(4), jitter_steps=1)
+    kw = dict(dt=_H, key=jax.random.key(4), tempering=sj.Tempering(jitter_steps=1))
+
+    def observed(values):
+        times = [0.125, 0.25][: len(values)]
+        return sj.Observations(values, times=times, observe=_observe, std=0.05)
+
     driver = sj.OrnsteinUhlenbeck([0.2, 0.3, 0.5])
-    res = sj.particle_filter(system, x, ys, obs_times=[0.125, 0.25], driver=driver, **kw)
+    res = sj.particle_filter(system, x, observed(ys), driver=driver, **kw)
     assert res.particles.shape == (2, 8, 4, 4) and res.mean.shape == (2, 4, 4)
     c0 = np.asarray(sj.so(4).casimirs(y0))
     assert np.max(np.abs(np.asarray(sj.so(4).casimirs(res.particles)) / c0 - 1)) < 1e-12
     assert np.ptp(np.asarray(res.particles[-1]), axis=0).max() > 1e-4  # (the traces drive)
-    path, disk = tmp_path / "ou", dict(kw, driver=driver, progress=False)
-    sj.particle_filter_to_store(system, x, ys[:1], path, obs_times=[0.125], **disk)
-    run = sj.particle_filter_to_store(
-        system, x, ys, path, obs_times=[0.125, 0.25], resume=True, **disk
-    )
+    path, disk = tmp_path / "ou", dict(kw, driver=driver)
+    sj.particle_filter_to_store(system, x, observed(ys[:1]), sj.Store(path, progress=False), **disk)
+    resume = sj.Store(path, resume=True, progress=False)
+    run = sj.particle_filter_to_store(system, x, observed(ys), resume, **disk)
     assert np.array_equal(run.read("state"), np.asarray(res.particles))
     with pytest.raises(ValueError, match="4 correlation times"):
         sj.particle_filter(
-            system,
-            x,
-            ys,
-            obs_times=[0.125, 0.25],
-            **{**kw, "driver": sj.OrnsteinUhlenbeck([1.0, 2.0, 3.0, 4.0])},
+            system, x, observed(ys), **kw, driver=sj.OrnsteinUhlenbeck([1.0, 2.0, 3.0, 4.0])
         )
     with pytest.raises(TypeError, match="driver"):
-        sj.particle_filter(
-            system, x, ys, obs_times=[0.125, 0.25], **{**kw, "driver": sj.BrownianMotion()}
-        )
+        sj.particle_filter(system, x, observed(ys), **kw, driver=sj.BrownianMotion())
 
 
 BAD_FILTER = [
-    (dict(obs_times=[0.5, 1.0, 1.5]), ValueError, "obs_times has 3 times for 4 observations"),
+    (dict(times=[0.5, 1.0, 1.5]), ValueError, "have 3 times for 4 values"),
+    (dict(key=0), TypeError, r"pass jax.random.key\(0\)"),
+    (dict(std=[0.1, 0.1]), ValueError, r"std must be a scalar or one error .*\(3,\)"),
+    (dict(std=[0.1, 1e-17, 0.1]), ValueError, r"std is 1.0e-17 at observed quantities \[1\]"),
+    (dict(std=-0.1), ValueError, "std must be positive"),
+    (dict(particles="one"), ValueError, r"particles must be n >= 2 states .*one state"),
+    (dict(tempering=None), TypeError, "tempering must be a Tempering"),
+    (dict(observations=np.zeros((4, 3))), TypeError, "observations must be an Observations"),
+]
+
+
+BAD_TEMPERING = [
     (dict(ess_threshold=1.5), ValueError, r"ess_threshold must be a number in \(0, 1\]"),
     (dict(ess_threshold=-0.5), ValueError, "ess_threshold"),
     (dict(jitter_steps=-1), ValueError, "jitter_steps must be an integer >= 0"),
     (dict(jitter_steps=1.5), ValueError, "jitter_steps"),
     (dict(jitter_rho=1.5), ValueError, r"jitter_rho must be a number in \[0, 1\]"),
-    (dict(key=0), TypeError, r"pass jax.random.key\(0\)"),
-    (dict(obs_std=[0.1, 0.1]), ValueError, r"obs_std must be a scalar or one error .*\(3,\)"),
-    (
-        dict(obs_std=[0.1, 1e-17, 0.1]),
-        ValueError,
-        r"obs_std is 1.0e-17 at observed quantities \[1\]",
-    ),
-    (dict(obs_std=-0.1), ValueError, "obs_std must be positive"),
-    (dict(particles="one"), ValueError, r"particles must be n >= 2 states .*one state"),
+    (dict(jitter_lag=0), ValueError, "jitter_lag"),
 ]
+
+
+@pytest.mark.parametrize("bad,exc,match", BAD_TEMPERING)
+def test_tempering_refuses_bad_options_by_name(bad, exc, match):
+    with pytest.raises(exc, match=f"^Tempering: {match}"):
+        da.Tempering(**bad)
 
 
 @pytest.mark.parametrize("bad,exc,match", BAD_FILTER)
@@ -438,16 +458,15 @@ def test_particle_filter_refuses_bad_calls_by_name_before_any_forecast(
     """Each bad call is refused before any forecast runs (the forecast is replaced by one
     that fails), naming the function called and the argument."""
     sj, system, y0 = _so4_setup()
+    observed = dict(times=[0.5, 1.0, 1.5, 2.0], observe=lambda y: y[0, 1:], std=0.1)
+    observed.update({k: v for k, v in bad.items() if k in observed})
     kw = dict(
         particles=np.broadcast_to(y0, (4, 4, 4)),
-        observations=np.zeros((4, 3)),
-        obs_times=[0.5, 1.0, 1.5, 2.0],
-        observe=lambda y: y[0, 1:],
-        obs_std=0.1,
+        observations=sj.Observations(np.zeros((4, 3)), **observed),
         dt=0.25,
         key=jax.random.key(0),
     )
-    kw.update(bad)
+    kw.update({k: v for k, v in bad.items() if k not in observed})
     if isinstance(kw["particles"], str):  # (one state where the ensemble goes)
         kw["particles"] = y0
 
@@ -460,5 +479,5 @@ def test_particle_filter_refuses_bad_calls_by_name_before_any_forecast(
             if caller == "particle_filter":
                 sj.particle_filter(*args, **kw)
             else:
-                sj.particle_filter_to_store(*args, str(tmp_path / "run.zarr"), **kw)
+                sj.particle_filter_to_store(*args, sj.Store(tmp_path / "run.zarr"), **kw)
     assert not (tmp_path / "run.zarr").exists()

@@ -36,8 +36,8 @@ def simulate(c):
             dt=DT,
             n_samples=N,
             key=jax.random.key(KEY),
-            retry_substeps=None,
             method=sj.LiePoisson(),
+            failures=sj.Failures(retry_substeps=None),
         )
 
 
@@ -46,19 +46,18 @@ def moments(sol):
     return sj.moments(sol.ys[:, -1])[None]
 
 
-def fit(observed, c0, **kwargs):
+def fit(observed, c0, *, steps, optimizer=None):
     return sj.calibrate(
-        observed,
+        sj.ObservedStatistics(observed, TS),
         Y0,
-        ts=TS,
         dt=DT,
         n_samples=N,
         key=jax.random.key(KEY),
         init=sj.RigidBody(INERTIA, c0),
         fixed=FIXED,
-        progress=False,
-        retry_substeps=None,
-        **{"method": sj.LiePoisson(), **kwargs},
+        method=sj.LiePoisson(),
+        failures=sj.Failures(retry_substeps=None),
+        optimisation=sj.Optimisation(optimizer, steps=steps, progress=False),
     )
 
 

@@ -39,7 +39,11 @@ def _rms_errors(study, method):
         coarse = fine.reshape(N_SAMPLES, -1, factor).sum(-1)  # the same Brownian paths
         h = 2.0**-level
         run = jax.jit(
-            jax.vmap(lambda dW: sj.integrate(model, y0, dW, h, method=method, throw=False))
+            jax.vmap(
+                lambda dW: sj.integrate(
+                    model, y0, dW, h, method=method, failures=sj.Failures(throw=False)
+                )
+            )
         )
         y_end = run(coarse)
         errs.append(float(np.sqrt(np.mean(np.sum((np.asarray(y_end) - exact) ** 2, -1)))))

@@ -12,6 +12,11 @@ import slps_jax as sj
 LP = sj.LiePoisson()  # these tests' claims (retry, failures, Newton statistics) are of (42)
 
 
+# no retry of failing steps: raise (integrate's default), or freeze the path and flag it
+RAISE = sj.Failures(retry_substeps=None, throw=True)
+FREEZE = sj.Failures(retry_substeps=None)
+
+
 def test_casimir_preserved_over_ten_thousand_steps(paper):
     model, y0 = paper
     dW = sj.brownian_increments(jax.random.key(3), 10_000, 0.01)
@@ -139,11 +144,7 @@ def test_failed_sample_is_flagged_frozen_and_does_not_poison_others(paper):
     y0 = y0 * 0.99
     dW = sj.brownian_increments(jax.random.key(11), 40, 0.01, n_samples=3)
     dW = dW.at[1, 20].set(400.0)  # tau = 80 at step 20: no root on the branch theta < pi/2
-    run = jax.jit(
-        jax.vmap(
-            lambda w: sj.integrate(model, y0, w, 0.01, throw=False, retry_substeps=None, method=LP)
-        )
-    )
+    run = jax.jit(jax.vmap(lambda w: sj.integrate(model, y0, w, 0.01, method=LP, failures=FREEZE)))
     out = np.asarray(run(dW))
     assert np.all(np.isfinite(out))
     for i in (0, 2):
@@ -155,7 +156,7 @@ def test_failed_sample_is_flagged_frozen_and_does_not_poison_others(paper):
         out[1], sj.integrate(model, y0, dW[1, :20], 0.01, method=LP), atol=1e-15
     )
     with pytest.raises(RuntimeError, match="step 20"):
-        sj.integrate(model, y0, dW[1], 0.01, retry_substeps=None, method=LP)
+        sj.integrate(model, y0, dW[1], 0.01, method=LP, failures=RAISE)
     # By default that step is redone as 4, 16, 64 substeps: tau/64 = 1.25 has a root.
     y1 = sj.integrate(model, y0, dW[1], 0.01, method=LP)
     np.testing.assert_allclose(np.linalg.norm(y1), np.linalg.norm(y0), rtol=1e-13)
@@ -167,7 +168,7 @@ def test_vmapped_integrate_raises_once_for_the_batch(paper):
     model, y0 = paper
     dW = sj.brownian_increments(jax.random.key(11), 40, 0.01, n_samples=6)
     run = jax.jit(
-        jax.vmap(lambda w: sj.integrate(model, y0 * 0.99, w, 0.01, retry_substeps=None, method=LP))
+        jax.vmap(lambda w: sj.integrate(model, y0 * 0.99, w, 0.01, method=LP, failures=RAISE))
     )
     assert run.lower(dW).as_text().count("callback") <= 2  # (the call and its declaration)
     assert np.all(np.isfinite(np.asarray(run(dW))))
@@ -176,9 +177,7 @@ def test_vmapped_integrate_raises_once_for_the_batch(paper):
         jax.block_until_ready(run(bad))
     nested = jax.jit(
         jax.vmap(
-            jax.vmap(
-                lambda w: sj.integrate(model, y0 * 0.99, w, 0.01, retry_substeps=None, method=LP)
-            )
+            jax.vmap(lambda w: sj.integrate(model, y0 * 0.99, w, 0.01, method=LP, failures=RAISE))
         )
     )
     with pytest.raises(Exception, match="2 of 6 paths failed"):
@@ -198,7 +197,12 @@ def test_loop_layout_takes_exactly_n_steps(paper, n):
     np.testing.assert_array_equal(final, every[-1])
     with pytest.raises(RuntimeError, match=f"step {n - 1} could not"):
         sj.integrate(
-            model, y0 * 0.99, dW.at[n - 1].set(400.0), 1.0 / n, retry_substeps=None, method=LP
+            model,
+            y0 * 0.99,
+            dW.at[n - 1].set(400.0),
+            1.0 / n,
+            method=LP,
+            failures=sj.Failures(retry_substeps=None, throw=True),
         )
 
 
@@ -219,14 +223,12 @@ def test_simulate_reports_failures(paper):
     model, y0 = paper
     # Three Newton updates per parameterisation are too few for some steps at this size.
     method = sj.LiePoisson(max_iter=3)
-    kwargs = dict(
-        t1=1.0, dt=0.05, n_samples=50, key=jax.random.key(12), method=method, retry_substeps=None
-    )
+    kwargs = dict(t1=1.0, dt=0.05, n_samples=50, key=jax.random.key(12), method=method)
     with pytest.raises(RuntimeError, match="samples failed"):
-        sj.simulate(model, y0, throw=True, **kwargs)
+        sj.simulate(model, y0, **kwargs, failures=RAISE)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        sol = sj.simulate(model, y0, **kwargs)  # by default: returned, with a warning
+        sol = sj.simulate(model, y0, **kwargs, failures=FREEZE)  # returned, with a warning
     assert any("samples failed" in str(w.message) for w in caught)
     failed = np.asarray(sol.result) != sj.RESULTS.successful
     assert 0 < failed.sum() < 50 and int(sol.stats["n_failed"]) == failed.sum()
@@ -240,12 +242,19 @@ def test_simulate_reports_failures(paper):
     assert codes == {sj.RESULTS.max_iterations_reached}, codes
     msg = sj.RESULTS.message(sj.RESULTS.max_iterations_reached)
     with pytest.raises(RuntimeError, match=f"{int(failed.sum())} x {msg}"):
-        sj.simulate(model, y0, throw=True, **kwargs)
+        sj.simulate(model, y0, **kwargs, failures=RAISE)
     # Under jit the failures are traced: throw=True raises when the program runs.
     with pytest.raises(Exception, match="samples failed"):
         jax.block_until_ready(
             jax.jit(
-                lambda c: sj.simulate(sj.RigidBody(model.inertia, c), y0, throw=True, **kwargs).ys
+                lambda c: (
+                    sj.simulate(
+                        sj.RigidBody(model.inertia, c),
+                        y0,
+                        **kwargs,
+                        failures=RAISE,
+                    ).ys
+                )
             )(model.c)
         )
 

@@ -128,7 +128,11 @@ def test_gradient_of_failed_sample_is_finite():
     def loss(c):
         m = sj.RigidBody(model.inertia, c)
         dW = jnp.array([[0.01, 0.02], [60.0, 0.01]])  # the second path fails at step 0
-        ys = jax.vmap(lambda w: sj.integrate(m, y, w, 0.1, throw=False, method=sj.LiePoisson()))(dW)
+        ys = jax.vmap(
+            lambda w: sj.integrate(
+                m, y, w, 0.1, method=sj.LiePoisson(), failures=sj.Failures(throw=False)
+            )
+        )(dW)
         return jnp.mean(ys)
 
     assert np.isfinite(float(jax.grad(loss)(0.2)))
@@ -156,19 +160,16 @@ def test_calibration_recovers_known_parameters():
         ys
     ) / np.sqrt(n_obs)
     init = sj.RigidBody(true.inertia * jnp.array([1.1, 0.95, 1.0]), 0.25)
-    kw = dict(
-        ts=ts,
-        dt=dt,
-        n_samples=n_fit,
-        key=jax.random.key(1),
-        init=init,
-        observed_stderr=stderr,
-        method=sj.Strang(),
-        progress=False,
-    )
+    kw = dict(dt=dt, n_samples=n_fit, key=jax.random.key(1), init=init, method=sj.Strang())
     with pytest.raises(ValueError, match="Hold one moment fixed"):
-        sj.calibrate(stats, Y0, **kw)
-    res = sj.calibrate(stats, Y0, observed_n_samples=n_obs, fixed=("I_3",), steps=30, **kw)
+        sj.calibrate(sj.ObservedStatistics(stats, ts, stderr=stderr), Y0, **kw)
+    res = sj.calibrate(
+        sj.ObservedStatistics(stats, ts, stderr=stderr, n_samples=n_obs),
+        Y0,
+        fixed=("I_3",),
+        **kw,
+        optimisation=sj.Optimisation(steps=30, progress=False),
+    )
     fitted = np.r_[np.asarray(res.system.inertia), float(res.system.c)]
     truth = np.r_[np.asarray(true.inertia), float(true.c)]
     assert res.loss[-1] < 1e-3 * res.loss[0]

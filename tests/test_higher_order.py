@@ -176,11 +176,10 @@ def test_unsolvable_step_is_flagged_not_nan(paper, method):
     # A huge third increment, with too few Newton updates allowed to solve it.
     dW = jnp.asarray([0.0, 0.0, 9.0, 0.0])
     method = dataclasses.replace(method, max_iter=3)
+    kw = dict(method=method, save_every=1)
     with pytest.raises(RuntimeError, match="step 2 could not be solved"):
-        sj.integrate(model, y, dW, 0.05, method=method, save_every=1, retry_substeps=None)
-    ys = sj.integrate(
-        model, y, dW, 0.05, method=method, save_every=1, throw=False, retry_substeps=None
-    )
+        sj.integrate(model, y, dW, 0.05, **kw, failures=sj.Failures(None, throw=True))
+    ys = sj.integrate(model, y, dW, 0.05, **kw, failures=sj.Failures(None))
     assert np.all(np.isfinite(np.asarray(ys)))
     np.testing.assert_array_equal(ys[3], ys[4])  # frozen at its last good state
 

@@ -137,10 +137,9 @@ def test_simulate_uses_the_areas_brownian_increments_gives():
         t1=0.5,
         dt=1 / 16,
         n_samples=3,
-        chunk_size=2,
         key=key,
         method=sj.Midpoint(),
-        progress=False,
+        chunks=sj.Chunks(2, progress=False),
     )
     np.testing.assert_allclose(st.mean[-1], np.mean(sol.ys[:, -1], axis=0), rtol=0, atol=1e-14)
     # and without them ("auto" draws them for Midpoint; False does not): a different path
@@ -211,7 +210,13 @@ def test_a_retried_step_keeps_its_increments_and_areas():
     np.testing.assert_allclose(x[:4], [0.2, 0.4, 0.2, 0.03], rtol=1e-14)
     with pytest.raises(RuntimeError, match="could not be solved"):
         sj.integrate(
-            model, y0, dW, 0.1, areas=A, method=_Recorder(longest=0.05), retry_substeps=None
+            model,
+            y0,
+            dW,
+            0.1,
+            areas=A,
+            method=_Recorder(longest=0.05),
+            failures=sj.Failures(retry_substeps=None, throw=True),
         )
 
 

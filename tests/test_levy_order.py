@@ -139,8 +139,8 @@ def _coarse_runs(model, y0, method, dW_fine, areas):
                 w[i][None],
                 h,
                 method=method,
-                throw=False,
                 areas=None if a is None else a[i][None],
+                failures=sj.Failures(throw=False),
             )
 
         return jax.lax.fori_loop(0, n, step, jnp.asarray(y0))
@@ -214,7 +214,10 @@ def test_gradients_through_the_area_term_match_finite_differences():
     def loss(theta, method):
         model = sj.RigidBody(theta[:3], noise=sj.salt_noise(theta[3:].reshape(3, 3)))
         return jnp.dot(
-            weights, sj.integrate(model, Y0, dW, 1 / 16, areas=A, method=method, throw=False)
+            weights,
+            sj.integrate(
+                model, Y0, dW, 1 / 16, areas=A, method=method, failures=sj.Failures(throw=False)
+            ),
         )
 
     theta = jnp.concatenate([INERTIA, jnp.asarray(CHI).ravel()])
@@ -242,10 +245,9 @@ def test_sampled_areas_in_a_study_give_order_one():
         dts=HS,
         n_samples=64,
         key=jax.random.key(1),
-        reference=sj.SaltSplitting(),
         methods={"s": sj.SaltSplitting(), "no areas": sj.SaltSplitting()},
         driver=sj.BrownianMotion(levy_area={"no areas": False}),
-        reference_factor=32,
+        reference=sj.Reference(sj.SaltSplitting(), factor=32),
     )
     assert 0.85 <= res.order["s"] <= 1.25, res.table()
     assert res.reference_error < 0.1 * res.errors["s"][-1], res.table()

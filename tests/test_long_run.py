@@ -52,15 +52,12 @@ def write(
     return sj.simulate_to_store(
         system(kind, c),
         smooth(),
-        path,
+        sj.Store(path, resume=resume, progress=False, record_snapshots=record_snapshots),
         t1=t1,
         dt=dt,
         n_samples=3,
         key=jax.random.key(7),
         save_every=save_every,
-        record_snapshots=record_snapshots,
-        resume=resume,
-        progress=False,
         **kwargs,
     )
 
@@ -170,7 +167,8 @@ def test_a_store_of_another_run_is_refused(tmp_path, uninterrupted):
     with pytest.raises(ValueError, match="system_numbers"):
         write(whole, c=0.3, resume=True)
     # the messages name what the user can pass to the function called (no mode= there)
-    with pytest.raises(FileExistsError, match=r"simulate_to_store\(\.\.\., resume=True\)") as e:
+    again = r"simulate_to_store\(\.\.\., Store\(\.\.\., resume=True\)\)"
+    with pytest.raises(FileExistsError, match=again) as e:
         write(whole)
     assert "mode=" not in str(e.value)
     # resuming into a folder that is not a store: a clear error, nothing touched

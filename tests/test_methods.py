@@ -172,7 +172,12 @@ def test_the_retry_wraps_only_steps_that_can_fail(cls):
         return str(
             jax.make_jaxpr(
                 lambda d: sj.integrate(
-                    model, y0, d, DT, method=cls(), throw=False, retry_substeps=retry
+                    model,
+                    y0,
+                    d,
+                    DT,
+                    method=cls(),
+                    failures=sj.Failures(retry_substeps=retry, throw=False),
                 )
             )(dW)
         )

@@ -70,10 +70,9 @@ def test_simulate_with_an_ornstein_uhlenbeck_driver_is_integrate_with_its_increm
         dt=h,
         n_samples=3,
         key=jax.random.key(5),
-        chunk_size=2,
         driver=drv,
-        observable=lambda ys: z.mat2shr(ys),
-        progress=False,
+        chunks=sj.Chunks(2, progress=False),
+        statistics=sj.Statistics(observable=lambda ys: z.mat2shr(ys)),
     )
     np.testing.assert_allclose(stats.mean[-1], np.mean(z.mat2shr(ref[:, -1]), axis=0), atol=1e-13)
     body = sj.RigidBody.paper()

@@ -28,7 +28,7 @@ PAPER_DIR = np.array([0.7, 0.7, 0.0]) / math.hypot(0.7, 0.7)
 def quiet_simulate(*args, **kwargs):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        return sj.simulate(*args, throw=False, **{"method": sj.LiePoisson(), **kwargs})
+        return sj.simulate(*args, **{"method": sj.LiePoisson(), **kwargs})
 
 
 # --------------------------------------------------------------------------------------
@@ -49,7 +49,7 @@ def test_simulate_failed_samples_frozen_at_last_good_state():
         n_samples=16,
         key=jax.random.key(20),
         save_every=1,
-        retry_substeps=None,
+        failures=sj.Failures(retry_substeps=None),
     )
     ys, fail = np.asarray(sol.ys), np.asarray(sol.fail_step)
     failed = np.asarray(sol.result) != sj.RESULTS.successful
@@ -79,7 +79,11 @@ def test_failure_at_an_injected_increment(paper, method, step):
     model, y0 = paper
     dW = np.array(sj.brownian_increments(jax.random.key(21), 12, 0.01))
     dW[7] = 1e300
-    ys = np.asarray(sj.integrate(model, y0, dW, 0.01, method=method, throw=False, save_every=1))
+    ys = np.asarray(
+        sj.integrate(
+            model, y0, dW, 0.01, method=method, save_every=1, failures=sj.Failures(throw=False)
+        )
+    )
     assert np.isfinite(ys).all()
     # Frozen from the failing step on at the state after steps 0 .. step-1, which is the
     # path of the first `step` increments.
@@ -104,7 +108,14 @@ def test_the_streaming_example_s_hard_sample_succeeds_with_default_arguments(pap
     key = jax.random.key(0)
     dW = np.asarray(sj.brownian_increments(key, 32, 2**-5, n_samples=42822)[42821])
     with pytest.raises(RuntimeError, match="step 1 could not be solved"):
-        sj.integrate(model, y0, dW, 2**-5, retry_substeps=None, method=sj.LiePoisson())
+        sj.integrate(
+            model,
+            y0,
+            dW,
+            2**-5,
+            method=sj.LiePoisson(),
+            failures=sj.Failures(retry_substeps=None, throw=True),
+        )
     y1 = np.asarray(sj.integrate(model, y0, dW, 2**-5, method=sj.LiePoisson()))
     ref = exact_sde_solution(model.inertia, model.c, y0, [dW.sum()], 1.0)[0]
     assert np.linalg.norm(y1 - ref) < 1e-2
@@ -122,7 +133,8 @@ def test_gradient_through_retried_steps_matches_finite_differences():
     assert int(sol.stats["n_retried_steps"]) > 30 and int(sol.stats["n_failed"]) == 0
 
     def f(inertia, c):
-        ys = sj.simulate(sj.RigidBody(inertia, c), y0, throw=True, **run).ys[:, -1]
+        throwing = sj.Failures(throw=True)
+        ys = sj.simulate(sj.RigidBody(inertia, c), y0, **run, failures=throwing).ys[:, -1]
         return jnp.mean(ys[:, 0] ** 2 + 0.3 * ys[:, 2])
 
     g_inertia, g_c = jax.grad(f, argnums=(0, 1))(inertia, 1.0)
@@ -147,18 +159,47 @@ def test_simulate_returns_failures_flagged_and_warns():
         dt=2**-3,
         n_samples=24,
         key=jax.random.key(20),
-        retry_substeps=None,
         method=sj.LiePoisson(),
     )
+    no_retry = sj.Failures(retry_substeps=None)
     with pytest.warns(RuntimeWarning, match=r"samples failed.*Solution.ok"):
-        sol = sj.simulate(model, y0, **run)
+        sol = sj.simulate(model, y0, **run, failures=no_retry)
     n_failed = int(sol.stats["n_failed"])
     assert 0 < n_failed < 24 and int((~sol.ok).sum()) == n_failed
     with pytest.raises(RuntimeError, match=f"{n_failed} of 24 samples failed"):
-        sj.simulate(model, y0, throw=True, **run)
+        sj.simulate(model, y0, **run, failures=sj.Failures(retry_substeps=None, throw=True))
     with pytest.warns(RuntimeWarning, match=f"{n_failed} of 24 samples failed"):
-        jax.block_until_ready(jax.jit(lambda m: sj.simulate(m, y0, **run).ys)(model))
+        jax.block_until_ready(
+            jax.jit(lambda m: sj.simulate(m, y0, **run, failures=no_retry).ys)(model)
+        )
         jax.effects_barrier()  # (the callback's warning may come after the result)
+
+
+def test_the_run_store_reports_its_failed_samples(tmp_path):
+    # simulate's failing run (c = 1, |y0| = 0.99, h = 2^-3, no retry) written to a store: the
+    # same samples fail, flagged in the store's "ok", and the same report says how many
+    pytest.importorskip("zarr")
+    model = sj.RigidBody(sj.RigidBody.paper().inertia, 1.0)
+    y0 = 0.99 * PAPER_DIR
+    run = dict(t1=1.0, dt=2**-3, n_samples=24, key=jax.random.key(20), method=sj.LiePoisson())
+    no_retry = sj.Failures(retry_substeps=None)
+    sol = quiet_simulate(model, y0, **run, failures=no_retry)
+    n_failed = int(sol.stats["n_failed"])
+    assert n_failed > 0
+    store = sj.Store(tmp_path / "run.zarr", progress=False)
+    with pytest.warns(RuntimeWarning, match=f'{n_failed} of 24 samples failed.*store\'s "ok"'):
+        stored = sj.simulate_to_store(model, y0, store, save_every=8, failures=no_retry, **run)
+    np.testing.assert_array_equal(stored.read("ok")[-1], np.asarray(sol.ok))
+    raising = sj.Failures(retry_substeps=None, throw=True)
+    with pytest.raises(RuntimeError, match=f"{n_failed} of 24 samples failed"):
+        sj.simulate_to_store(
+            model,
+            y0,
+            sj.Store(tmp_path / "again.zarr", progress=False),
+            save_every=8,
+            failures=raising,
+            **run,
+        )
 
 
 RETRY_RUN = dict(
@@ -173,7 +214,7 @@ RETRY_RUN = dict(
 def test_retry_changes_nothing_when_no_step_fails(paper):
     model, _ = paper
     y0 = 0.9 * PAPER_DIR
-    a = sj.simulate(model, y0, retry_substeps=None, **RETRY_RUN)
+    a = sj.simulate(model, y0, **RETRY_RUN, failures=sj.Failures(retry_substeps=None))
     b = sj.simulate(model, y0, **RETRY_RUN)  # the default, retry_substeps=4
     np.testing.assert_array_equal(a.ys, b.ys)
     assert int(b.stats["n_retried_steps"]) == 0 and "n_retried_steps" not in a.stats
@@ -182,9 +223,10 @@ def test_retry_changes_nothing_when_no_step_fails(paper):
 def test_retry_recovers_failed_samples_accurately():
     model = sj.RigidBody(sj.RigidBody.paper().inertia, 1.0)
     y0 = 0.99 * PAPER_DIR
-    plain = quiet_simulate(model, y0, retry_substeps=None, **RETRY_RUN)
+    plain = quiet_simulate(model, y0, failures=sj.Failures(retry_substeps=None), **RETRY_RUN)
     assert int(plain.stats["n_failed"]) > 12
-    sol = sj.simulate(model, y0, throw=True, **RETRY_RUN)  # by default: none may fail
+    # by default: none may fail
+    sol = sj.simulate(model, y0, **RETRY_RUN, failures=sj.Failures(throw=True))
     assert int(sol.stats["n_failed"]) == 0 and int(sol.stats["n_retried_steps"]) > 0
     y1 = np.asarray(sol.ys[:, -1])
     np.testing.assert_allclose(np.linalg.norm(y1, axis=-1), 0.99, rtol=1e-13)
@@ -213,9 +255,11 @@ def test_retry_keeps_strong_order_one():
     # Without the retry, failed samples are left out of every step size, counted, and warned
     # about (never used as data, and the study returns).
     with pytest.warns(RuntimeWarning, match="left out of LP's estimates at every step size"):
-        plain = sj.strong_convergence(model, y0, retry_substeps=None, **kwargs)
+        plain = sj.strong_convergence(
+            model, y0, **kwargs, failures=sj.Failures(retry_substeps=None)
+        )
     assert 0 < plain.n_failed["LP"] < 200 and np.all(np.isfinite(plain.errors["LP"]))
-    res = sj.strong_convergence(model, y0, retry_substeps=2, **kwargs)
+    res = sj.strong_convergence(model, y0, **kwargs, failures=sj.Failures(retry_substeps=2))
     assert res.n_failed == {"LP": 0}
     assert 0.85 < res.order["LP"] < 1.3, res.order
     assert res.errors["LP"][-1] < res.errors["LP"][0] / 10
@@ -284,10 +328,37 @@ BAD_SIMULATE = [
     (dict(method=sj.Midpoint), TypeError, "call it"),
     (dict(method="LiePoisson"), TypeError, "method"),
     (dict(model=(1.0, 2.0, 3.0)), TypeError, "RigidBody"),
+    (dict(failures=4), TypeError, r"failures must be a Failures"),
+]
+
+
+BAD_FAILURES = [
     (dict(throw="yes"), TypeError, "throw"),
     (dict(retry_substeps=1), ValueError, "retry_substeps"),
     (dict(retry_substeps=2.0), ValueError, "retry_substeps"),
+    (dict(retry_substeps=0), ValueError, "retry_substeps"),
+    (dict(retry_substeps=-1), ValueError, "retry_substeps"),
 ]
+
+
+@pytest.mark.parametrize("bad,exc,match", BAD_FAILURES)
+def test_failures_rejects_bad_options(bad, exc, match):
+    with pytest.raises(exc, match=match):
+        sj.Failures(**bad)
+
+
+BAD_REFERENCE = [
+    (dict(method=sj.Midpoint(), dt=0.0), ValueError, "dt"),
+    (dict(method=sj.Midpoint(), factor=1), ValueError, "factor"),
+    (dict(method=sj.Midpoint(), dt=0.01, factor=4), ValueError, "not both"),
+    (dict(method="midpoint"), TypeError, "method instance"),
+]
+
+
+@pytest.mark.parametrize("bad,exc,match", BAD_REFERENCE)
+def test_reference_rejects_bad_options(bad, exc, match):
+    with pytest.raises(exc, match=match):
+        sj.Reference(**bad)
 
 
 BAD_BROWNIAN = [
@@ -324,7 +395,7 @@ BAD_INTEGRATE = [
     (dict(save_every=7), ValueError, "nearest divisors"),
     (dict(save_every=3), ValueError, "save_every"),
     (dict(y0=[0.1, 0.2, 0.3, 0.4]), ValueError, "y0"),
-    (dict(retry_substeps=0), ValueError, "retry_substeps"),
+    (dict(failures=sj.Failures), TypeError, "failures must be a Failures"),
     (dict(dt=0.0), ValueError, "dt"),
     (dict(method=sj.LiePoisson), TypeError, "call it"),
 ]
@@ -353,9 +424,8 @@ BAD_CONVERGENCE = [
     (dict(methods={}), ValueError, "methods"),
     (dict(methods={"LP": sj.LiePoisson}), TypeError, "call it"),
     (dict(reference="scipy"), ValueError, "reference"),
-    (dict(reference="midpoint", reference_dt=0.0), ValueError, "reference_dt"),
     (dict(key=5), TypeError, "jax.random.key"),
-    (dict(retry_substeps=-1), ValueError, "retry_substeps"),
+    (dict(failures=None), TypeError, "failures must be a Failures"),
 ]
 
 

@@ -91,8 +91,8 @@ def test_what_cannot_be_saved_or_loaded_is_refused(tmp_path):
 def test_the_run_store_keeps_its_system(tmp_path):
     system = sj.EulerZeitlin(N, noise=_fitted())
     w0 = z.shr2mat(np.r_[0.0, np.random.default_rng(2).normal(size=N * N - 1)], N)
-    kw = dict(t1=0.1, dt=0.01, n_samples=2, key=jax.random.key(0), save_every=5, progress=False)
-    run = sj.simulate_to_store(system, w0, str(tmp_path / "run.zarr"), **kw)
+    kw = dict(t1=0.1, dt=0.01, n_samples=2, key=jax.random.key(0), save_every=5)
+    run = sj.simulate_to_store(system, w0, sj.Store(tmp_path / "run.zarr", progress=False), **kw)
     assert _same(sj.open_run(tmp_path / "run.zarr").system, system)
     assert _same(run.system, system)
     # kept where xarray does not see it: no variable of it, and no warning
@@ -104,6 +104,8 @@ def test_the_run_store_keeps_its_system(tmp_path):
         run.to_xarray()
     # a system that cannot be pickled: the run is stored, with a warning that says so
     with pytest.warns(RuntimeWarning, match="not kept in the store"):
-        sj.simulate_to_store(_lambda_system(), sj.PAPER_Y0, str(tmp_path / "rb.zarr"), **kw)
+        sj.simulate_to_store(
+            _lambda_system(), sj.PAPER_Y0, sj.Store(tmp_path / "rb.zarr", progress=False), **kw
+        )
     with pytest.raises(ValueError, match="holds no saved system"):
         _ = sj.open_run(tmp_path / "rb.zarr").system

@@ -66,8 +66,8 @@ SHARDED = textwrap.dedent("""
         else:
             raise AssertionError("n_samples=10 over 4 devices was accepted")
         st = sj.ensemble_statistics(model, y0, t1=0.25, dt=2.0 ** -5, n_samples=16,
-                                    chunk_size=8, key=jax.random.key(5), save_every=4,
-                                    sharding=sh, progress=False, method=sj.LiePoisson())
+                                    chunks=sj.Chunks(8, sharding=sh, progress=False),
+                                    key=jax.random.key(5), save_every=4, method=sj.LiePoisson())
         ys = np.asarray(ref.ys)
         assert np.allclose(st.mean, ys.mean(0), rtol=0, atol=1e-14)
         assert np.allclose(st.var, ys.var(0, ddof=1), rtol=1e-10, atol=1e-18)
@@ -77,13 +77,14 @@ SHARDED = textwrap.dedent("""
         # (the same arithmetic up to the order XLA's batched matrix products take: round-off)
         diff = np.max(np.abs(np.asarray(out.ys) - np.asarray(zref.ys)))
         assert diff < 1e-13, diff
-        st = sj.ensemble_statistics(body, w0, chunk_size=4, sharding=sh, progress=False,
-                                    observable=lambda ws: body.energy(ws), **zk)
+        st = sj.ensemble_statistics(body, w0, chunks=sj.Chunks(4, sharding=sh, progress=False),
+                                    statistics=sj.Statistics(observable=lambda ws: body.energy(ws)),
+                                    **zk)
         assert np.allclose(st.mean[-1], e[:, -1].mean(), rtol=1e-13)
     # particle_filter: every device forecasts its own particles; the same filter
     obs = 0.1 + np.asarray(y0)[None, :2]
-    pf = dict(obs_times=[0.25], observe=lambda y: y[:2], obs_std=0.05, dt=2.0 ** -5,
-              key=jax.random.key(3), jitter_steps=1)
+    pf = dict(dt=2.0 ** -5, key=jax.random.key(3), tempering=sj.Tempering(jitter_steps=1))
+    obs = sj.Observations(obs, times=[0.25], observe=lambda y: y[:2], std=0.05)
     parts = np.broadcast_to(y0, (8, 3))
     pref = sj.particle_filter(model, parts, obs, **pf)
     got = sj.particle_filter(model, parts, obs, sharding="auto", **pf)
@@ -103,8 +104,8 @@ SHARDED = textwrap.dedent("""
             sol = sj.simulate(model, y0, sharding=sharding, **kw)
             assert np.array_equal(np.asarray(sol.ys), np.asarray(ref.ys)), sharding
             assert float(jnp.mean(sol.ys[:, -1, 0]) - ref.ys[:, -1, 0].mean()) == 0.0
-            st = sj.ensemble_statistics(model, y0, chunk_size=8, sharding=sharding,
-                                        progress=False, **kw)
+            st = sj.ensemble_statistics(model, y0, **kw,
+                                        chunks=sj.Chunks(8, sharding=sharding, progress=False))
             assert np.allclose(st.mean, ys.mean(0), rtol=0, atol=1e-14), sharding
         study["key"] = jax.random.key(1)
         got = sj.strong_convergence(model, y0, **study).errors["Strang"]
@@ -162,13 +163,12 @@ def test_streamed_moments_equal_numpy_on_the_unchunked_run(reference, chunk_size
         model,
         y0,
         n_samples=50,
-        chunk_size=chunk_size,
         key=jax.random.key(3),
         save_every=4,
         method=sj.Strang(),
-        statistics=ALL,
-        progress=False,
         **KW,
+        chunks=sj.Chunks(chunk_size, progress=False),
+        statistics=sj.Statistics(ALL),
     )
     assert (st.n, st.n_failed, st.n_chunks) == (50, 0, -(-50 // chunk_size))
     np.testing.assert_allclose(st.ts, [0.0, 0.125, 0.25])
@@ -184,13 +184,18 @@ def test_streamed_moments_equal_numpy_on_the_unchunked_run(reference, chunk_size
 
 def test_streamed_final_state_and_observable(reference):
     model, y0, ys = reference
-    kw = dict(n_samples=50, key=jax.random.key(3), method=sj.Strang(), progress=False, **KW)
-    st = sj.ensemble_statistics(model, y0, chunk_size=20, **kw)
+    kw = dict(n_samples=50, key=jax.random.key(3), method=sj.Strang(), **KW)
+    kw.update(chunks=sj.Chunks(20, progress=False))
+    st = sj.ensemble_statistics(model, y0, **kw)
     np.testing.assert_allclose(st.ts, [0.0, 0.25])
     np.testing.assert_allclose(st.mean[-1], ys[:, -1].mean(0), rtol=0, atol=1e-15)
     assert st.cov is None and st.skewness is None
     energy = sj.ensemble_statistics(
-        model, y0, chunk_size=20, save_every=4, observable=_energy, statistics=("mean", "var"), **kw
+        model,
+        y0,
+        save_every=4,
+        **kw,
+        statistics=sj.Statistics(("mean", "var"), observable=_energy),
     )
     h = np.stack([np.asarray(jax.vmap(model.hamiltonian)(jnp.asarray(y))) for y in ys])
     assert energy.mean.shape == (3,)
@@ -209,17 +214,14 @@ def test_streaming_compiles_once_and_shows_progress(reference, capsys, monkeypat
     model, y0, _ = reference
     monkeypatch.setattr(_progress, "interactive", lambda: True)  # as on a terminal
     before = _stream._chunk._cache_size()
-    st = sj.ensemble_statistics(
-        model, y0, n_samples=45, chunk_size=15, key=jax.random.key(9), method=sj.Strang(), **KW
-    )
+    kw = dict(n_samples=45, key=jax.random.key(9), method=sj.Strang(), chunks=sj.Chunks(15), **KW)
+    st = sj.ensemble_statistics(model, y0, **kw)
     assert st.n_chunks == 3 and st.n == 45
     assert _stream._chunk._cache_size() == before + 1
     err = capsys.readouterr().err
     assert "3/3" in err and "45/45 samples" in err
     monkeypatch.setattr(_progress, "interactive", lambda: False)  # a log: nothing in it
-    sj.ensemble_statistics(
-        model, y0, n_samples=45, chunk_size=15, key=jax.random.key(9), method=sj.Strang(), **KW
-    )
+    sj.ensemble_statistics(model, y0, **kw)
     assert capsys.readouterr().err == ""
 
 
@@ -231,36 +233,46 @@ def test_streaming_counts_and_leaves_out_failed_samples(paper):
         dt=0.05,
         key=jax.random.key(12),
         method=sj.LiePoisson(max_iter=3),
-        retry_substeps=None,
+        failures=sj.Failures(retry_substeps=None),
     )
     with pytest.warns(RuntimeWarning):
-        sol = sj.simulate(model, y0, n_samples=50, throw=False, **kw)
+        sol = sj.simulate(model, y0, n_samples=50, **kw)
     ok = np.asarray(sol.fail_step) < 0
     n_failed = int(np.sum(~ok))
     assert 0 < n_failed < 50
     with pytest.warns(RuntimeWarning, match=f"{n_failed} of 50"):
-        st = sj.ensemble_statistics(model, y0, n_samples=50, chunk_size=20, progress=False, **kw)
+        st = sj.ensemble_statistics(
+            model, y0, n_samples=50, **kw, chunks=sj.Chunks(20, progress=False)
+        )
     assert (st.n, st.n_failed) == (50 - n_failed, n_failed)
     np.testing.assert_allclose(st.mean[-1], np.asarray(sol.ys)[ok, -1].mean(0), atol=1e-15)
+    # Failures(throw=True): the same report raises instead of leaving the samples out
+    raising = {**kw, "failures": sj.Failures(retry_substeps=None, throw=True)}
+    with pytest.raises(RuntimeError, match=f"{n_failed} of 50 samples failed"):
+        sj.ensemble_statistics(
+            model, y0, n_samples=50, chunks=sj.Chunks(20, progress=False), **raising
+        )
 
 
 @pytest.mark.parametrize(
     "bad, exc, match",
     [
-        (dict(chunk_size=0), ValueError, "chunk_size"),
-        (dict(chunk_size=2.5), ValueError, "chunk_size"),
-        (dict(statistics=("mean", "median")), ValueError, "median"),
-        (dict(observable=3), TypeError, "observable"),
-        (dict(sharding="gpu"), ValueError, "sharding"),
-        (dict(sharding=4), TypeError, "sharding"),
-        (dict(n_samples=0), ValueError, "n_samples"),
+        (lambda: dict(chunks=sj.Chunks(0)), ValueError, "size"),
+        (lambda: dict(chunks=sj.Chunks(2.5)), ValueError, "size"),
+        (lambda: dict(chunks=5), TypeError, "Chunks"),
+        (lambda: dict(statistics=sj.Statistics(("mean", "median"))), ValueError, "median"),
+        (lambda: dict(statistics=("mean", "var")), TypeError, "Statistics"),
+        (lambda: dict(statistics=sj.Statistics(observable=3)), TypeError, "observable"),
+        (lambda: dict(chunks=sj.Chunks(5, sharding="gpu")), ValueError, "sharding"),
+        (lambda: dict(chunks=sj.Chunks(5, sharding=4)), TypeError, "sharding"),
+        (lambda: dict(n_samples=0), ValueError, "n_samples"),
     ],
 )
 def test_streaming_rejects_bad_input(paper, bad, exc, match):
     model, y0 = paper
-    kw = dict(n_samples=10, chunk_size=5, key=jax.random.key(0), progress=False, **KW)
+    kw = dict(n_samples=10, chunks=sj.Chunks(5, progress=False), key=jax.random.key(0), **KW)
     with pytest.raises(exc, match=match):
-        sj.ensemble_statistics(model, y0, **{**kw, **bad})
+        sj.ensemble_statistics(model, y0, **{**kw, **bad()})
 
 
 def test_simulate_rejects_bad_sharding(paper):

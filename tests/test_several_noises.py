@@ -385,7 +385,11 @@ def test_gradients_chi_and_inertia_match_finite_differences(method):
 
     def estimate(theta):
         model = sj.RigidBody(theta[:3], noise=sj.salt_noise(theta[3:].reshape(3, 3)))
-        y = jax.vmap(lambda d: sj.integrate(model, Y0, d, dt, method=method, throw=False))(dW)
+        y = jax.vmap(
+            lambda d: sj.integrate(
+                model, Y0, d, dt, method=method, failures=sj.Failures(throw=False)
+            )
+        )(dW)
         return jnp.mean(model.hamiltonian(y)) + jnp.mean(y[:, 0])
 
     theta = jnp.concatenate([INERTIA, jnp.asarray(CHI).ravel()])
@@ -422,16 +426,15 @@ def test_calibrate_recovers_a_salt_amplitude():
     chi0[0, 0] = 0.2
     start = sj.RigidBody(INERTIA, noise=sj.salt_noise(chi0))
     res = sj.calibrate(
-        observed,
+        sj.ObservedStatistics(observed, ts),
         Y0,
-        ts=ts,
         dt=dt,
         n_samples=n,
         key=jax.random.key(8),
         init=start,
         fixed=("I_1", "I_2", "I_3", *names[1:]),
         method=sj.SaltSplitting(),
-        progress=False,
+        optimisation=sj.Optimisation(progress=False),
     )
     assert res.names[3] == "chi[0, 0]"
     assert float(res.system.noise.chi[0, 0]) == pytest.approx(0.4, abs=1e-6)

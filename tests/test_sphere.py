@@ -74,13 +74,12 @@ def test_animation_of_states_and_of_a_stored_run(tmp_path, monkeypatch):
     run = sj.simulate_to_store(
         system,
         w0,
-        str(tmp_path / "run.zarr"),
+        sj.Store(str(tmp_path / "run.zarr"), progress=False),
         t1=0.2,
         dt=0.02,
         n_samples=2,
         key=jax.random.key(0),
         save_every=2,
-        progress=False,
     )
     path = sj.sphere.animate(run, tmp_path / "run.gif", sample=1, fps=5, resolution=8)
     with Image.open(path) as gif:

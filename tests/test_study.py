@@ -63,9 +63,9 @@ def test_midpoint_reference_option():
         n_samples=50,
         key=jax.random.key(21),
         methods={"LP": sj.LiePoisson()},
-        reference_dt=DTS[2] / 8,
     )
-    res = sj.strong_convergence(sj.RigidBody.paper(), sj.PAPER_Y0, reference="midpoint", **kw)
+    midpoint = sj.Reference(sj.Midpoint(), dt=DTS[2] / 8)
+    res = sj.strong_convergence(sj.RigidBody.paper(), sj.PAPER_Y0, **kw, reference=midpoint)
     exact = sj.strong_convergence(sj.RigidBody.paper(), sj.PAPER_Y0, **kw)
     # The midpoint reference is far more accurate than the scheme at these steps.
     np.testing.assert_allclose(res.errors["LP"], exact.errors["LP"], rtol=0.05)
@@ -79,7 +79,7 @@ def test_study_rejects_bad_input():
     with pytest.raises(ValueError, match="multiple"):
         sj.strong_convergence(model, sj.PAPER_Y0, dts=[0.1, 0.03], **kw)
     with pytest.raises(ValueError, match="reference"):
-        sj.strong_convergence(model, sj.PAPER_Y0, dts=[0.1, 0.05], reference="rk4", **kw)
+        sj.strong_convergence(model, sj.PAPER_Y0, dts=[0.1, 0.05], **kw, reference="rk4")
 
 
 def test_exact_method_reproduces_exact_solution(paper):

@@ -70,7 +70,9 @@ def test_forecast_ensembles_are_simulate_per_start(model_world):
         sj.forecast_ensembles(system, w["starts"][0], **kw)
     loud = sj.EulerZeitlin(w["N"], noise=sj.scaled_noise(w["noise"], 1e3))
     with pytest.raises(RuntimeError):
-        sj.forecast_ensembles(loud, w["starts"][:1], retry_substeps=None, **kw)
+        sj.forecast_ensembles(
+            loud, w["starts"][:1], **kw, failures=sj.Failures(retry_substeps=None)
+        )
 
 
 def test_tuning_recovers_the_amplitude_of_data_from_the_model(model_world):
@@ -87,7 +89,7 @@ def test_tuning_recovers_the_amplitude_of_data_from_the_model(model_world):
         every=w["every"],
         members=16,
         key=jax.random.key(3),
-        factors=[0.25, 0.5, 1.0, 2.0, 4.0],
+        search=sj.AmplitudeSearch(factors=[0.25, 0.5, 1.0, 2.0, 4.0]),
     )
     assert 0.5 <= tuned.factor <= 2.0, tuned
     assert tuned.crps[0] > tuned.crps.min() and tuned.crps[-1] > tuned.crps.min()
@@ -102,7 +104,7 @@ def test_tuning_recovers_the_amplitude_of_data_from_the_model(model_world):
             every=w["every"],
             members=2,
             key=jax.random.key(3),
-            factors=[1.0],
+            search=sj.AmplitudeSearch(factors=[1.0]),
         )
     with pytest.raises(ValueError, match="no noise amplitudes"):
         sj.tune_amplitude(

@@ -34,12 +34,12 @@ def study():
         n_samples=500,
         key=jax.random.key(0),
         observable=observable,
-        retry_substeps=4,
         methods={
             "LiePoisson": sj.LiePoisson(),
             "Midpoint": sj.Midpoint(),
             "EulerMaruyama": sj.EulerMaruyama(),
         },
+        failures=sj.Failures(retry_substeps=4),
     )
 
 
@@ -60,7 +60,8 @@ def test_gauss_hermite_reference_is_the_exact_expectation(study):
 
     expected = np.array([component(j) for j in range(6)])
     np.testing.assert_allclose(study.reference_mean, expected, atol=1e-12)
-    np.testing.assert_array_equal(study.reference_error, 0.0)
+    # the quadrature's own error: its last two rules agree to round-off
+    assert np.all(np.asarray(study.reference_error) < 1e-12), study.reference_error
 
 
 @pytest.mark.parametrize("name", ["LiePoisson", "Midpoint"])
@@ -90,8 +91,7 @@ def test_method_reference_reports_its_own_error():
         key=jax.random.key(1),
         observable=model.hamiltonian,
         methods=sj.Midpoint(),
-        reference=sj.Midpoint(),
-        reference_factor=8,
+        reference=sj.Reference(sj.Midpoint(), factor=8),
     )
     assert result.bias["Midpoint"].shape == (2, 1)
     assert np.all(np.isfinite(result.reference_error)) and result.reference_error[0] > 0

@@ -283,7 +283,13 @@ def test_ensemble_statistics_of_observables_match_the_paths():
     run = dict(
         t1=0.5, dt=2.0**-5, n_samples=12, key=jax.random.key(3), method=sj.IsospectralMidpoint()
     )
-    st = sj.ensemble_statistics(body, w0, chunk_size=5, observable=_observe, progress=False, **run)
+    st = sj.ensemble_statistics(
+        body,
+        w0,
+        **run,
+        chunks=sj.Chunks(5, progress=False),
+        statistics=sj.Statistics(observable=_observe),
+    )
     sol = sj.simulate(body, w0, **run)
     ref = np.asarray(jax.vmap(_observe)(sol.ys))[:, -1]  # (samples, k) at t1
     np.testing.assert_allclose(st.mean[-1], ref.mean(0), rtol=1e-12, atol=1e-13)
@@ -291,7 +297,7 @@ def test_ensemble_statistics_of_observables_match_the_paths():
     assert st.var[-1][0] > 1e-6  # the noise moves the energy
     assert np.all(st.var[-1][4:] < 1e-24)  # and not the Casimirs
     with pytest.raises(TypeError, match="complex"):
-        sj.ensemble_statistics(body, w0, chunk_size=5, **run)
+        sj.ensemble_statistics(body, w0, **run, chunks=sj.Chunks(5))
 
 
 def _weighted_square(y, p):  # H = 1/2 sum_ij p_ij |Y_ij|^2: the same function on so(n), su(n)

@@ -113,7 +113,7 @@ def test_max_iter_share_counts_the_steps_that_used_max_iter():
     reported is that one step of 8; with retries every step is redone as 4 substeps (which
     converge in fewer), every step counts, and none fails."""
     method = sj.IsospectralMidpoint(warm_start=0, max_iter=7)
-    one = run(16, 8, method, retry_substeps=None, throw=False)
+    one = run(16, 8, method, failures=sj.Failures(retry_substeps=None))
     assert int(one.result[0]) == RESULTS.max_iterations_reached and int(one.fail_step[0]) == 0
     assert float(one.stats["max_iter_share"]) == pytest.approx(1 / 8)
     many = run(16, 8, method)
@@ -135,9 +135,8 @@ def test_a_diverging_iteration_stops_as_stalled():
         key=jax.random.key(0),
         method=sj.IsospectralMidpoint(),
         driver=sj.BrownianMotion(truncate_k=None),
-        retry_substeps=None,
         newton_stats=True,
-        throw=False,
+        failures=sj.Failures(retry_substeps=None, throw=False),
     )
     assert int(sol.result[0]) == RESULTS.stalled
     assert int(sol.stats["newton_iterations_max"]) < 10

@@ -327,13 +327,15 @@ def test_transfer_and_flux_against_the_flow_itself():
     run = sj.simulate_to_store(
         system,
         _rough(8),
-        str(pytest.importorskip("pathlib").Path(__import__("tempfile").mkdtemp()) / "run"),
+        sj.Store(
+            str(pytest.importorskip("pathlib").Path(__import__("tempfile").mkdtemp()) / "run"),
+            progress=False,
+        ),
         t1=0.2,
         dt=0.05,
         n_samples=2,
         key=jax.random.key(0),
         save_every=2,
-        progress=False,
     )
     assert run.read("enstrophy_flux").shape == (3, 2, 8)  # (t = 0, 0.1, 0.2)
     assert np.max(np.abs(run.read("energy_flux")[..., -1])) < 1e-12
@@ -387,7 +389,9 @@ def test_joined_linear_flows_are_the_strang_steps():
     step = jax.jit(lambda y, h, w: system_step(method, system, y, h, w))
     for w0, h, n, retried in ((_rough(N), 0.02, 12, False), (6.0 * _rough(N), 0.2, 6, True)):
         dW = jnp.asarray(rng.normal(size=(n, system.n_noises)) * np.sqrt(h))
-        got = sj.integrate(system, w0, dW, h, method=method, save_every=3, throw=False)
+        got = sj.integrate(
+            system, w0, dW, h, method=method, save_every=3, failures=sj.Failures(throw=False)
+        )
         y, want = jnp.asarray(w0), [jnp.asarray(w0)]
         for k in range(n):  # (full steps: each with both half flows; substeps as the driver's)
             y = _strang_with_substeps(step, y, h, dW[k])

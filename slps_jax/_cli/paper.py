@@ -43,7 +43,9 @@ def _settings(fast) -> dict[str, Any]:
 def _path(system, y0, method, dW, dt, every):
     import slps_jax as sj
 
-    return sj.integrate(system, y0, dW, dt, method=method, save_every=every, throw=False)
+    return sj.integrate(
+        system, y0, dW, dt, method=method, save_every=every, failures=sj.Failures(throw=False)
+    )
 
 
 def _exact_paths(system, y0, *parts):

@@ -1,13 +1,15 @@
 """The one failure report of every run: what failed, where and why, and what to do.
 
-Failures are never silent and never data. `simulate` warns (or raises with `throw=True`);
-`ensemble_statistics` and the studies leave the failed samples out and warn; `calibrate`
-stops. All of them say it in the same words, from `message`. Inside `jit`, `vmap` or `grad`
-the report comes through a host callback when the compiled function runs.
+Failures are never silent and never data. `simulate` warns (or raises with
+`Failures(throw=True)`); `ensemble_statistics` and the studies leave the failed samples out
+and warn (or raise); `calibrate` stops. All of them say it in the same words, from `message`.
+Inside `jit`, `vmap` or `grad` the report comes through a host callback when the compiled
+function runs. `Failures` is the one option of every entry point that says what to do.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import warnings
 
@@ -15,7 +17,7 @@ import jax
 import jax.core
 import numpy as np
 
-from .._support.checks import user_stacklevel
+from .._support.checks import check_retry, check_throw, user_stacklevel
 from .._support.solution import RESULTS
 from .sharding import gather
 
@@ -23,6 +25,49 @@ ADVICE = (
     "A smaller dt usually helps (or LiePoisson(scale=...) near |y| = 1, or a method "
     "without Newton solves such as Strang())."
 )
+
+
+@dataclasses.dataclass(frozen=True)
+class Failures:
+    """What a run does with a step its method cannot solve (a Newton solve that does not
+    converge, a root off the branch): the `failures=` option of every entry point.
+
+    **Arguments:**
+
+    - `retry_substeps`: `k >= 2` (default 4): a step that fails is redone as `k`, then
+      `k^2`, then `k^3` equal substeps of its noise before the sample is given up (`stats`
+      then has `n_retried_steps`); `None`: not redone, and the retry is left out of the
+      compiled program. Steps that succeed are untouched, so results without failures are
+      identical, and the retry is differentiable. When more than half of the steps were
+      redone, a `RuntimeWarning` (once per call) names a step that would not need it
+      (`system.step_guide`).
+    - `throw`: `False` (the default of every entry point but `integrate`): a sample that
+      failed is frozen at its last good state and flagged (`Solution.ok`, `result`,
+      `fail_step`), or left out of a study's statistics, and a `RuntimeWarning` says how
+      many failed, why and where; `True`: raise `RuntimeError` with that message instead.
+      Inside `jax.jit` or `jax.grad` the warning or error comes through a host callback
+      when the compiled function runs.
+    """
+
+    retry_substeps: int | None = 4
+    throw: bool = False
+
+    def __post_init__(self):
+        object.__setattr__(self, "retry_substeps", check_retry(self.retry_substeps))
+        check_throw(self.throw)
+        object.__setattr__(self, "throw", bool(self.throw))
+
+    @property
+    def retried(self) -> bool:
+        return self.retry_substeps is not None
+
+
+def check_failures(failures) -> Failures:
+    if not isinstance(failures, Failures):
+        raise TypeError(
+            f"failures must be a Failures(retry_substeps=..., throw=...), got {failures!r}."
+        )
+    return failures
 
 
 def summary(fail_step, result):
@@ -50,12 +95,20 @@ def message(caller, n_failed, n, consequence, *, why=None, first=None, retried=T
     )
 
 
+def warn_or_raise(failures, msg):
+    """The report of samples a run left out of its results: a `RuntimeWarning`, or with
+    `Failures(throw=True)` a `RuntimeError`."""
+    if failures.throw:
+        raise RuntimeError(msg)
+    warnings.warn(msg, RuntimeWarning, stacklevel=user_stacklevel())
+
+
 def _even(retried):
     return (
-        ", even split into substeps (retry_substeps)"
+        ", even split into substeps (Failures.retry_substeps)"
         if retried
-        else " (retry_substeps=None: failing steps were not split into substeps; the "
-        "default, 4, splits them)"
+        else " (Failures(retry_substeps=None): failing steps were not split into "
+        "substeps; the default, 4, splits them)"
     )
 
 
@@ -69,13 +122,15 @@ def _path_message(caller, fail_step, result, retried):
         return (
             f"integrate: step {first} could not be solved{which}: {why}"
             f"{_even(retried)}. The path is frozen at its last good state from "
-            f"there on. Pass throw=False to return it anyway. {ADVICE}"
+            f"there on. Pass failures=Failures(throw=False) to return it anyway. {ADVICE}"
         )
     return message(
         caller,
         n_failed,
         n,
-        "They are frozen at their last good state: leave "
+        'They are frozen at their last good state: the store\'s "ok" says which.'
+        if caller == "simulate_to_store"
+        else "They are frozen at their last good state: leave "
         "them out with Solution.ok (Solution.result and fail_step say why and "
         "where).",
         why=why,
@@ -90,7 +145,12 @@ def _report_now(caller, throw, retried, fail_step, result):
         return
     if throw:
         raise RuntimeError(
-            msg + (" Pass throw=False to get the other samples." if caller != "integrate" else "")
+            msg
+            + (
+                " Pass failures=Failures(throw=False) to get the other samples."
+                if caller != "integrate"
+                else ""
+            )
         )
     warnings.warn(msg, RuntimeWarning, stacklevel=user_stacklevel())
 
@@ -133,7 +193,7 @@ RETRIED_SHARE = 0.5
 
 
 def report_retries(caller, sol, system, y0, dt, n_steps):
-    """Warn, once per run, when most steps were redone as substeps (`retry_substeps`): the
+    """Warn, once per run, when most steps were redone as substeps (`Failures`): the
     results are right, but the run paid for each step several times. The warning names a
     step that would not need that (`system.step_guide` of the initial state and of the
     first sample's last one, the smaller), or, where the step is already below it, the
@@ -149,7 +209,7 @@ def report_retries(caller, sol, system, y0, dt, n_steps):
         guide = min(system.step_guide(y0), system.step_guide(np.asarray(sol.ys)[0, -1]))
     except Exception:  # (a system whose gradient cannot be evaluated here: traced leaves)
         guide = None
-    start = f"{caller}: {100 * share:.0f} % of the steps were redone as substeps (retry_substeps)"
+    start = f"{caller}: {100 * share:.0f} % of the steps were redone as substeps (Failures.retry_substeps)"
     if guide is not None and guide < float(dt):
         msg = (
             f"{start}: the step dt = {float(dt):.3g} is too large for the method's solve on "

@@ -14,15 +14,13 @@ from .._methods.base import AbstractMethod, finite_result
 from .._support.batching import batched_like
 from .._support.checks import (
     check_positive,
-    check_retry,
     check_save_every,
-    check_throw,
     concrete,
     real_array,
     real_dtype,
 )
 from .._support.solution import RESULTS, Solution
-from .failures import report, report_retries
+from .failures import Failures, check_failures, report, report_retries
 from .plan import (
     check_levy_area,
     check_method,
@@ -366,15 +364,14 @@ def integrate(
     areas=None,
     method: AbstractMethod | str = "auto",
     save_every=None,
-    throw=True,
-    retry_substeps: int | None = 4,
+    failures: Failures = Failures(throw=True),
 ):
     r"""Integrate one path of a stochastic Lie–Poisson system,
     $dy = [y, \nabla H_0]\,dt + \sum_r [y, \nabla H_r]\circ dW_r$ (with `c=`,
     $dy = f(y)(dt + c\circ dW)$), with the given increments.
 
     Uses `dW` exactly as given (no truncation). Works under `jax.jit`, `jax.vmap` and
-    `jax.grad` (with `throw=False`, or `throw=True`, which then raises through a callback).
+    `jax.grad` (a failure then raises through a callback, or with `Failures(throw=False)` not).
 
     **Arguments:**
 
@@ -396,18 +393,17 @@ def integrate(
       the paper's scheme (42)).
     - `save_every`: `None` for the final state only; `k` for the states at steps
       `0, k, 2k, ..., n_steps` (`k` must divide `n_steps`).
-    - `throw`: raise `RuntimeError` if a step cannot be solved, quoting the reason (a
-      `RESULTS` message). With `throw=False` a failed path is frozen at its last good state.
-    - `retry_substeps`: `k >= 2` (default 4): a step that fails is redone as `k`, then `k^2`,
-      then `k^3` equal substeps of `(dt, dW)` before the path is given up; `None`: not
-      redone. Steps that succeed are untouched, so results without failures are identical.
-      Differentiable (forward and reverse mode) through retried steps too.
+    - `failures`: a `Failures`; here by default `Failures(throw=True)`: a step that fails
+      is redone as 4, 16, then 64 substeps of `(dt, dW)`, and if it still fails,
+      `RuntimeError` quotes the reason (a `RESULTS` message). With `throw=False` a failed
+      path is frozen at its last good state. Differentiable (forward and reverse mode)
+      through retried steps too.
 
     **Returns:** the final state (the shape of `y0`), or `(n_steps // save_every + 1, *y0.shape)`.
     """
     check_system(system)
     method = check_method(method, system)
-    check_throw(throw)
+    failures = check_failures(failures)
     y0 = check_y0(y0, method, system)
     dW = real_array("dW", dW)
     s = system.n_noises
@@ -428,13 +424,13 @@ def integrate(
     n_steps = dW.shape[0]
     area = check_levy_area(areas, n_steps, s, method)
     k = check_save_every(save_every, n_steps)
-    retry = check_retry(retry_substeps)
+    retry = failures.retry_substeps
     dtype = real_dtype(y0.dtype)
     dt = jnp.asarray(dt if dt_np is None else float(dt_np), dtype)
     noise = _brownian.BrownianStep(dW.astype(dtype), None if area is None else area.astype(dtype))
     ys, fail_step, result, _, _ = path_of_noise(method, system, y0, noise, dt, k, False, retry)
-    if throw:
-        report("integrate", True, retry is not None, fail_step, result)
+    if failures.throw:
+        report("integrate", True, failures.retried, fail_step, result)
     if save_every is None:
         return ys[-1]
     return jnp.concatenate([y0[None], ys], axis=0)
@@ -451,8 +447,7 @@ def simulate(
     method: AbstractMethod | str = "auto",
     save_every=None,
     newton_stats=False,
-    throw=False,
-    retry_substeps: int | None = 4,
+    failures: Failures = Failures(),
     sharding=None,
     driver: _brownian.BrownianMotion | _brownian.OrnsteinUhlenbeck | None = None,
 ):
@@ -478,17 +473,11 @@ def simulate(
     - `method`: as for `integrate` (default `"auto"`).
     - `save_every`: `None` (final state only) or `k` (states at steps `0, k, ..., n`).
     - `newton_stats`: also report Newton iteration counts and residuals in `stats`.
-    - `throw`: `False` (default): if samples failed (even split into substeps), the
-      `Solution` is returned with them flagged (`Solution.ok`, `result`: a `RESULTS` code
-      per sample, `fail_step`) and a `RuntimeWarning` says how many failed, why and where;
-      `True`: raise `RuntimeError` instead. Inside `jax.jit` or `jax.grad` the warning or
-      error comes through a host callback when the compiled function runs.
-    - `retry_substeps`: `k >= 2` (default 4): a step that fails is redone as `k`, then
-      `k^2`, then `k^3` equal substeps before the sample is given up; `stats` then has
-      `n_retried_steps`. `None`: not redone. Steps that succeed are untouched, and the
-      retry is differentiable. When more than half of the steps were redone, a
-      `RuntimeWarning` (once per call) names a step that would not need it
-      (`system.step_guide`).
+    - `failures`: a `Failures` (default `Failures()`): a step that fails is redone as 4,
+      16, then 64 substeps before the sample is given up; a sample that still failed is
+      returned flagged (`Solution.ok`, `result`: a `RESULTS` code per sample,
+      `fail_step`) and a `RuntimeWarning` says how many failed, why and where
+      (`Failures(throw=True)`: `RuntimeError` instead).
     - `sharding`: `None` (default), `"auto"` (the context mesh of `jax.set_mesh` when one
       is set, else all local devices, when there are several), or a
       `jax.sharding.Sharding` of the sample axis, such as
@@ -510,7 +499,6 @@ def simulate(
 
     **Returns:** a `Solution`.
     """
-    check_throw(throw)
     p = plan_ensemble(
         "simulate",
         system,
@@ -521,12 +509,12 @@ def simulate(
         key=key,
         method=method,
         save_every=save_every,
-        retry_substeps=retry_substeps,
+        failures=failures,
         sharding=sharding,
         driver=driver,
     )
     sol = run_ensemble(p, newton_stats=newton_stats, saved=save_every is not None)
-    report("simulate", throw, retry_substeps is not None, sol.fail_step, sol.result)
+    report("simulate", p.failures.throw, p.failures.retried, sol.fail_step, sol.result)
     report_retries("simulate", sol, p.system, p.y0, p.dt, p.n_steps)
     return sol
 

@@ -11,12 +11,11 @@ import numpy as np
 
 from .. import _brownian
 from .._support.progress import progress_bar
-from .._support.store import RunStore, digest, keep_system, open_run
+from .._support.store import RunStore, Store, check_store, digest, keep_system, open_run
+from .failures import Failures, report
 from .integrate import _highest_precision, initial_carry, run_blocks
 from .plan import plan_ensemble
 
-# Snapshots per record at most (default): a record is one compiled call and one append.
-RECORD_SNAPSHOTS = 16
 # Casimirs tr W^k, k = 2 ... CASIMIR_ORDER, in the default diagnostics of a matrix state
 CASIMIR_ORDER = 6
 # su(N) energy and enstrophy spectra by default up to this N (`mat2shr`'s tables: N^3 numbers)
@@ -26,7 +25,7 @@ SPECTRA_MAX_N = 128
 def simulate_to_store(
     system,
     y0,
-    path,
+    store: Store,
     *,
     t1,
     dt,
@@ -34,54 +33,38 @@ def simulate_to_store(
     key,
     save_every,
     method="auto",
-    diagnostics="auto",
-    save_states=True,
-    record_snapshots=RECORD_SNAPSHOTS,
-    resume=False,
-    retry_substeps: int | None = 4,
+    failures: Failures = Failures(),
     driver: _brownian.BrownianMotion | _brownian.OrnsteinUhlenbeck | None = None,
-    progress=True,
 ):
     r"""`simulate`'s ensemble, written to a run store on disk as it goes: memory stays flat in
     the number of steps, and a run killed at any point goes on from its last complete
-    record with `resume=True`, giving the same states, bit for bit, as a run never stopped.
+    record with `Store(..., resume=True)`, giving the same states, bit for bit, as a run
+    never stopped.
 
-    The run is cut into records of `record_snapshots` snapshots (`save_every` steps apart);
-    each record is one compiled call (compiled once for the whole run) whose snapshots and
-    diagnostics, and the loop's carry after it (the states, the step, each sample's failure
-    code and retry count, the method's history, the driver's state), are appended to the
-    store and committed together (`RunStore`: Zarr, a commit that a kill cannot leave
-    half-written). Sample `i` draws its increments from `fold_in(key, i)` by absolute step,
-    as `simulate` does, so the records compose into one run.
+    The run is cut into records of `store.record_snapshots` snapshots (`save_every` steps
+    apart); each record is one compiled call (compiled once for the whole run) whose
+    snapshots and diagnostics, and the loop's carry after it (the states, the step, each
+    sample's failure code and retry count, the method's history, the driver's state), are
+    appended to the store and committed together (`RunStore`: Zarr, a commit that a kill
+    cannot leave half-written). Sample `i` draws its increments from `fold_in(key, i)` by
+    absolute step, as `simulate` does, so the records compose into one run.
 
     **Arguments:** as `simulate`'s, and
 
-    - `path`: the store's directory (`RunStore`; it must not exist unless `resume=True`).
+    - `store`: a `Store`: the folder, whether to resume (the store's `t1` may then be
+      extended), the diagnostics, whether to keep the states, the record size, the progress
+      bar.
     - `save_every`: steps between snapshots (required: a run to disk saves snapshots).
-    - `diagnostics`: computed on each snapshot, per sample: `"auto"` (default: for a matrix
-      state the Casimirs $\operatorname{tr}W^k$, $k = 2 \dots 6$ (their real part for even
-      $k$, imaginary for odd); for `EulerZeitlin` also `energy`, `enstrophy`, up to
-      N = 128 `energy_spectrum`, `enstrophy_spectrum`, `energy_flux` and `enstrophy_flux`
-      by degree ($N^3$-number tables above; the last axis named `degree`), and with linear
-      terms or an additive forcing the budgets' rates `energy_injection`,
-      `energy_dissipation`, `energy_damping` and the same for the enstrophy
-      (`EulerZeitlin.budget`); for so(3)* the Casimir $|y|^2$), `None`, or a dict
-      `name -> fn(state)` of JAX functions of one state.
-    - `save_states`: also store the states themselves (default `True`; `False` keeps the
-      diagnostics only).
-    - `record_snapshots`: snapshots per record at most (default 16): the largest divisor of
-      the number of snapshots not above it.
-    - `resume`: `False` (default): a new store (an existing one is an error); `True`: go on
-      from the store's last complete record (a record half-written when the run was killed
-      is dropped with a warning), or start one if there is none. A store of another run
-      (system, step, key, method, initial state, ...) is refused, naming what differs. The
-      store's `t1` may be extended.
-    - `progress`: a progress bar with the time left, where someone watches.
+    - `failures`: a `Failures`, as for `simulate`; at the end of the run a `RuntimeWarning`
+      (or with `throw=True` a `RuntimeError`) says how many samples failed, why and
+      where; the store's `"ok"` says which.
 
-    **Returns:** the store opened for reading (`open_run(path)`: `.read(name)`, `.times`,
+    **Returns:** the store opened for reading (`open_run(folder)`: `.read(name)`, `.times`,
     `.to_xarray()`); `"state"` is `(time, n_samples, *state)` and `"ok"` says which samples
     had not failed at each snapshot.
     """
+    store = check_store("simulate_to_store", store)
+    path, resume, save_states = store.folder, store.resume, store.save_states
     if save_every is None:
         raise ValueError("simulate_to_store needs save_every: the steps between snapshots.")
     p = plan_ensemble(
@@ -94,7 +77,7 @@ def simulate_to_store(
         key=key,
         method=method,
         save_every=save_every,
-        retry_substeps=retry_substeps,
+        failures=failures,
         sharding=None,
         driver=driver,
     )
@@ -103,10 +86,8 @@ def simulate_to_store(
             f"simulate_to_store: {type(p.method).__name__} evaluates its flow only where a state "
             "is saved; use simulate, or another method."
         )
-    if not isinstance(resume, bool):
-        raise TypeError(f"resume must be True or False, got {resume!r}.")
-    fns = _diagnostics(p.system, diagnostics)
-    per_record = _record_size(p.n_steps // p.save_every, record_snapshots)
+    fns = _diagnostics(p.system, store.diagnostics)
+    per_record = _record_size(p.n_steps // p.save_every, store.record_snapshots)
     keys = _brownian.sample_keys(p.key, p.n_samples)
     carry0 = _initial_carries(p.method, p.system, p.y0, p.path, keys)
     leaves0, treedef = jax.tree_util.tree_flatten(carry0)
@@ -118,7 +99,7 @@ def simulate_to_store(
         **{k: ((p.n_samples, *s.shape), s.dtype) for k, s in shapes.items()},
     }
     carry_spec = {f"carry_{i}": (leaf.shape, leaf.dtype) for i, leaf in enumerate(leaves0)}
-    store = RunStore(
+    writer = RunStore(
         path,
         _fingerprint(p, keys, shapes, save_states),
         snapshots,
@@ -126,22 +107,22 @@ def simulate_to_store(
         mode="resume" if resume else "create",
         caller="simulate_to_store",
     )
-    with store:
+    with writer:
         keep_system(path, p.system, "simulate_to_store")
         leaves, start = leaves0, 0
-        if store.checkpoint is not None:
+        if writer.checkpoint is not None:
             leaves = [
-                jnp.asarray(store.checkpoint.carry[f"carry_{i}"]) for i in range(len(leaves0))
+                jnp.asarray(writer.checkpoint.carry[f"carry_{i}"]) for i in range(len(leaves0))
             ]
-            start = store.checkpoint.step
+            start = writer.checkpoint.step
             if start % (per_record * p.save_every) or start > p.n_steps:
                 raise ValueError(
                     f"simulate_to_store: the store ends at step {start}, which is not a record "
                     f"boundary of this run (records of {per_record * p.save_every} steps, "
-                    f"{p.n_steps} steps in all): resume with the run's record_snapshots and t1."
+                    f"{p.n_steps} steps in all): resume with the run's Store(record_snapshots=...) and t1."
                 )
         else:  # the initial state as the first snapshot
-            store.append(
+            writer.append(
                 _snapshot(fns, save_states, carry0[0][0][None], (carry0[0][1] == 0)[None]),
                 _carry_dict(leaves0),
                 0,
@@ -150,7 +131,7 @@ def simulate_to_store(
         carry = jax.tree_util.tree_unflatten(treedef, leaves)
         steps = per_record * p.save_every
         bar = progress_bar(
-            (p.n_steps - start) // steps, "simulate_to_store", unit="record", enabled=progress
+            (p.n_steps - start) // steps, "simulate_to_store", unit="record", enabled=store.progress
         )
         for first in range(start, p.n_steps, steps):
             carry, ys = _record(
@@ -159,7 +140,7 @@ def simulate_to_store(
             ok = jnp.broadcast_to(carry[0][1] == 0, (per_record, p.n_samples))
             # (the failure codes are those at the record's end: a sample that failed within it
             # is frozen at its last good state, so its later snapshots repeat that state)
-            store.append(
+            writer.append(
                 _snapshot(fns, save_states, jnp.swapaxes(ys, 0, 1), ok),
                 _carry_dict(jax.tree_util.tree_leaves(carry)),
                 first + steps,
@@ -167,13 +148,12 @@ def simulate_to_store(
             )
             bar.update(1)
         bar.close()
+    report("simulate_to_store", p.failures.throw, p.failures.retried, carry[0][2], carry[0][1])
     return open_run(path)
 
 
 def _record_size(n_snapshots, at_most):
     """The largest divisor of `n_snapshots` not above `at_most` (one compiled record)."""
-    if isinstance(at_most, bool) or not isinstance(at_most, int) or at_most < 1:
-        raise ValueError(f"record_snapshots must be a positive integer, got {at_most!r}.")
     return max(d for d in range(1, min(at_most, n_snapshots) + 1) if n_snapshots % d == 0)
 
 

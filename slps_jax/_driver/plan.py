@@ -21,7 +21,6 @@ from .._support.checks import (
     check_count,
     check_grid,
     check_options,
-    check_retry,
     check_save_every,
     concrete,
     numeric_array,
@@ -30,6 +29,7 @@ from .._support.checks import (
 )
 from .._systems.capabilities import RIGID_BODY, SO3_VECTORS
 from .._systems.system import LiePoissonSystem, check_system
+from .failures import Failures, check_failures
 from .sharding import check_sharding
 
 
@@ -190,13 +190,17 @@ class EnsemblePlan:
     chunk_size: int
     key: object
     save_every: int
-    retry: int | None
+    failures: Failures
     sharding: object
     path: _brownian.AbstractPath
 
     @property
     def dtype(self):
         return real_dtype(self.y0.dtype)
+
+    @property
+    def retry(self) -> int | None:
+        return self.failures.retry_substeps
 
 
 def plan_ensemble(
@@ -210,7 +214,7 @@ def plan_ensemble(
     key,
     method,
     save_every,
-    retry_substeps,
+    failures,
     sharding,
     driver,
     chunk_size=None,
@@ -245,7 +249,7 @@ def plan_ensemble(
         chunk_size,
         key,
         save_every,
-        check_retry(retry_substeps),
+        check_failures(failures),
         sharding,
         path,
     )

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import warnings
 from collections.abc import Callable
 from typing import Any
 
@@ -21,14 +20,69 @@ import numpy as np
 
 from .. import _brownian
 from .._methods.base import AbstractMethod
-from .._support.checks import user_stacklevel
+from .._support.checks import check_count
 from .._support.progress import advance, progress_bar
-from .failures import message
+from .failures import Failures, message, warn_or_raise
 from .integrate import ensemble
 from .plan import plan_ensemble
 from .sharding import automatic
 
 STATISTICS = ("mean", "var", "cov", "skewness", "kurtosis")
+
+
+@dataclasses.dataclass(frozen=True)
+class Chunks:
+    """An ensemble run as a sequence of chunks of samples (`ensemble_statistics`): only one
+    chunk's paths are in memory at a time.
+
+    **Arguments:**
+
+    - `size`: samples per chunk (at most `n_samples` are run). One compilation serves every
+      chunk (the last one is padded and masked).
+    - `sharding`: as for `simulate`, applied to each chunk (`size` must be a multiple of the
+      number of shards).
+    - `progress`: show a progress bar across chunks (default `True`; tqdm: on a terminal or
+      in a notebook, nothing in a log file or a pipe).
+    """
+
+    size: int
+    sharding: Any = None
+    progress: bool = True
+
+    def __post_init__(self):
+        object.__setattr__(self, "size", check_count("Chunks: size", self.size))
+        if not isinstance(self.progress, (bool, np.bool_)):
+            raise TypeError(f"Chunks: progress must be True or False, got {self.progress!r}.")
+
+
+@dataclasses.dataclass(frozen=True)
+class Statistics:
+    """Which moments `ensemble_statistics` keeps, and of what.
+
+    **Arguments:**
+
+    - `names`: among `"mean"` (always computed), `"var"`, `"cov"`, `"skewness"`,
+      `"kurtosis"` (default `("mean", "var")`; one name alone is a tuple of one).
+    - `observable`: `None` (default) for the state itself, or a function of one sample's
+      saved states `(n_saved, *state_shape)` giving an array `(n_saved, ...)` (for example
+      `lambda ys: system.hamiltonian(ys)` under `vmap`) whose moments are taken instead. It
+      must be hashable (a module-level function or a lambda kept alive by the caller) to be
+      compiled once.
+    """
+
+    names: tuple = ("mean", "var")
+    observable: Callable[..., Any] | None = None
+
+    def __post_init__(self):
+        names = (self.names,) if isinstance(self.names, str) else tuple(self.names)
+        unknown = [n for n in names if n not in STATISTICS]
+        if unknown:
+            raise ValueError(f"Statistics: names must be among {STATISTICS}, got {unknown}.")
+        object.__setattr__(self, "names", names)
+        if self.observable is not None and not callable(self.observable):
+            raise TypeError(
+                f"Statistics: observable must be None or a function, got {self.observable!r}."
+            )
 
 
 @jax.tree_util.register_dataclass
@@ -159,49 +213,44 @@ def ensemble_statistics(
     dt,
     n_samples,
     key,
-    chunk_size,
+    chunks: Chunks,
     method: AbstractMethod | str = "auto",
     save_every=None,
-    statistics=("mean", "var"),
-    observable: Callable[..., Any] | None = None,
-    retry_substeps: int | None = 4,
-    sharding=None,
-    progress=True,
+    statistics: Statistics = Statistics(),
+    failures: Failures = Failures(),
     driver: _brownian.BrownianMotion | _brownian.OrnsteinUhlenbeck | None = None,
 ):
     r"""Moments of an ensemble of $dy = f(y)(dt + c \circ dW)$, run in chunks of samples.
 
     The same samples as `simulate(..., n_samples=n_samples, key=key)` (sample `i` draws from
-    `fold_in(key, i)`), but only `chunk_size` paths are held at a time, and only running
+    `fold_in(key, i)`), but only `chunks.size` paths are held at a time, and only running
     moments are kept: memory does not grow with `n_samples`. The moments are merged with the
     pairwise update of Chan, Golub & LeVeque (1979) (third and fourth moments: Pébay 2008),
-    so the results do not depend on `chunk_size` beyond round-off. One compilation serves
-    every chunk (the last one is padded and masked).
+    so the results do not depend on the chunk size beyond round-off.
 
     **Arguments:**
 
-    - `system`, `y0`, `t1`, `dt`, `key`, `method`, `retry_substeps`, `driver`: as for
-      `simulate`.
-    - `n_samples`: the total number of samples; `chunk_size`: samples per chunk (at most
-      `n_samples` are run).
+    - `system`, `y0`, `t1`, `dt`, `key`, `method`, `driver`: as for `simulate`.
+    - `n_samples`: the total number of samples.
+    - `chunks`: a `Chunks`: samples per chunk, their sharding, a progress bar.
     - `save_every`: `None` (statistics of the final state, and of `y0` at `t = 0`) or `k`
       (statistics at steps `0, k, 2k, ..., n`).
-    - `statistics`: which of `"mean"` (always computed), `"var"`, `"cov"`, `"skewness"`,
-      `"kurtosis"` to return.
-    - `observable`: `None` for the state itself, or a function of one sample's saved states
-      `(n_saved, *state_shape)` giving an array `(n_saved, ...)` (for example
-      `lambda ys: system.hamiltonian(ys)` under `vmap`) whose moments are taken instead. It
-      must be hashable (a module-level function or a lambda kept alive by the caller) to be
-      compiled once.
-    - `sharding`: as for `simulate`, applied to each chunk (`chunk_size` must be a multiple
-      of the number of shards).
-    - `progress`: show a progress bar across chunks (tqdm: on a terminal or in a notebook,
-      nothing in a log file or a pipe).
+    - `statistics`: a `Statistics`: which moments (default mean and variance), of the state
+      or of an observable.
+    - `failures`: a `Failures`, as for `simulate`: samples that fail (even split into
+      substeps) are left out of the moments and counted in `n_failed`, with a
+      `RuntimeWarning` (`throw=True`: `RuntimeError` instead).
 
-    **Returns:** an `EnsembleStatistics` (NumPy arrays). Samples that fail (even split into
-    substeps, `retry_substeps`) are left out of the moments and counted in `n_failed`, with a
-    `RuntimeWarning`: the run returns its results, and failures are never used as data.
+    **Returns:** an `EnsembleStatistics` (NumPy arrays). Failed samples are never used as
+    data.
     """
+    if not isinstance(chunks, Chunks):
+        raise TypeError(f"ensemble_statistics: chunks must be a Chunks(size, ...), got {chunks!r}.")
+    if not isinstance(statistics, Statistics):
+        raise TypeError(
+            f"ensemble_statistics: statistics must be a Statistics(names, observable=...), got "
+            f"{statistics!r}."
+        )
     p = plan_ensemble(
         "ensemble_statistics",
         system,
@@ -212,22 +261,17 @@ def ensemble_statistics(
         key=key,
         method=method,
         save_every=save_every,
-        retry_substeps=retry_substeps,
-        sharding=sharding,
+        failures=failures,
+        sharding=chunks.sharding,
         driver=driver,
-        chunk_size=chunk_size,
+        chunk_size=chunks.size,
     )
     method, y0, dt, n_steps, k = p.method, p.y0, p.dt, p.n_steps, p.save_every
     n_samples = p.n_samples
     chunk_size = p.chunk_size
-    if isinstance(statistics, str):
-        statistics = (statistics,)
-    unknown = [s for s in statistics if s not in STATISTICS]
-    if unknown:
-        raise ValueError(f"statistics must be names among {STATISTICS}, got {unknown}.")
-    if observable is not None and not callable(observable):
-        raise TypeError(f"observable must be None or a function, got {observable!r}.")
-    want_cov = "cov" in statistics
+    observable = statistics.observable
+    want_cov = "cov" in statistics.names
+    progress = chunks.progress
 
     n_blocks = n_steps // k
     ts = np.arange(0, n_steps + 1, k, dtype=np.float64) * dt
@@ -245,7 +289,8 @@ def ensemble_statistics(
             + (
                 "the states of " + system.algebra.name + " are complex: pass an observable "
                 "giving real numbers, such as the coefficients "
-                "observable=lambda ys: slps_jax.zeitlin.mat2shr(ys), an energy or the Casimirs."
+                "statistics=Statistics(observable=lambda ys: slps_jax.zeitlin.mat2shr(ys)), an "
+                "energy or the Casimirs."
                 if observable is None
                 else "the observable returns complex numbers."
             )
@@ -292,16 +337,15 @@ def ensemble_statistics(
     n, mean, m2, m3, m4, cov = jax.tree_util.tree_map(np.asarray, state[1])
     n = int(n)
     if n_failed:
-        warnings.warn(
+        warn_or_raise(
+            p.failures,
             message(
                 "ensemble_statistics",
                 n_failed,
                 n_samples,
                 "They are left out of the moments (n_failed).",
-                retried=p.retry is not None,
+                retried=p.failures.retried,
             ),
-            RuntimeWarning,
-            stacklevel=user_stacklevel(),
         )
     with np.errstate(divide="ignore", invalid="ignore"):
         var = m2 / (n - 1) if n > 1 else np.full_like(m2, np.nan)
@@ -311,10 +355,10 @@ def ensemble_statistics(
             n=n,
             n_failed=n_failed,
             mean=mean,
-            var=var if "var" in statistics else None,
+            var=var if "var" in statistics.names else None,
             cov=(cov / (n - 1) if n > 1 else np.full_like(cov, np.nan)) if want_cov else None,
-            skewness=(m3 / n) / mom2**1.5 if "skewness" in statistics else None,
-            kurtosis=(m4 / n) / mom2**2 if "kurtosis" in statistics else None,
+            skewness=(m3 / n) / mom2**1.5 if "skewness" in statistics.names else None,
+            kurtosis=(m4 / n) / mom2**2 if "kurtosis" in statistics.names else None,
             n_chunks=n_chunks,
         )
 

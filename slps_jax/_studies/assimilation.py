@@ -11,8 +11,10 @@ increments, so that a filter built from them moves particles only along coadjoin
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import jax
@@ -148,20 +150,121 @@ class FilterResult(NamedTuple):
 MAX_STAGES = 500  # tempering stages per observation before `assimilate` gives up
 
 
+def check_filter_options(caller, ess_threshold, jitter_steps, jitter_rho):
+    """The tempering's and the jittering's options, refused by name before any work:
+    `ess_threshold` in (0, 1], `jitter_steps` an integer >= 0, `jitter_rho` in [0, 1]."""
+    if not is_real(ess_threshold) or not 0.0 < float(ess_threshold) <= 1.0:
+        raise ValueError(
+            f"{caller}: ess_threshold must be a number in (0, 1] (the least share of effective "
+            f"particles a tempering stage keeps), got {ess_threshold!r}."
+        )
+    if not is_int(jitter_steps) or int(jitter_steps) < 0:
+        raise ValueError(
+            f"{caller}: jitter_steps must be an integer >= 0 (pCN moves per stage), got "
+            f"{jitter_steps!r}."
+        )
+    if not is_real(jitter_rho) or not 0.0 <= float(jitter_rho) <= 1.0:
+        raise ValueError(
+            f"{caller}: jitter_rho must be a number in [0, 1] (pCN's correlation of the new "
+            f"increments with the old: 1 leaves them), got {jitter_rho!r}."
+        )
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Observations:
+    r"""What a filter assimilates: observed quantities of the states with independent
+    Gaussian errors.
+
+    **Arguments:**
+
+    - `values`: `(n_obs, n_y)`, finite.
+    - `observe(state) -> (n_y,)`: one state's observed quantities (JAX-traceable).
+    - `std`: the errors' standard deviation, a positive scalar or `(n_y,)`; none below
+      $\sqrt\epsilon$ of the observations' scale (a point-mass likelihood, which no
+      ensemble meets, is refused before any forecast).
+    - `times`: `(n_obs,)`, the observation times: increasing, equally spaced, after the
+      particles' time, each on the grid of the step from it (`particle_filter`); `None`
+      for `assimilate`, whose forecast goes to the next observation whatever its time.
+    """
+
+    values: Any
+    observe: Callable[..., Any]
+    std: Any
+    times: Any = None
+
+
+@dataclasses.dataclass(frozen=True)
+class Tempering:
+    r"""How a filter brings each observation in: adaptive tempering of the likelihood with
+    pCN jittering at every stage (`assimilate`).
+
+    **Arguments:**
+
+    - `ess_threshold`: the least share of effective particles a tempering stage keeps
+      before its resampling, in (0, 1] (default 0.5).
+    - `jitter_steps`: pCN moves per stage, an integer >= 0 (default 5).
+    - `jitter_rho`: pCN's $\rho$, the new increments' correlation with the old, in [0, 1]
+      (default 0.9; 1 leaves the increments as they are).
+    - `jitter_lag`: the pCN moves' window, in observation intervals (default 1: the
+      increments since the last observation). With $L > 1$ a move changes a particle's
+      increments over the last $L$ intervals (fewer at the start) and re-runs it from its
+      state $L$ observations back, accepted by the window's earlier likelihoods whole and
+      the current one tempered: the same filtering distributions, with resampled copies
+      that diverge from further back, at $L$ times the cost of a move.
+    """
+
+    ess_threshold: float = 0.5
+    jitter_steps: int = 5
+    jitter_rho: float = 0.9
+    jitter_lag: int = 1
+
+    def __post_init__(self):
+        check_filter_options("Tempering", self.ess_threshold, self.jitter_steps, self.jitter_rho)
+        object.__setattr__(
+            self, "jitter_lag", check_count("Tempering: jitter_lag", self.jitter_lag)
+        )
+
+
+def check_tempering(caller, tempering) -> Tempering:
+    if not isinstance(tempering, Tempering):
+        raise TypeError(
+            f"{caller}: tempering must be a Tempering(ess_threshold=..., jitter_steps=..., "
+            f"jitter_rho=..., jitter_lag=...), got {tempering!r}."
+        )
+    return tempering
+
+
+def check_observations(caller, observations, *, timed) -> Observations:
+    """`observations` an `Observations`, with times (`timed`) or without."""
+    if not isinstance(observations, Observations):
+        raise TypeError(
+            f"{caller}: observations must be an Observations(values, observe=..., std=..."
+            f"{', times=...' if timed else ''}), got {type(observations).__name__}."
+        )
+    if timed and observations.times is None:
+        raise ValueError(f"{caller}: the Observations need their times (times=...).")
+    if not timed and observations.times is not None:
+        raise ValueError(
+            f"{caller}: the forecast goes to the next observation whatever its time: give "
+            "Observations without times."
+        )
+    if not callable(observations.observe):
+        raise TypeError(
+            f"{caller}: Observations.observe must be a function of one state, got "
+            f"{observations.observe!r}."
+        )
+    return observations
+
+
 def assimilate(
     forecast,
     particles,
-    observations,
+    observations: Observations,
     *,
-    observe,
-    obs_std,
     increments_shape,
     dt,
     key,
-    ess_threshold=0.5,
-    jitter_steps=5,
-    jitter_rho=0.9,
-    jitter_lag=1,
+    tempering: Tempering = Tempering(),
 ):
     r"""A bootstrap particle filter with adaptive tempering, systematic resampling and pCN
     jittering of each particle's Brownian increments (Cotter, Crisan, Holm, Pan & Shevchenko
@@ -187,23 +290,12 @@ def assimilate(
       (it is never resampled, and a pCN move to it is rejected). A state may be a pytree of
       arrays with the particles first, such as a system's state and a driver's traces.
     - `particles`: the initial ensemble, `(n, *state)` (or a pytree of such arrays), `n >= 2`.
-    - `observations`: `(n_obs, n_y)`, finite.
-    - `observe(state) -> (n_y,)`: one state's observed quantities.
-    - `obs_std`: the Gaussian observation error, a positive scalar or `(n_y,)`; none below
-      $\sqrt\epsilon$ of the observations' scale (a point-mass likelihood, which no
-      ensemble meets, is refused before any forecast).
+    - `observations`: an `Observations` (values, `observe`, `std`; without times).
     - `increments_shape`: the shape of one particle's increments between observations.
     - `dt`: the step of the increments (their variance).
     - `key`: a JAX key.
-    - `ess_threshold`, `jitter_steps`, `jitter_rho`: the tempering's least ESS share, in
-      (0, 1]; the pCN steps per stage, an integer >= 0; and pCN's $\rho$, in [0, 1] (1
-      leaves the increments as they are).
-    - `jitter_lag`: the pCN moves' window, in observation intervals (1: the increments since
-      the last observation). With $L > 1$ a move changes a particle's increments over the
-      last $L$ intervals (fewer at the start) and re-runs it from its state $L$ observations
-      back, accepted by the window's earlier likelihoods whole and the current one tempered:
-      the same filtering distributions, with resampled copies that diverge from further
-      back, at $L$ times the cost of a move.
+    - `tempering`: a `Tempering` (default `Tempering()`): the stages' least ESS share, and
+      the pCN moves' number, $\rho$ and window.
 
     **Returns:** a `FilterResult`.
     """
@@ -211,48 +303,20 @@ def assimilate(
         "assimilate",
         forecast,
         particles,
-        observations,
-        observe=observe,
-        obs_std=obs_std,
+        check_observations("assimilate", observations, timed=False),
         increments_shape=increments_shape,
         dt=dt,
         key=key,
-        ess_threshold=ess_threshold,
-        jitter_steps=jitter_steps,
-        jitter_rho=jitter_rho,
-        jitter_lag=jitter_lag,
+        tempering=check_tempering("assimilate", tempering),
     )
 
 
-def _assimilate(
-    caller,
-    forecast,
-    particles,
-    observations,
-    *,
-    observe,
-    obs_std,
-    increments_shape,
-    dt,
-    key,
-    ess_threshold,
-    jitter_steps,
-    jitter_rho,
-    jitter_lag,
-):
+def _assimilate(caller, forecast, particles, observations, *, increments_shape, dt, key, tempering):
     """`assimilate`, its errors naming `caller` (the function the user called)."""
     key = checked_key(caller, key)
-    check_filter_options(caller, ess_threshold, jitter_steps, jitter_rho)
-    run = _prepare(forecast, particles, observations, observe, obs_std, jitter_lag, caller)
+    run = _prepare(forecast, particles, observations, tempering, caller)
     analyses, esses, temperatures, acceptance, evidence = [], [], [], [], []
-    for cycle in run.cycles(
-        _start(run, key),
-        increments_shape=increments_shape,
-        dt=dt,
-        ess_threshold=ess_threshold,
-        jitter_steps=jitter_steps,
-        jitter_rho=jitter_rho,
-    ):
+    for cycle in run.cycles(_start(run, key), increments_shape=increments_shape, dt=dt):
         analyses.append(cycle.analysis)
         esses.append(cycle.ess)
         temperatures.append(jnp.asarray(cycle.temperatures))
@@ -302,14 +366,18 @@ class _Run(NamedTuple):
     x: Any
     ys: Any
     std: Any
-    lag: int
+    tempering: Tempering
     real: Any
     advance: Any
 
-    def cycles(self, state, *, increments_shape, dt, ess_threshold, jitter_steps, jitter_rho):
+    @property
+    def lag(self) -> int:
+        return self.tempering.jitter_lag
+
+    def cycles(self, state, *, increments_shape, dt):
         """The assimilation of observations `state.k`, `state.k + 1`, ... (a generator of
         `_Cycle`s)."""
-        return _cycles(self, state, increments_shape, dt, ess_threshold, jitter_steps, jitter_rho)
+        return _cycles(self, state, increments_shape, dt)
 
 
 def checked_key(caller, key):
@@ -320,42 +388,23 @@ def checked_key(caller, key):
         raise type(e)(f"{caller}: {e}") from None
 
 
-def check_filter_options(caller, ess_threshold, jitter_steps, jitter_rho):
-    """The tempering's and the jittering's options, refused by name before any work:
-    `ess_threshold` in (0, 1], `jitter_steps` an integer >= 0, `jitter_rho` in [0, 1]."""
-    if not is_real(ess_threshold) or not 0.0 < float(ess_threshold) <= 1.0:
-        raise ValueError(
-            f"{caller}: ess_threshold must be a number in (0, 1] (the least share of effective "
-            f"particles a tempering stage keeps), got {ess_threshold!r}."
-        )
-    if not is_int(jitter_steps) or int(jitter_steps) < 0:
-        raise ValueError(
-            f"{caller}: jitter_steps must be an integer >= 0 (pCN moves per stage), got "
-            f"{jitter_steps!r}."
-        )
-    if not is_real(jitter_rho) or not 0.0 <= float(jitter_rho) <= 1.0:
-        raise ValueError(
-            f"{caller}: jitter_rho must be a number in [0, 1] (pCN's correlation of the new "
-            f"increments with the old: 1 leaves them), got {jitter_rho!r}."
-        )
-
-
-def _prepare(forecast, particles, observations, observe, obs_std, jitter_lag, caller):
+def _prepare(forecast, particles, observations, tempering, caller):
     """`assimilate`'s inputs checked, by name, before any work (`_Run`); errors name
     `caller`."""
+    observe = observations.observe
     x = _map(jnp.asarray, particles)
-    ys = jnp.asarray(observations)
+    ys = jnp.asarray(observations.values)
     first = jax.tree_util.tree_leaves(x)[0]
     n = first.shape[0]
     if n < 2:
         raise ValueError(f"{caller}: particles must hold at least 2 particles, got {n}.")
     if ys.ndim != 2 or not bool(jnp.all(jnp.isfinite(ys))):
         raise ValueError(
-            f"{caller}: observations must be a finite (n_obs, n_y) array, got shape {ys.shape}."
+            f"{caller}: the observations' values must be a finite (n_obs, n_y) array, got "
+            f"shape {ys.shape}."
         )
     real = jnp.zeros((), first.dtype).real.dtype  # (complex states: real increments, weights)
-    std = _check_obs_std(caller, obs_std, ys, real)
-    lag = check_count("jitter_lag", jitter_lag)
+    std = _check_obs_std(caller, observations.std, ys, real)
     got = jax.eval_shape(jax.vmap(observe), x).shape
     if got != (n, ys.shape[1]):
         raise ValueError(
@@ -372,7 +421,7 @@ def _prepare(forecast, particles, observations, observe, obs_std, jitter_lag, ca
         ell = _log_likelihood(observe, states, y, std)
         return states, ell if ok is None else jnp.where(ok, ell, -jnp.inf)
 
-    return _Run(x, ys, std, lag, real, advance)
+    return _Run(x, ys, std, tempering, real, advance)
 
 
 def _check_obs_std(caller, obs_std, ys, real):
@@ -385,18 +434,22 @@ def _check_obs_std(caller, obs_std, ys, real):
     n_y = ys.shape[1]
     if std.shape not in ((), (n_y,)):
         raise ValueError(
-            f"{caller}: obs_std must be a scalar or one error per observed quantity, shape "
+            f"{caller}: the observations' std must be a scalar or one error per observed "
+            "quantity, shape "
             f"({n_y},); got shape {std.shape}."
         )
     if not np.all(np.isfinite(std) & (std > 0)):
-        raise ValueError(f"{caller}: obs_std must be positive and finite, got {obs_std!r}.")
+        raise ValueError(
+            f"{caller}: the observations' std must be positive and finite, got {obs_std!r}."
+        )
     std = np.broadcast_to(std, (n_y,))
     scale = max(float(np.max(np.abs(np.asarray(ys)), initial=0.0)), float(np.max(std)))
     floor = math.sqrt(float(jnp.finfo(real).eps)) * scale
     tiny = np.flatnonzero(std < floor)
     if tiny.size:
         raise ValueError(
-            f"{caller}: obs_std is {float(np.min(std[tiny])):.1e} at observed quantities "
+            f"{caller}: the observations' std is {float(np.min(std[tiny])):.1e} at observed "
+            "quantities "
             f"{tiny[:8].tolist()}{' ...' if tiny.size > 8 else ''}, below {floor:.1e} (sqrt(eps) "
             f"of the observations' scale {scale:.2g}): the likelihood is a point mass there, "
             "which no ensemble meets (a quantity the dynamics conserve has no spread to take a "
@@ -419,9 +472,11 @@ def _start(run, key):
     )
 
 
-def _cycles(run, state, increments_shape, dt, ess_threshold, jitter_steps, jitter_rho):
+def _cycles(run, state, increments_shape, dt):
     """`_Run.cycles`."""
     ys, lag, real = run.ys, run.lag, run.real
+    t = run.tempering
+    ess_threshold, jitter_steps, jitter_rho = t.ess_threshold, t.jitter_steps, t.jitter_rho
     n = _count(run.x)
     shape = (n, *increments_shape)
     sqrt_dt = jnp.sqrt(jnp.asarray(dt, real))
@@ -465,7 +520,8 @@ def _cycles(run, state, increments_shape, dt, ess_threshold, jitter_steps, jitte
             if len(betas) >= MAX_STAGES:
                 raise RuntimeError(
                     f"assimilate: observation {k} needs more than {MAX_STAGES} tempering stages "
-                    "(a likelihood too sharp for the ensemble): raise obs_std or the particles."
+                    "(a likelihood too sharp for the ensemble): raise the observations' std or the "
+                    "particles."
                 )
             logw = (new - beta) * ells[:, -1]
             least = min(least, float(effective_sample_size(logw)))

@@ -16,7 +16,7 @@ import numpy as np
 import optax
 
 from .. import _brownian
-from .._driver.failures import message
+from .._driver.failures import Failures, check_failures, message
 from .._driver.integrate import run_ensemble
 from .._driver.plan import (
     check_driver,
@@ -25,7 +25,7 @@ from .._driver.plan import (
     plan_ensemble,
 )
 from .._methods.base import AbstractMethod
-from .._support.checks import steps_on_grid
+from .._support.checks import check_count, steps_on_grid
 from .._systems.noise import _AbstractParameterNoise
 from .._systems.rigid_body import RigidBody
 
@@ -42,6 +42,66 @@ def moments(ys):
     return jnp.concatenate([jnp.mean(ys, axis=0), jnp.mean(ys**2, axis=0)])
 
 
+@dataclasses.dataclass(frozen=True, eq=False)
+class ObservedStatistics:
+    r"""What `calibrate` fits to: statistics of an observed ensemble at a few times.
+
+    **Arguments:**
+
+    - `values`: `(len(times), k)`, the statistics to match.
+    - `times`: increasing positive observation times, multiples of the step.
+    - `statistic`: `(n_samples, 3) -> (k,)`, how the simulated ensemble's statistics are
+      computed from its states at each time; default `moments` (means of `y` and `y**2`).
+    - `stderr`: standard errors of `values` (same shape), used as weights and for the
+      standard errors of the fit; `None` (default): weights 1, and no standard errors.
+    - `n_samples`: the size of the observed ensemble, if known: the standard errors then
+      include the sampling error of the simulated statistics too (a factor
+      $\sqrt{1 + n_{obs}/n_{samples}}$, the system's statistics having the observed ones'
+      variance).
+    """
+
+    values: Any
+    times: Any
+    statistic: Callable[..., Any] = moments
+    stderr: Any = None
+    n_samples: int | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class Optimisation:
+    """How `calibrate` minimises its loss.
+
+    **Arguments:**
+
+    - `optimizer`: `None` (default) for Levenberg-Marquardt on the weighted residuals: the
+      loss is a deterministic, smooth sum of squares, and each step evaluates the residuals
+      and their Jacobian (forward mode) with the one compiled program that also checks the
+      identifiability at `init` and gives the standard errors, so the fit compiles nothing
+      more (and a later fit with the same settings and shapes, other data or another start,
+      nothing at all). Or an optax optimiser, minimising the loss with its reverse-mode
+      gradient in a compiled step of its own (a line search, as in `optax.lbfgs()`, holds
+      the simulation in that step once per place it evaluates the loss); optimisers that
+      need the loss value get it.
+    - `steps`: at most this many optimiser steps (default 50); stops earlier when the loss
+      changes by less than `rtol` relative (default 1e-10).
+    - `progress`: print the loss and parameters as it goes (to stderr; default `True`).
+    """
+
+    optimizer: Any = None
+    steps: int = 50
+    rtol: float = 1e-10
+    progress: bool = True
+
+    def __post_init__(self):
+        object.__setattr__(self, "steps", check_count("Optimisation: steps", self.steps))
+        if isinstance(self.rtol, bool) or not (
+            isinstance(self.rtol, (int, float)) and self.rtol >= 0
+        ):
+            raise ValueError(f"Optimisation: rtol must be a number >= 0, got {self.rtol!r}.")
+        if not isinstance(self.progress, (bool, np.bool_)):
+            raise TypeError(f"Optimisation: progress must be True or False, got {self.progress!r}.")
+
+
 @dataclasses.dataclass(frozen=True)
 class CalibrationResult:
     """What `calibrate` returns.
@@ -53,8 +113,8 @@ class CalibrationResult:
       noise family's parameter (`chi[r,j]` for `salt_noise`, `sigma[r,j]` for
       `random_inertia_noise`).
     - `stderr`: delta-method standard errors of the parameters in `names` from the Jacobian of
-      the statistics at the fit and `observed_stderr` (`None` if that was not given; 0 for
-      the fixed parameters); with `observed_n_samples` they include the simulation's own
+      the statistics at the fit and the observed `stderr` (`None` if that was not given; 0 for
+      the fixed parameters); with the observed ensemble's `n_samples` they include the simulation's own
       sampling error. They treat the statistics as independent: statistics of the same
       paths at several times are correlated, so these can be optimistic (compare the
       spread of fits to independent data sets).
@@ -139,7 +199,7 @@ class _Fit:
     saved: tuple  # the indices of the observation times among the saved states
     method: object
     driver: object  # a BrownianMotion, its Lévy-area option resolved for the method
-    retry_substeps: int | None
+    failures: Failures
     statistic: Callable[..., Any]
 
     def full(self, theta, theta_all):
@@ -160,7 +220,7 @@ class _Fit:
             key=key,
             method=self.method,
             save_every=self.every,
-            retry_substeps=self.retry_substeps,
+            failures=self.failures,
             sharding=None,
             driver=self.driver,
         )
@@ -183,24 +243,17 @@ def _residuals_and_jacobian(fit, theta, theta_all, observed, weight, key):
 
 
 def calibrate(
-    observed,
+    observed: ObservedStatistics,
     y0,
     *,
-    ts,
     dt,
     n_samples,
     key,
     init,
-    statistic: Callable[..., Any] = moments,
-    observed_stderr=None,
-    observed_n_samples=None,
     fixed=(),
     method: AbstractMethod | str = "auto",
-    optimizer=None,
-    steps=50,
-    retry_substeps=4,
-    rtol=1e-10,
-    progress=True,
+    optimisation: Optimisation = Optimisation(),
+    failures: Failures = Failures(),
     driver: _brownian.BrownianMotion | None = None,
 ):
     r"""Fit `inertia` and the noise (`c`, or a noise family's parameters) of a `RigidBody` to
@@ -208,8 +261,8 @@ def calibrate(
 
     Minimises the weighted least-squares misfit
     $L(\theta) = \tfrac12 \sum_{k} |(S_k(\theta) - S^{obs}_k)/\sigma_k|^2$, where
-    $S_k(\theta)$ = `statistic` of the simulated ensemble at time `ts[k]` and $\sigma$ =
-    `observed_stderr` (1 if not given), over $\theta = (\log I_1, \log I_2, \log I_3, \log c)$:
+    $S_k(\theta)$ = `observed.statistic` of the simulated ensemble at time `observed.times[k]`
+    and $\sigma$ = `observed.stderr` (1 if not given), over $\theta = (\log I_1, \log I_2, \log I_3, \log c)$:
     the parameters stay positive ($c$ and $-c$ give the same law, so only $|c|$ can be
     fitted). For a `RigidBody` with a noise family (`noise=salt_noise(chi)`,
     `random_inertia_noise(sigma)`) $\theta$ is $\log I$ and the family's parameter array as
@@ -229,33 +282,20 @@ def calibrate(
 
     **Arguments:**
 
-    - `observed`: array `(len(ts), k)`, the statistics to match.
-    - `y0`: the initial value; `ts`: increasing observation times, multiples of `dt`.
-    - `dt`, `n_samples`, `key`, `method`, `retry_substeps`: as in `simulate`.
+    - `observed`: an `ObservedStatistics`: the statistics to match, their times (multiples
+      of `dt`), how they are computed from an ensemble, their standard errors.
+    - `y0`: the initial value.
+    - `dt`, `n_samples`, `key`, `method`: as in `simulate`.
+    - `failures`: a `Failures`: failing steps are redone as substeps
+      (`retry_substeps`); a sample that still fails stops the fit with a `RuntimeError`
+      whatever `throw` says (the fit's common random numbers cannot leave it out).
     - `driver`: `None` or `sj.BrownianMotion(...)`, as in `simulate` (its truncation and
       Lévy areas).
     - `init`: a `RigidBody` (with `c=` or with a noise family), the starting guess.
-    - `statistic`: `(n_samples, 3) -> (k,)`; default `moments` (means of `y` and `y**2`).
-    - `observed_stderr`: standard errors of `observed` (same shape), used as weights and for
-      the standard errors of the fit.
-    - `observed_n_samples`: the size of the observed ensemble, if known: the standard errors
-      then include the sampling error of the simulated statistics too (a factor
-      $\sqrt{1 + n_{obs}/n_{samples}}$, the system's statistics having the observed ones'
-      variance).
     - `fixed`: names among `"I_1", "I_2", "I_3", "c"` (or the noise family's entries, such
       as `"chi[0, 1]"`; `CalibrationResult.names` lists them) held at their values in `init`.
-    - `optimizer`: `None` (default) for Levenberg-Marquardt on the weighted residuals: the
-      loss is a deterministic, smooth sum of squares, and each step evaluates the residuals
-      and their Jacobian (forward mode) with the one compiled program that also checks the
-      identifiability at `init` and gives the standard errors, so the fit compiles nothing
-      more (and a later fit with the same settings and shapes, other data or another start,
-      nothing at all). Or an optax optimiser, minimising the loss with its reverse-mode
-      gradient in a compiled step of its own (a line search, as in `optax.lbfgs()`, holds
-      the simulation in that step once per place it evaluates the loss); optimisers that
-      need the loss value get it.
-    - `steps`: at most this many optimiser steps; stops earlier when the loss changes by
-      less than `rtol` relative.
-    - `progress`: print the loss and parameters as it goes (to stderr).
+    - `optimisation`: an `Optimisation`: Levenberg-Marquardt (default) or an optax
+      optimiser, the most steps, the tolerance, the progress printout.
 
     **Returns:** a `CalibrationResult`.
 
@@ -276,27 +316,45 @@ def calibrate(
             "calibrate fits the parameters of a noise family (salt_noise, "
             "random_inertia_noise); a noise given as a function has none."
         )
+    if not isinstance(observed, ObservedStatistics):
+        raise TypeError(
+            f"calibrate: observed must be an ObservedStatistics(values, times, ...), got "
+            f"{type(observed).__name__}."
+        )
+    if not isinstance(optimisation, Optimisation):
+        raise TypeError(f"calibrate: optimisation must be an Optimisation, got {optimisation!r}.")
+    failures = check_failures(failures)
+    statistic, observed_stderr = observed.statistic, observed.stderr
+    observed_n_samples, ts = observed.n_samples, observed.times
+    optimizer, steps, rtol = optimisation.optimizer, optimisation.steps, optimisation.rtol
+    progress = optimisation.progress
+    values = observed.values
     params = _Parameters.of(init)
     all_names = params.names
     ts = np.asarray(ts, float)
     if ts.ndim != 1 or len(ts) < 1 or not np.all(np.diff(ts) > 0) or ts[0] <= 0:
-        raise ValueError(f"ts must be increasing positive times, got {ts}.")
+        raise ValueError(
+            f"calibrate: the observed times must be increasing and positive, got {ts}."
+        )
     idx, on_grid = steps_on_grid(ts, dt)
     if not np.all(on_grid):
-        raise ValueError(f"ts must be multiples of dt={dt}, got {ts}.")
+        raise ValueError(f"calibrate: the observed times must be multiples of dt={dt}, got {ts}.")
     every = math.gcd(*idx.tolist())
-    observed = jnp.asarray(observed)
-    if observed.ndim != 2 or observed.shape[0] != len(ts):
+    values = jnp.asarray(values)
+    if values.ndim != 2 or values.shape[0] != len(ts):
         raise ValueError(
-            f"observed must have shape (len(ts), k) = ({len(ts)}, k), got {observed.shape}."
+            f"calibrate: the observed values must have shape (len(times), k) = ({len(ts)}, k), "
+            f"got {values.shape}."
         )
     weight = (
-        jnp.ones_like(observed)
+        jnp.ones_like(values)
         if observed_stderr is None
-        else 1.0 / jnp.asarray(observed_stderr, observed.dtype)
+        else 1.0 / jnp.asarray(observed_stderr, values.dtype)
     )
-    if weight.shape != observed.shape or not bool(jnp.all(jnp.isfinite(weight) & (weight > 0))):
-        raise ValueError("observed_stderr must be positive and have the shape of observed.")
+    if weight.shape != values.shape or not bool(jnp.all(jnp.isfinite(weight) & (weight > 0))):
+        raise ValueError(
+            "calibrate: the observed stderr must be positive and have the shape of the values."
+        )
     key = _brownian.check_key(key)
     unknown = [n for n in fixed if n not in all_names]
     if unknown or len(set(fixed)) == len(all_names):
@@ -325,7 +383,7 @@ def calibrate(
             truncate_k=cast(_brownian.BrownianMotion, brownian).truncate_k,
             levy_area=check_levy_option(brownian.levy_area, method, init),
         ),
-        retry_substeps,
+        check_failures(failures),
         statistic,
     )
 
@@ -333,10 +391,10 @@ def calibrate(
         return fit.full(theta, theta_all)
 
     def residuals(theta):
-        return fit.residuals(theta, theta_all, observed, weight, key)
+        return fit.residuals(theta, theta_all, values, weight, key)
 
     def jacobian(theta):
-        return _residuals_and_jacobian(fit, theta, theta_all, observed, weight, key)
+        return _residuals_and_jacobian(fit, theta, theta_all, values, weight, key)
 
     def check(n_failed, theta, where):
         n_failed = int(n_failed)
@@ -349,7 +407,7 @@ def calibrate(
                     f"The fit stops {where}, at {params.describe(full(theta))}: failed samples "
                     f"are frozen at their last good state and never used as data; an init or "
                     f"y0 away from the failing region may help too.",
-                    retried=retry_substeps is not None,
+                    retried=failures.retried,
                 )
             )
 

@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _brownian
-from .._driver.failures import message, summary
+from .._driver.failures import Failures, check_failures, message, summary, warn_or_raise
 from .._driver.integrate import ensemble_dynamic_jit
 from .._driver.plan import (
     check_driver,
@@ -30,13 +30,44 @@ from .._methods.midpoint import Midpoint
 from .._support.checks import (
     check_count,
     check_positive,
-    check_retry,
     real_dtype,
     steps_on_grid,
     user_stacklevel,
 )
 from .._systems.capabilities import NOISE_PROPORTIONAL_TO_DRIFT, RIGID_BODY
 from .._systems.flow import drift_flow
+
+
+@dataclasses.dataclass(frozen=True)
+class Reference:
+    """A method as the convergence studies' reference (`strong_convergence`,
+    `weak_convergence`), run on the same paths at a fine step.
+
+    **Arguments:**
+
+    - `method`: a method instance (for example `Midpoint()`).
+    - `dt`: its step, which must divide `t1` and be a divisor of the study's steps; or
+    - `factor`: an integer >= 2, its step then `min(dts) / factor`. Not both; neither:
+      `factor` 64 (what a bare method as the reference gets).
+    """
+
+    method: AbstractMethod
+    dt: float | None = None
+    factor: int | None = None
+
+    def __post_init__(self):
+        if not isinstance(self.method, AbstractMethod):
+            raise TypeError(f"Reference: method must be a method instance, got {self.method!r}.")
+        if self.dt is not None and self.factor is not None:
+            raise ValueError("Reference: give dt or factor, not both.")
+        if self.dt is not None:
+            object.__setattr__(
+                self, "dt", float(np.asarray(check_positive("Reference: dt", self.dt)))
+            )
+        if self.factor is not None:
+            object.__setattr__(
+                self, "factor", check_count("Reference: factor", self.factor, minimum=2)
+            )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -136,7 +167,7 @@ class _Study:
     ref_failed: np.ndarray  # samples on which a method reference failed
     ref_why: str | None  # what failed there, in words
     areas: dict  # method name -> whether it gets the Lévy areas
-    retried: bool  # failing steps are split into substeps (retry_substeps)
+    failures: Failures  # what a failing step does
 
 
 def order_text(order, stderr):
@@ -171,9 +202,7 @@ def _study(
     key,
     methods,
     reference,
-    reference_dt,
-    reference_factor,
-    retry_substeps,
+    failures,
     driver,
 ):
     """Validate a study's arguments (before anything compiles) and set up its shared paths
@@ -211,14 +240,17 @@ def _study(
     dts = np.sort(dts)[::-1]
     named = reference if isinstance(reference, str) else None
     if named == "midpoint":
-        reference = Midpoint()
-        if reference_dt is None and reference_factor is None:
-            reference_factor = 16
+        reference = Reference(Midpoint(), factor=16)
+    elif isinstance(reference, AbstractMethod):
+        reference = Reference(reference)
+    reference_dt = reference_factor = None
+    if isinstance(reference, Reference):
+        reference, reference_dt, reference_factor = reference.method, reference.dt, reference.factor
     is_method = isinstance(reference, AbstractMethod)
     if not (is_method or callable(reference) or named == "exact"):
         raise ValueError(
-            f"reference must be 'exact', 'midpoint', a method instance or a callable flow, "
-            f"got {reference!r}."
+            f"reference must be 'exact', 'midpoint', a method instance, a Reference or a "
+            f"callable flow, got {reference!r}."
         )
     if not is_method and not NOISE_PROPORTIONAL_TO_DRIFT(system):
         raise ValueError(
@@ -229,14 +261,9 @@ def _study(
     if is_method:
         check_method(reference)
         y0 = check_y0(y0, reference, system)
-    if reference_dt is not None and reference_factor is not None:
-        raise ValueError("Pass reference_dt or reference_factor, not both.")
-    if reference_dt is not None:
-        check_positive("reference_dt", reference_dt)
-    if reference_factor is not None:
-        reference_factor = check_count("reference_factor", reference_factor, minimum=2)
     n_samples = check_count("n_samples", n_samples, minimum=2)
-    retry = check_retry(retry_substeps)
+    failures = check_failures(failures)
+    retry = failures.retry_substeps
     key = _brownian.check_key(key)
     fine_dt = float(dts[-1])
     if is_method:
@@ -284,10 +311,10 @@ def _study(
     half = None  # a method reference at twice its step
     ref_failed, ref_why = np.zeros(int(n_samples), bool), None
     if is_method:
-        y_ref, ref_failed, ref_why = final_states(reference, fine_dt, "reference_dt", ref_areas)
+        y_ref, ref_failed, ref_why = final_states(reference, fine_dt, "Reference.dt", ref_areas)
         # (at twice its step: possible when that divides t1)
         half, half_failed, _ = (
-            final_states(reference, 2 * fine_dt, "reference_dt", ref_areas)
+            final_states(reference, 2 * fine_dt, "Reference.dt", ref_areas)
             if n_fine % 2 == 0
             else (None, None, None)
         )
@@ -332,14 +359,14 @@ def _study(
         ref_failed,
         ref_why,
         areas,
-        retry is not None,
+        failures,
     )
 
 
 def _runs(st, name, method):
     """The final states of `method` at every step size of the study, `(n_dts, n_samples,
     ...)`, and the samples its estimates use: those on which the reference and every one
-    of its runs succeeded (failing steps are split into substeps first, `retry_substeps`).
+    of its runs succeeded (failing steps are split into substeps first, `Failures`).
     The others are left out of all its step sizes alike, so that its errors stay paired,
     and a `RuntimeWarning` says how many, where and why."""
     runs = [st.final_states(method, float(dt), areas=st.areas[name]) for dt in st.dts]
@@ -355,7 +382,8 @@ def _runs(st, name, method):
                 f"samples ({why}): nothing left to estimate from. Use "
                 f"smaller dts."
             )
-        warnings.warn(
+        warn_or_raise(
+            st.failures,
             message(
                 f"{st.caller} ({name})",
                 n_failed,
@@ -363,10 +391,8 @@ def _runs(st, name, method):
                 f"They are left out of {name}'s estimates at every step size "
                 f"(n_failed), so that its errors stay paired.",
                 why=why,
-                retried=st.retried,
+                retried=st.failures.retried,
             ),
-            RuntimeWarning,
-            stacklevel=user_stacklevel(),
         )
     return np.stack([np.asarray(y) for y, _, _ in runs]), ~failed
 
@@ -381,10 +407,8 @@ def strong_convergence(
     key,
     methods,
     reference="exact",
-    reference_dt=None,
-    reference_factor=None,
     n_bootstrap=200,
-    retry_substeps=4,
+    failures: Failures = Failures(),
     driver: _brownian.BrownianMotion | None = None,
 ):
     r"""Root-mean-square error at `t1` of each method at each step size, on shared paths.
@@ -407,17 +431,16 @@ def strong_convergence(
           in closed form for a `RigidBody` (no discretisation error), by Runge–Kutta at
           steps of at most 2^-10 otherwise (so(n) and su(N) included; about 1e-13);
         - a method instance, for any system (several noises included): that method at the
-          step `min(dts) / reference_factor` (default factor 64, or `reference_dt`);
-        - `"midpoint"`: `Midpoint()` at `reference_dt` (default `min(dts)/16`, the paper's
+          step `min(dts) / 64`; `Reference(method, dt=...)` or `Reference(method,
+          factor=...)` at another step;
+        - `"midpoint"`: `Reference(Midpoint(), factor=16)` (`min(dts)/16`, the paper's
           choice);
         - a callable `flow(times) -> states`, a flow $\varphi_t(y_0)$ of the user's at the
           NumPy array of times $t_1 + cW(t_1)$, shape `(n_samples,)` to
           `(n_samples, *state_shape)` (a system with one noise proportional to the drift).
-    - `reference_dt`, `reference_factor`: the reference method's step, or the factor by
-      which it is finer than `min(dts)` (not both).
     - `n_bootstrap`: resamples for the order's standard error.
-    - `retry_substeps`: as in `simulate`: redo failing steps as `k, k^2, k^3` substeps
-      (default 4; `None`: not).
+    - `failures`: a `Failures`, as for `simulate` (failing steps redone as 4, 16, 64
+      substeps; samples that still fail are left out, below).
     - `driver`: `None` or `sj.BrownianMotion(truncate_k=..., levy_area=...)`: the
       truncation of the fine increments (`truncate_k`, default 4; `None` for none), and
       whether a method that `uses_levy_area()` gets the Lévy areas of its steps (`levy_area`:
@@ -431,7 +454,7 @@ def strong_convergence(
     Samples on which a method fails (even split into substeps) are left out of that
     method's estimates at every step size, counted in `n_failed`, with a `RuntimeWarning`:
     as in `simulate` and `ensemble_statistics`, a long run returns its results and failures
-    are never used as data.
+    are never used as data (`Failures(throw=True)`: `RuntimeError` instead).
 
     **Returns:** a `ConvergenceResult`. For a method reference its `reference_error` is the
     RMS difference between the reference and the same method at twice its step, on the same
@@ -450,9 +473,7 @@ def strong_convergence(
         key=key,
         methods=methods,
         reference=reference,
-        reference_dt=reference_dt,
-        reference_factor=reference_factor,
-        retry_substeps=retry_substeps,
+        failures=failures,
         driver=driver,
     )
     dts, y_ref = st.dts, st.y_ref
@@ -491,8 +512,9 @@ class WeakConvergenceResult:
     - `reference_mean`: $E[g(y(t_1))]$: by Gauss–Hermite quadrature of the exact flow for
       `reference="exact"` (exact to quadrature accuracy), else the mean over the reference
       paths.
-    - `reference_error`: the reference's own weak error: 0 for `"exact"` on a `RigidBody` (`nan`, not
-      estimated, for Runge–Kutta's about 1e-13); for a method, the
+    - `reference_error`: the reference's own weak error: for `"exact"` on a `RigidBody` the
+      quadrature's, the difference of its last two rules (`nan`, not estimated, for
+      Runge–Kutta's flow, about 1e-13); for a method, the
       coupled mean difference between it and the same method at twice its step.
     - `seconds`: wall time of each method's runs.
     - `n_failed`: samples left out of each method's estimates (see `ConvergenceResult`).
@@ -537,6 +559,41 @@ class WeakConvergenceResult:
         return np.all(np.abs(self.bias[name]) > self.ci[name], axis=0)
 
 
+GAUSS_HERMITE_NODES = (64, 128, 256, 512, 1024)  # the rules tried, until two agree
+GAUSS_HERMITE_RTOL = 1e-12
+
+
+def _exact_mean(g, system, y0, t1):
+    r"""$E[g(\varphi_{t_1 + c\sqrt{t_1} z}(y_0))]$, $z \sim N(0, 1)$, by Gauss–Hermite quadrature:
+    the rules of `GAUSS_HERMITE_NODES` in turn until two agree to `GAUSS_HERMITE_RTOL` of
+    the mean's scale (a `RuntimeWarning` if none do). **Returns** the last rule's mean and
+    its difference from the one before, per component."""
+    dtype = real_dtype(y0.dtype)
+
+    def rule(n):
+        x, w = np.polynomial.hermite_e.hermegauss(n)
+        times = t1 + float(system.c) * math.sqrt(t1) * x
+        states = drift_flow(system, y0, np.asarray(times, dtype))
+        return np.asarray(w @ np.asarray(g(states))) / math.sqrt(2 * math.pi)
+
+    last = rule(GAUSS_HERMITE_NODES[0])
+    for n in GAUSS_HERMITE_NODES[1:]:
+        mean = rule(n)
+        difference = np.abs(mean - last)
+        if np.all(difference <= GAUSS_HERMITE_RTOL * max(1.0, float(np.max(np.abs(mean))))):
+            return mean, difference
+        last = mean
+    warnings.warn(
+        f"weak_convergence: the exact expectation's Gauss–Hermite rules of "
+        f"{GAUSS_HERMITE_NODES[-2]} and {GAUSS_HERMITE_NODES[-1]} nodes differ by "
+        f"{float(np.max(difference)):.1e} (reference_error): the observable is rough in the "
+        "noise, or c too large, for the quadrature.",
+        RuntimeWarning,
+        stacklevel=user_stacklevel(),
+    )
+    return mean, difference
+
+
 def weak_convergence(
     system,
     y0,
@@ -548,11 +605,8 @@ def weak_convergence(
     methods,
     observable: Callable[..., Any],
     reference="exact",
-    reference_dt=None,
-    reference_factor=None,
     confidence=0.95,
-    n_nodes=64,
-    retry_substeps=4,
+    failures: Failures = Failures(),
     driver: _brownian.BrownianMotion | None = None,
 ):
     r"""Weak error $|E_h[g(y_N)] - E[g(y(t_1))]|$ of each method at each step size, for an
@@ -564,16 +618,16 @@ def weak_convergence(
     confidence intervals are narrow for few samples. With `reference="exact"` (a system
     with one noise proportional to the drift) the pathwise reference is the exact solution,
     so $E[g(y_\text{ref})]$ is exactly $E[g(y(t_1))] = \int g(\varphi_{t_1 + c\sqrt{t_1}z}(y_0))
-    \,N(dz)$, which is also computed, by Gauss–Hermite quadrature with `n_nodes` nodes, as
-    `reference_mean`. For other systems pass a method as the reference (for example
-    `Midpoint()`, 64x finer by default); its own weak error is reported.
+    \,N(dz)$, which is also computed, by Gauss–Hermite quadrature, as `reference_mean` (64
+    nodes, doubled until two rules agree to 1e-12 of the mean's scale). For other systems
+    pass a method as the reference (for example `Midpoint()`, 64x finer by default); its own
+    weak error is reported.
 
     **Arguments:** as `strong_convergence`, and
 
     - `observable`: `g(y) -> scalar or shape (m,)`, for one state `y`, traceable by JAX
       (for example `lambda y: y` for the mean, or `system.hamiltonian`).
     - `confidence`: the level of the intervals (default 0.95).
-    - `n_nodes`: Gauss–Hermite nodes for the exact expectation (default 64).
 
     **Returns:** a `WeakConvergenceResult`.
     """
@@ -584,7 +638,6 @@ def weak_convergence(
         )
     if not (isinstance(confidence, (float, int)) and 0 < confidence < 1):
         raise ValueError(f"confidence must lie strictly between 0 and 1, got {confidence!r}.")
-    n_nodes = check_count("n_nodes", n_nodes, minimum=2)
     check_system(system)
     g = jax.jit(jax.vmap(lambda y: jnp.atleast_1d(observable(y))))
     shape = jax.eval_shape(g, jax.ShapeDtypeStruct((2, *system.algebra.shape), system.dtype)).shape
@@ -602,20 +655,15 @@ def weak_convergence(
         key=key,
         methods=methods,
         reference=reference,
-        reference_dt=reference_dt,
-        reference_factor=reference_factor,
-        retry_substeps=retry_substeps,
+        failures=failures,
         driver=driver,
     )
     z = statistics.NormalDist().inv_cdf(0.5 + confidence / 2)
     g_ref = np.asarray(g(st.y_ref))
     if st.kind == "exact":
-        x, w = np.polynomial.hermite_e.hermegauss(n_nodes)
-        times = st.t1 + float(system.c) * math.sqrt(st.t1) * x
-        states = drift_flow(system, st.y0, np.asarray(times, real_dtype(st.y0.dtype)))
-        reference_mean = np.asarray(w @ np.asarray(g(states))) / math.sqrt(2 * math.pi)
+        reference_mean, quadrature = _exact_mean(g, system, st.y0, st.t1)
         exact = RIGID_BODY(system)  # (Runge–Kutta: about 1e-13, not estimated)
-        reference_error = np.zeros(shape[1]) if exact else np.full(shape[1], np.nan)
+        reference_error = quadrature if exact else np.full(shape[1], np.nan)
     else:
         good = ~st.ref_failed
         reference_mean = g_ref[good].mean(0)

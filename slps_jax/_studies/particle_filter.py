@@ -13,19 +13,31 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._brownian import BrownianStep, OrnsteinUhlenbeck, ou_step
+from .._driver.failures import Failures, check_failures
 from .._driver.integrate import path_of_noise
-from .._driver.plan import check_method, check_retry, check_y0
+from .._driver.plan import check_method, check_y0
 from .._driver.sharding import as_given, automatic, check_sharding
 from .._support.checks import check_count, steps_on_grid
 from .._support.progress import progress_bar
 from .._support.solution import RESULTS
-from .._support.store import RunStore, digest, digest_bytes, keep_system, open_run
+from .._support.store import (
+    RunStore,
+    Store,
+    check_store,
+    digest,
+    digest_bytes,
+    keep_system,
+    open_run,
+)
 from .assimilation import (
+    Observations,
+    Tempering,
     _assimilate,
     _prepare,
     _start,
     _State,
-    check_filter_options,
+    check_observations,
+    check_tempering,
     checked_key,
 )
 
@@ -69,20 +81,14 @@ class _OnState:
 def particle_filter(
     system,
     particles,
-    observations,
+    observations: Observations,
     *,
-    obs_times,
-    observe,
-    obs_std,
     dt,
     key,
     t0=0.0,
-    ess_threshold=0.5,
-    jitter_steps=5,
-    jitter_rho=0.9,
-    jitter_lag=1,
+    tempering: Tempering = Tempering(),
     method: Any = "auto",
-    retry_substeps: int | None = 4,
+    failures: Failures = Failures(),
     chunk_size: int | None = None,
     sharding=None,
     driver: OrnsteinUhlenbeck | None = None,
@@ -96,22 +102,20 @@ def particle_filter(
 
     The increments are Gaussian, not truncated, and drawn without Lévy areas (the methods'
     strong order ½ with several noises), or the integrals of Ornstein–Uhlenbeck traces
-    (`driver`). A particle whose forecast fails (a step the method
-    cannot solve, after `retry_substeps`) gets likelihood 0.
+    (`driver`).
 
     **Arguments:**
 
     - `system`: the model, any system of the library.
     - `particles`: the initial ensemble, `(n, *state)`, `n >= 2`, each a state of the system.
-    - `observations`: `(n_obs, n_y)`, finite, at `obs_times`.
-    - `obs_times`: `(n_obs,)`, increasing, equally spaced, after `t0`, each on the grid of
-      `dt` from `t0`.
-    - `observe(state) -> (n_y,)`: one state's observed quantities (JAX-traceable).
-    - `obs_std`: the Gaussian observation errors' standard deviation, a positive scalar or
-      `(n_y,)`.
+    - `observations`: an `Observations` with its `times`: increasing, equally spaced, after
+      `t0`, each on the grid of `dt` from `t0`.
     - `dt`: the integrator's step; `key`: a JAX key; `t0`: the particles' time (0).
-    - `ess_threshold`, `jitter_steps`, `jitter_rho`, `jitter_lag`: as for `assimilate`.
-    - `method`, `retry_substeps`: as for `integrate`.
+    - `tempering`: a `Tempering`, as for `assimilate`.
+    - `method`: as for `integrate`.
+    - `failures`: a `Failures`: its `retry_substeps` as for `simulate`; a particle whose
+      forecast still fails gets likelihood 0 (it is never resampled, and a pCN move to it
+      is rejected), so `throw=True` is refused.
     - `chunk_size`: `None` (default): every forecast runs all particles at once (`vmap`);
       `k`: `k` particles at a time (`jax.lax.map` in batches), so that the memory of a
       forecast is that of `k` particles. Each particle's forecast is its own, so the
@@ -134,17 +138,15 @@ def particle_filter(
         system,
         particles,
         observations,
-        obs_times=obs_times,
         dt=dt,
         t0=t0,
         method=method,
-        retry_substeps=retry_substeps,
+        failures=failures,
         chunk_size=chunk_size,
         sharding=sharding,
-        jitter_lag=jitter_lag,
+        tempering=tempering,
         driver=driver,
         key=key,
-        options=(ess_threshold, jitter_steps, jitter_rho),
     )
     key, x = setup.initial(checked_key("particle_filter", key))
     with automatic(setup.sharding, (system, x)) as (auto, (system, x)):
@@ -152,16 +154,11 @@ def particle_filter(
             "particle_filter",
             setup.forecast(system, auto),
             x,
-            observations,
-            observe=setup.observing(observe),
-            obs_std=obs_std,
+            setup.observing(observations),
             increments_shape=setup.increments(system),
             dt=setup.increments_dt,
             key=key,
-            ess_threshold=ess_threshold,
-            jitter_steps=jitter_steps,
-            jitter_rho=jitter_rho,
-            jitter_lag=jitter_lag,
+            tempering=setup.tempering,
         )
     if setup.path is not None:  # (the analyses' states, without the traces)
         result = result._replace(particles=result.particles[0], mean=result.mean[0])
@@ -171,81 +168,66 @@ def particle_filter(
 def particle_filter_to_store(
     system,
     particles,
-    observations,
-    path,
+    observations: Observations,
+    store: Store,
     *,
-    obs_times,
-    observe,
-    obs_std,
     dt,
     key,
     t0=0.0,
-    ess_threshold=0.5,
-    jitter_steps=5,
-    jitter_rho=0.9,
-    jitter_lag=1,
+    tempering: Tempering = Tempering(),
     method: Any = "auto",
-    retry_substeps: int | None = 4,
+    failures: Failures = Failures(),
     chunk_size: int | None = None,
-    resume=False,
-    progress=True,
     driver: OrnsteinUhlenbeck | None = None,
 ):
     r"""`particle_filter`, written to a run store on disk as it goes: each observation's
     analysis is appended to the store with the filter's state (every particle's pCN window,
     the random key, the log evidence) and committed together, so that memory stays flat in the
     number of observations, and a run killed at any point goes on from its last complete
-    observation with `resume=True`, giving the same analyses, bit for bit, as a run never
-    stopped. Resuming with more observations than the store holds extends the run: a filter
-    kept up to date as observations arrive.
+    observation with `Store(..., resume=True)`, giving the same analyses, bit for bit, as a
+    run never stopped. Resuming with more observations than the store holds extends the run:
+    a filter kept up to date as observations arrive.
 
     **Arguments:** as `particle_filter`'s (without `sharding`), and
 
-    - `path`: the store's directory (`RunStore`; it must not exist unless `resume=True`).
-    - `resume`: `False` (default): a new store (an existing one is an error); `True`: go on
-      from the store's last complete observation, or start one if there is none. A store of
-      another filter (system, particles, step, key, method, options, `observe` on the
-      particles) is refused, naming what differs, and so are observations that differ from
-      those already assimilated. `observations` and `obs_times` may run further than the
-      store's.
-    - `progress`: a progress bar with the time left, where someone watches.
+    - `store`: a `Store` (its folder, `resume` and `progress`; the other options are
+      `simulate_to_store`'s). On `resume`, a store of another filter (system, particles,
+      step, key, method, options, `observe` on the particles) is refused, naming what
+      differs, and so are observations that differ from those already assimilated. The
+      observations and their times may run further than the store's.
 
-    **Returns:** the store opened for reading (`open_run(path)`), one record per
+    **Returns:** the store opened for reading (`open_run(folder)`), one record per
     observation: `"state"` the analysis ensemble `(n_obs, n, *state)`, `"mean"` its mean,
     `"observation"` what was assimilated, `"ess"` the least stage ESS, `"stages"` the
     tempering stages, `"acceptance"` pCN's mean acceptance, `"log_evidence"` the log
     evidence so far; its `.times` are the observation times less `t0`.
     """
+    store = check_store("particle_filter_to_store", store)
+    store.only_folder_options("particle_filter_to_store")
     setup = _setup(
         "particle_filter_to_store",
         system,
         particles,
         observations,
-        obs_times=obs_times,
         dt=dt,
         t0=t0,
         method=method,
-        retry_substeps=retry_substeps,
+        failures=failures,
         chunk_size=chunk_size,
         sharding=None,
-        jitter_lag=jitter_lag,
+        tempering=tempering,
         driver=driver,
         key=key,
-        options=(ess_threshold, jitter_steps, jitter_rho),
     )
-    if not isinstance(resume, bool):
-        raise TypeError(f"particle_filter_to_store: resume must be True or False, got {resume!r}.")
-    x, m, lag = setup.x, setup.m, setup.lag
+    x, m, lag = setup.x, setup.m, setup.tempering.jitter_lag
     key = checked_key("particle_filter_to_store", key)
     key_data = np.asarray(jax.random.key_data(key))
     key, x0 = setup.initial(key)
     run = _prepare(
         setup.forecast(system, None),
         x0,
-        observations,
-        setup.observing(observe),
-        obs_std,
-        lag,
+        setup.observing(observations),
+        setup.tempering,
         "particle_filter_to_store",
     )
     n, ys, real = x.shape[0], run.ys, run.real
@@ -277,38 +259,34 @@ def particle_filter_to_store(
         "system": repr(system),
         "system_numbers": digest(*jax.tree_util.tree_leaves(system)),
         "particles": digest(x),
-        "observe": digest(jax.vmap(observe)(x)),
+        "observe": digest(jax.vmap(observations.observe)(x)),
         "obs_std": digest(run.std),
         "dtype": str(x.dtype),
         "method": repr(setup.method),
         "key": digest(key_data),
         "key_impl": str(jax.random.key_impl(key)),
-        "options": [ess_threshold, jitter_steps, jitter_rho, lag, setup.retry],
+        "options": [*dataclasses.astuple(setup.tempering), setup.retry],
         "driver": repr(driver),
     }
-    store = RunStore(
-        path,
+    writer = RunStore(
+        store.folder,
         fingerprint,
         snapshots,
         carry,
-        mode="resume" if resume else "create",
+        mode="resume" if store.resume else "create",
         caller="particle_filter_to_store",
     )
-    with store:
-        keep_system(path, system, "particle_filter_to_store")
+    with writer:
+        keep_system(store.folder, system, "particle_filter_to_store")
         state = _start(run, key)
-        if store.checkpoint is not None:
-            state = _restore(store.checkpoint, key, ys, m, x0)
-        filtering = run.cycles(
-            state,
-            increments_shape=increments,
-            dt=setup.increments_dt,
-            ess_threshold=ess_threshold,
-            jitter_steps=jitter_steps,
-            jitter_rho=jitter_rho,
-        )
+        if writer.checkpoint is not None:
+            state = _restore(writer.checkpoint, key, ys, m, x0)
+        filtering = run.cycles(state, increments_shape=increments, dt=setup.increments_dt)
         bar = progress_bar(
-            ys.shape[0] - state.k, "particle_filter_to_store", unit="observation", enabled=progress
+            ys.shape[0] - state.k,
+            "particle_filter_to_store",
+            unit="observation",
+            enabled=store.progress,
         )
         for cycle in filtering:
             k = cycle.state.k
@@ -322,19 +300,19 @@ def particle_filter_to_store(
                 "acceptance": np.asarray([np.mean(cycle.acceptance)]),
                 "log_evidence": np.asarray([cycle.state.log_z]),
             }
-            store.append(
+            writer.append(
                 {name: np.asarray(v) for name, v in record.items()},
                 _carry(cycle.state, lag, np.frombuffer(digest_bytes(ys[:k]), np.uint8)),
                 k * m,
             )
             bar.update(1)
         bar.close()
-    return open_run(path)
+    return open_run(store.folder)
 
 
 class _Setup(NamedTuple):
     """`particle_filter`'s checked inputs: the method, the particles, the steps between
-    observations `m` of `h`, the retry, the layout, the pCN window, and the driver's path (`None`:
+    observations `m` of `h`, the retry, the layout, the tempering, and the driver's path (`None`:
     Brownian; an Ornstein–Uhlenbeck path: each particle carries its traces)."""
 
     method: Any
@@ -344,7 +322,7 @@ class _Setup(NamedTuple):
     retry: Any
     chunk_size: Any
     sharding: Any
-    lag: int
+    tempering: Tempering
     path: Any
 
     def forecast(self, system, auto):
@@ -364,9 +342,11 @@ class _Setup(NamedTuple):
         n, s = self.x.shape[0], self.path.n_noises
         return key, (self.x, jax.random.normal(draw, (n, s), self.x.real.dtype))
 
-    def observing(self, observe):
-        """What the filter observes of a particle."""
-        return observe if self.path is None else _OnState(observe)
+    def observing(self, observations):
+        """What the filter observes of a particle (its state, without a driver's traces)."""
+        if self.path is None:
+            return observations
+        return dataclasses.replace(observations, observe=_OnState(observations.observe))
 
     def increments(self, system):
         """The shape of one particle's random numbers between observations: Brownian
@@ -386,22 +366,27 @@ def _setup(
     particles,
     observations,
     *,
-    obs_times,
     dt,
     t0,
     method,
-    retry_substeps,
+    failures,
     chunk_size,
     sharding,
-    jitter_lag,
+    tempering,
     driver,
     key,
-    options,
 ):
     """The inputs of `particle_filter` (`name`) checked, by name, before any work (`key`
-    and the tempering's and jittering's `options` too, used later)."""
+    too, used later)."""
     checked_key(name, key)
-    check_filter_options(name, *options)
+    tempering = check_tempering(name, tempering)
+    observations = check_observations(name, observations, timed=True)
+    failures = check_failures(failures)
+    if failures.throw:
+        raise ValueError(
+            f"{name}: a particle whose forecast fails gets likelihood 0 (it is left out by "
+            "the resampling): Failures(throw=True) is not an option of the filter."
+        )
     method = check_method(method, system)
     x = jnp.asarray(particles)
     shape = tuple(system.algebra.shape)
@@ -412,29 +397,31 @@ def _setup(
             f"(n, {', '.join(map(str, shape))}); got shape {x.shape}{one}."
         )
     x = jnp.stack([check_y0(p, method, system) for p in np.asarray(x)])
-    times = np.asarray(obs_times, dtype=float)
+    times = np.asarray(observations.times, dtype=float)
     h = float(dt)
     if not h > 0:
         raise ValueError(f"{name}: dt must be positive, got {dt!r}.")
     gaps = np.diff(np.concatenate([[float(t0)], times]))
     if times.ndim != 1 or times.size == 0 or np.any(gaps <= 0):
         raise ValueError(
-            f"{name}: obs_times must be increasing and after t0 = {t0}, got {obs_times!r}."
+            f"{name}: the observation times must be increasing and after t0 = {t0}, got "
+            f"{observations.times!r}."
         )
-    n_obs = np.shape(observations)[0] if np.ndim(observations) else None
+    values = observations.values
+    n_obs = np.shape(values)[0] if np.ndim(values) else None
     if n_obs is not None and times.size != n_obs:
         raise ValueError(
-            f"{name}: obs_times has {times.size} times for {n_obs} observations; give one "
+            f"{name}: the observations have {times.size} times for {n_obs} values; give one "
             "time per observation."
         )
     steps, on_grid = steps_on_grid(gaps, h)
     m = int(steps[0])
     if not np.all(on_grid) or np.any(steps != m):
         raise ValueError(
-            f"{name}: obs_times must be equally spaced on the grid of dt from t0 "
+            f"{name}: the observation times must be equally spaced on the grid of dt from t0 "
             f"(dt = {h}); their gaps are {gaps.tolist()} s."
         )
-    retry = check_retry(retry_substeps)
+    retry = failures.retry_substeps
     if chunk_size is not None:
         chunk_size = min(check_count("chunk_size", chunk_size), x.shape[0])
     sharding = check_sharding(sharding, x.shape[0], name="the number of particles")
@@ -443,7 +430,6 @@ def _setup(
             f"{name}: give chunk_size or sharding, not both (the chunks would run one after "
             "another across the devices)."
         )
-    lag = check_count("jitter_lag", jitter_lag)
     path = None
     if driver is not None:
         if not getattr(driver, "carries_state", False):
@@ -455,7 +441,7 @@ def _setup(
             path = driver.path(h, system.n_noises, x.real.dtype)
         except ValueError as err:
             raise ValueError(f"{name}: {err}") from None
-    return _Setup(method, x, m, h, retry, chunk_size, sharding, lag, path)
+    return _Setup(method, x, m, h, retry, chunk_size, sharding, tempering, path)
 
 
 def _carry(state, lag, observations):

@@ -13,21 +13,45 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._brownian import (
-    BrownianMotion,
-    OrnsteinUhlenbeck,
-)
+from .._brownian import BrownianMotion, OrnsteinUhlenbeck
+from .._driver.failures import Failures, check_failures
 from .._driver.integrate import path_of_noise
-from .._driver.plan import (
-    check_driver,
-    check_levy_option,
-    check_method,
-    check_system,
-)
-from .._support.checks import check_count, check_positive, check_retry
+from .._driver.plan import check_driver, check_levy_option, check_method, check_system
+from .._support.checks import check_count, check_positive
 from .scores import crps_ensemble
 
-FACTORS = 2.0 ** np.arange(-3.0, 3.25, 0.5)  # 1/8 ... 8, ratios of sqrt 2
+FACTORS = tuple(2.0 ** np.arange(-3.0, 3.25, 0.5))  # 1/8 ... 8, ratios of sqrt 2
+
+
+@dataclasses.dataclass(frozen=True)
+class AmplitudeSearch:
+    r"""The factors `tune_amplitude` tries.
+
+    **Arguments:**
+
+    - `factors`: the candidates (default `FACTORS`, 1/8 ... 8 in ratios of $\sqrt 2$), 2 or
+      more positive numbers, tried in ascending order until the CRPS has risen above its
+      least value twice in a row, or a member fails (then larger factors are not tried).
+    - `refine`: then also try the geometric midpoints between the best factor and its
+      neighbours (default `True`: a grid twice as fine near the optimum).
+    """
+
+    factors: tuple = FACTORS
+    refine: bool = True
+
+    def __post_init__(self):
+        factors = np.asarray(self.factors, dtype=float)
+        if (
+            factors.ndim != 1
+            or factors.size < 2
+            or not np.all(np.isfinite(factors) & (factors > 0))
+        ):
+            raise ValueError(
+                f"AmplitudeSearch: factors must be 2 or more positive numbers, got {self.factors}."
+            )
+        object.__setattr__(self, "factors", tuple(float(f) for f in np.sort(factors)))
+        if not isinstance(self.refine, (bool, np.bool_)):
+            raise TypeError(f"AmplitudeSearch: refine must be True or False, got {self.refine!r}.")
 
 
 def scaled_noise(noise, factor):
@@ -56,7 +80,7 @@ def forecast_ensembles(
     key,
     driver: BrownianMotion | OrnsteinUhlenbeck | None = None,
     method="auto",
-    retry_substeps: int | None = 4,
+    failures: Failures = Failures(),
 ):
     r"""Each start's ensemble forecast: the states at `every, 2 every, ..., lead` steps of
     `dt` after the start, all starts run as one batched program: what
@@ -74,9 +98,9 @@ def forecast_ensembles(
       `time_model="ou"`), but `None` stands for `BrownianMotion(levy_area=False)`:
       forecasts are judged in distribution, where the methods are weak order 1 without the
       areas (of mean zero), and drawing the areas of many noises dominates the cost.
-    - `method`, `retry_substeps`: as for `simulate`.
-
-    A member that fails raises `RuntimeError`: forecasts are not scored with failed members.
+    - `method`, `failures`: as for `simulate`; but a member that fails (even split into
+      substeps) raises `RuntimeError` whatever `throw` says: forecasts are not scored with
+      failed members.
 
     **Returns:** a NumPy array `(n_starts, members, lead // every, *state)`.
     """
@@ -89,6 +113,7 @@ def forecast_ensembles(
     dt = float(np.asarray(check_positive("dt", dt)))
     check_system(system)
     method = check_method(method, system)
+    failures = check_failures(failures)
     starts = jnp.asarray(starts)
     if starts.ndim != len(system.algebra.shape) + 1 or starts.shape[1:] != system.algebra.shape:
         raise ValueError(
@@ -114,13 +139,13 @@ def forecast_ensembles(
     noise = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *per_start)
     y0 = starts.astype(system.algebra.state_dtype(dtype))
     ys, fail_step = _forecasts(
-        method, system, y0, noise, jnp.asarray(dt, dtype), every, check_retry(retry_substeps)
+        method, system, y0, noise, jnp.asarray(dt, dtype), every, failures.retry_substeps
     )
     failed = int(np.sum(np.asarray(fail_step) >= 0))
     if failed:
         raise RuntimeError(
             f"forecast_ensembles: {failed} of {fail_step.size} members failed (their steps could "
-            f"not be solved{'' if retry_substeps else ', and retry_substeps=None'}): they are "
+            f"not be solved{'' if failures.retried else ', and Failures(retry_substeps=None)'}): they are "
             f"not scored."
         )
     return np.asarray(ys)
@@ -232,13 +257,12 @@ def tune_amplitude(
     every,
     members,
     key,
-    factors=None,
+    search: AmplitudeSearch = AmplitudeSearch(),
     driver=None,
     method="auto",
-    refine=True,
 ):
     r"""One amplitude factor of a system's noise, tuned on forecasts: the factor among
-    `factors` whose ensembles (`forecast_ensembles` of `system` with its noise family
+    `search.factors` whose ensembles (`forecast_ensembles` of `system` with its noise family
     scaled by it, `scaled_noise`) have the least mean fair CRPS of `observe` against
     `truth`. Use starts inside the training period only, and score the tuned noise on
     held-out starts.
@@ -251,12 +275,9 @@ def tune_amplitude(
     - `truth`: `(n_starts, lead // every, *state_shape)`, the truth at the lead times.
     - `observe`: states `(..., *state_shape)` to observables `(..., k)`, chosen before
       scoring.
-    - `factors`: the candidates (default `FACTORS`, 1/8 ... 8 in ratios of $\sqrt 2$),
-      tried in ascending order until the CRPS has risen above its least value twice in a
-      row, or a member fails (then larger factors are not tried); every factor uses the
-      same `key` (common random numbers), and failing steps are not retried.
-    - `refine`: then also try the geometric midpoints between the best factor and its
-      neighbours (default `True`: a grid twice as fine near the optimum).
+    - `search`: an `AmplitudeSearch`: the candidates and whether to refine near the best.
+      Every factor uses the same `key` (common random numbers), and failing steps are not
+      retried.
     - `lead`, `dt`, `every`, `members`, `key`: as for `forecast_ensembles`.
     - `driver`, `method`: as for `simulate`.
 
@@ -270,11 +291,9 @@ def tune_amplitude(
             f"tune_amplitude: the system has no noise amplitudes to scale (none, or all "
             f"zero): {system!r}."
         )
-    factors = np.asarray(FACTORS if factors is None else factors, dtype=float)
-    if factors.ndim != 1 or factors.size < 2 or not np.all(np.isfinite(factors) & (factors > 0)):
-        raise ValueError(
-            f"tune_amplitude: factors must be 2 or more positive numbers, got {factors}."
-        )
+    if not isinstance(search, AmplitudeSearch):
+        raise TypeError(f"tune_amplitude: search must be an AmplitudeSearch, got {search!r}.")
+    factors, refine = np.asarray(search.factors), search.refine
 
     def score(f):
         try:
@@ -288,7 +307,7 @@ def tune_amplitude(
                 key=key,
                 driver=driver,
                 method=method,
-                retry_substeps=None,
+                failures=Failures(retry_substeps=None),
             )
         except RuntimeError:  # (a member failed)
             return np.inf

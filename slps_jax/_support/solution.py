@@ -61,8 +61,9 @@ class Solution:
       `newton_iterations_max`, `newton_iterations_mean` (updates per sample-step),
       `residual_max` (largest final Newton residual of any successful step) and
       `max_iter_share` (the share of sample-steps whose solve used its `max_iter` updates
-      without converging; such a step fails, and is redone as substeps); unless `retry_substeps=None`
-      also `n_retried_steps` (steps redone as substeps, over all samples).
+      without converging; such a step fails, and is redone as substeps); unless
+      `Failures(retry_substeps=None)` also `n_retried_steps` (steps redone as substeps, over
+      all samples).
     """
 
     ts: jax.Array

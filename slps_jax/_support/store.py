@@ -24,6 +24,7 @@ rather than HDF5: `benchmarks/store_format.py` (the numbers are in `benchmarks/R
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import math
@@ -44,6 +45,78 @@ _RESERVED = frozenset({"time", "step", "_carry", "_commit"})
 _CHUNK_BYTES = 1 << 20  # (about 1 MiB a chunk; a snapshot larger than that is split by sample)
 _MAX_TIME_CHUNK = 1024  # (a small field's partial last chunk is rewritten on every append)
 _MODES = ("create", "resume", "overwrite")
+
+
+RECORD_SNAPSHOTS = 16  # snapshots per record of `simulate_to_store`, at most (default)
+
+
+@dataclass(frozen=True)
+class Store:
+    r"""Where and how a run goes to disk as it runs: the `store=` of `simulate_to_store` and
+    `particle_filter_to_store`.
+
+    **Arguments:**
+
+    - `folder`: the store's directory (a Zarr store, `RunStore`); it must not exist unless
+      `resume=True`.
+    - `resume`: `False` (default): a new store (an existing one is an error); `True`: go on
+      from the store's last complete record (a record half-written when the run was killed
+      is dropped with a warning), or start one if there is none. A store of another run
+      (system, step, key, method, initial state, ...) is refused, naming what differs.
+    - `progress`: a progress bar with the time left, where someone watches (default `True`).
+    - `diagnostics`: computed on each snapshot, per sample: `"auto"` (default: for a matrix
+      state the Casimirs $\operatorname{tr}W^k$, $k = 2 \dots 6$ (their real part for even
+      $k$, imaginary for odd); for `EulerZeitlin` also `energy`, `enstrophy`, up to
+      N = 128 `energy_spectrum`, `enstrophy_spectrum`, `energy_flux` and `enstrophy_flux`
+      by degree ($N^3$-number tables above; the last axis named `degree`), and with linear
+      terms or an additive forcing the budgets' rates `energy_injection`,
+      `energy_dissipation`, `energy_damping` and the same for the enstrophy
+      (`EulerZeitlin.budget`); for so(3)* the Casimir $|y|^2$), `None`, or a dict
+      `name -> fn(state)` of JAX functions of one state. `simulate_to_store` only.
+    - `save_states`: also store the states themselves (default `True`; `False` keeps the
+      diagnostics only). `simulate_to_store` only.
+    - `record_snapshots`: snapshots per record at most (default 16): the largest divisor of
+      the number of snapshots not above it; each record is one compiled call, appended and
+      committed together. `simulate_to_store` only.
+    """
+
+    folder: str | os.PathLike
+    resume: bool = False
+    progress: bool = True
+    diagnostics: Any = "auto"
+    save_states: bool = True
+    record_snapshots: int = RECORD_SNAPSHOTS
+
+    def __post_init__(self):
+        if not isinstance(self.folder, (str, os.PathLike)):
+            raise TypeError(f"Store: folder must be a path, got {self.folder!r}.")
+        for name in ("resume", "progress", "save_states"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise TypeError(
+                    f"Store: {name} must be True or False, got {getattr(self, name)!r}."
+                )
+        n = self.record_snapshots
+        if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 1:
+            raise ValueError(f"Store: record_snapshots must be a positive integer, got {n!r}.")
+
+    def only_folder_options(self, caller):
+        """Refuse the options of `simulate_to_store` that `caller` has no use for."""
+        other = [
+            f.name
+            for f in dataclasses.fields(self)
+            if f.name not in ("folder", "resume", "progress") and getattr(self, f.name) != f.default
+        ]
+        if other:
+            raise ValueError(
+                f"{caller}: the Store's {', '.join(other)} are simulate_to_store's; "
+                f"{caller} writes its own records (leave them at their defaults)."
+            )
+
+
+def check_store(caller, store) -> Store:
+    if not isinstance(store, Store):
+        raise TypeError(f"{caller}: store must be a Store(folder, ...), got {store!r}.")
+    return store
 
 
 def _zarr() -> Any:  # (zarr's JSON types do not help here: its objects are Any)
@@ -372,7 +445,8 @@ class RunStore:
     - `durable`: `fsync` each record before its commit (default), so that a record survives
       a power cut as it survives a kill; `False` survives a kill of the process only.
     - `caller`: the entry point that opens the store for the user (`"simulate_to_store"`),
-      whose `resume=True` its messages then name instead of the `mode`s (default `None`).
+      whose `Store(..., resume=True)` its messages then name instead of the `mode`s
+      (default `None`).
 
     After opening, `checkpoint` is the last complete record (`Checkpoint`: `carry`, `step`,
     `n_snapshots`), `None` when the store holds none. A record left incomplete by a kill is
@@ -405,7 +479,8 @@ class RunStore:
             again = (
                 "mode='resume' to continue it, mode='overwrite' to replace it"
                 if caller is None
-                else f"{caller}(..., resume=True) continues the same run; delete it to start again"
+                else f"{caller}(..., Store(..., resume=True)) continues the same run; delete "
+                "it to start again"
             )
             raise FileExistsError(f"{self.path} exists: {again}.")
         if exists and mode == "overwrite":
