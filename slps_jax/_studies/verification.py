@@ -13,10 +13,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._brownian import BrownianMotion, OrnsteinUhlenbeck
+from .._brownian import BrownianMotion, OrnsteinUhlenbeck, sample_keys
 from .._driver.failures import Failures, check_failures
-from .._driver.integrate import path_of_noise
-from .._driver.plan import check_driver, check_levy_option, check_method, check_system
+from .._driver.integrate import ensemble
+from .._driver.plan import check_driver, check_method, check_system, driver_path
 from .._support.checks import check_count, check_positive
 from .scores import crps_ensemble
 
@@ -120,26 +120,16 @@ def forecast_ensembles(
             f"forecast_ensembles: starts must be (n_starts, *{system.algebra.shape}), states of "
             f"{system.algebra.name}, got shape {starts.shape}."
         )
-    dtype, s = system.dtype, system.n_noises
+    dtype = system.dtype
     drawer = check_driver(BrownianMotion(levy_area=False) if driver is None else driver)
-    areas = check_levy_option(drawer.levy_area, method, system)
-    # each start's increments as simulate draws them (its sample i: fold_in(fold_in(key, s), i))
-    per_start = [
-        drawer.increments(
-            jax.random.fold_in(key, k),
-            lead,
-            dt,
-            n_samples=members,
-            n_noises=s,
-            dtype=dtype,
-            levy_area=areas,
-        )
-        for k in range(starts.shape[0])
-    ]
-    noise = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *per_start)
+    path = driver_path(drawer, dt, method, system, dtype)
+    # start s's member i draws from fold_in(fold_in(key, s), i), as simulate's sample i does
+    keys = jax.vmap(lambda s: sample_keys(jax.random.fold_in(key, s), members))(
+        jnp.arange(starts.shape[0], dtype=jnp.uint32)
+    )
     y0 = starts.astype(system.algebra.state_dtype(dtype))
     ys, fail_step = _forecasts(
-        method, system, y0, noise, jnp.asarray(dt, dtype), every, failures.retry_substeps
+        method, system, y0, keys, path, lead // every, every, failures.retry_substeps
     )
     failed = int(np.sum(np.asarray(fail_step) >= 0))
     if failed:
@@ -151,16 +141,19 @@ def forecast_ensembles(
     return np.asarray(ys)
 
 
-@functools.partial(jax.jit, static_argnames=("method", "every", "retry"))
-def _forecasts(method, system, starts, noise, dt, every, retry):
-    """Every start's members in one program: the driver's loop under two `vmap`s, the saved
+@functools.partial(jax.jit, static_argnames=("method", "n_blocks", "every", "retry"))
+def _forecasts(method, system, starts, keys, path, n_blocks, every, retry):
+    """Every start's members in one program: `simulate`'s ensemble (the driver's loop, each
+    member drawing its steps' noise from its key) under a `vmap` over the starts; the saved
     states after the start and each member's failed step (-1: none)."""
 
-    def member(y0, step_noise):
-        ys, fail_step, *_ = path_of_noise(method, system, y0, step_noise, dt, every, False, retry)
+    def start(y0, member_keys):
+        ys, fail_step, *_ = ensemble(
+            method, system, y0, member_keys, path, n_blocks, every, False, retry
+        )
         return ys, fail_step
 
-    return jax.vmap(jax.vmap(member, in_axes=(None, 0)))(starts, noise)
+    return jax.vmap(start)(starts, keys)
 
 
 def start_crps(ensembles, truth, observe):
