@@ -68,6 +68,7 @@ from ._methods.strang import Strang4 as Strang4
 
 # Studies
 from ._studies.assimilation import FilterResult as FilterResult
+from ._studies.assimilation import Forecast as Forecast
 from ._studies.assimilation import Observations as Observations
 from ._studies.assimilation import Tempering as Tempering
 from ._studies.assimilation import assimilate as assimilate
@@ -165,6 +166,7 @@ __all__ = [
     "Strang",
     "Strang4",
     "FilterResult",
+    "Forecast",
     "Observations",
     "Tempering",
     "assimilate",

@@ -203,6 +203,24 @@ def test_assimilate_refuses_bad_input_by_name():
         da.assimilate(forecast, good, observed(ys), **kw, tempering=da.Tempering(jitter_lag=0))
 
 
+def test_a_forecast_says_which_particles_failed_by_its_type():
+    # A state that is itself a pair whose second part is a boolean array (n,) is a state, not a
+    # failure mask; a Forecast's ok is one: a particle whose forecast failed (here: not above 0)
+    # gets likelihood 0, so no analysis particle is a failed one.
+    n, kw = 16, dict(increments_shape=(1,), dt=0.1, key=jax.random.key(0))
+    on_x = da.Observations(np.zeros((3, 1)), observe=lambda s: s[0], std=1.0)
+    pairs = (jnp.zeros((n, 1)), jnp.ones((n,), bool))
+    res = da.assimilate(lambda s, dw: (s[0] + dw, s[1]), pairs, on_x, **kw)
+    assert res.particles[1].shape == (3, n) and bool(jnp.all(res.particles[1]))
+    x0 = jnp.linspace(-0.5, 0.5, n)[:, None]
+    observed = da.Observations(np.zeros((3, 1)), observe=lambda s: s, std=1.0)
+    failing = lambda s, dw: da.Forecast(s + dw, (s + dw)[:, 0] > 0)
+    res = da.assimilate(failing, x0, observed, **kw)
+    assert bool(jnp.all(res.particles > 0)), res.particles
+    with pytest.raises(TypeError, match="Forecast.ok"):
+        da.assimilate(lambda s, dw: da.Forecast(s + dw, jnp.ones(n)), x0, observed, **kw)
+
+
 def _so4_setup():
     import slps_jax as sj
 

@@ -11,7 +11,15 @@ import numpy as np
 
 from .. import _brownian
 from .._support.progress import progress_bar
-from .._support.store import RunStore, Store, check_store, digest, keep_system, open_run
+from .._support.store import (
+    RunStore,
+    Store,
+    check_store,
+    digest,
+    fingerprint,
+    keep_system,
+    open_run,
+)
 from .failures import Failures, report
 from .integrate import _highest_precision, initial_carry, run_blocks
 from .plan import plan_ensemble
@@ -254,23 +262,22 @@ def _carry_dict(leaves):
 
 
 def _fingerprint(p, keys, fns, save_states):
-    """What makes a run this run (`RunStore` compares it on `resume`): the system and its
-    numbers, the initial state, the step, the method, the noise, the key, the diagnostics."""
-    return {
-        "dt": float(p.dt),
-        "save_every": int(p.save_every),
-        "system": repr(p.system),
-        "system_numbers": digest(*jax.tree_util.tree_leaves(p.system)),
-        "y0": digest(p.y0),
-        "dtype": str(p.y0.dtype),
-        "method": repr(p.method),
-        "n_samples": int(p.n_samples),
-        "noise": _describe(p.path),
-        "key": digest(jax.random.key_data(keys)),
-        "retry_substeps": p.retry,
-        "diagnostics": sorted(fns),
-        "save_states": bool(save_states),
-    }
+    """What makes a run this run (`fingerprint`): with the initial state, the samples, the
+    noise, the retry, the diagnostics."""
+    return fingerprint(
+        system=p.system,
+        method=p.method,
+        dt=p.dt,
+        save_every=p.save_every,
+        dtype=p.y0.dtype,
+        key_data=jax.random.key_data(keys),
+        y0=digest(p.y0),
+        n_samples=int(p.n_samples),
+        noise=_describe(p.path),
+        retry_substeps=p.retry,
+        diagnostics=sorted(fns),
+        save_states=bool(save_states),
+    )
 
 
 def _describe(path):

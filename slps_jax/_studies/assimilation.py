@@ -150,6 +150,21 @@ class FilterResult(NamedTuple):
 MAX_STAGES = 500  # tempering stages per observation before `assimilate` gives up
 
 
+class Forecast(NamedTuple):
+    """What a filter's forecast may return instead of the states alone: the states and which
+    particles' forecasts succeeded (a failed one gets likelihood 0: it is never resampled,
+    and a pCN move to it is rejected).
+
+    **Arguments:**
+
+    - `states`: the forecast states, `(n, *state)` (or a pytree of such arrays).
+    - `ok`: a boolean array `(n,)`.
+    """
+
+    states: Any
+    ok: Any
+
+
 def check_filter_options(caller, ess_threshold, jitter_steps, jitter_rho):
     """The tempering's and the jittering's options, refused by name before any work:
     `ess_threshold` in (0, 1], `jitter_steps` an integer >= 0, `jitter_rho` in [0, 1]."""
@@ -286,8 +301,8 @@ def assimilate(
     - `forecast(states, increments) -> states` (jitted here unless it is, or is a
       `functools.partial` of, a jitted function): one batch, states `(n, *state)` and standard
       Brownian increments `(n, *increments_shape)` of step `dt`, to the next observation time;
-      or `-> (states, ok)`, `ok` a boolean array `(n,)`: a failed forecast gets likelihood 0
-      (it is never resampled, and a pCN move to it is rejected). A state may be a pytree of
+      or `-> Forecast(states, ok)`, `ok` a boolean array `(n,)`: a failed forecast gets
+      likelihood 0 (it is never resampled, and a pCN move to it is rejected). A state may be a pytree of
       arrays with the particles first, such as a system's state and a driver's traces.
     - `particles`: the initial ensemble, `(n, *state)` (or a pytree of such arrays), `n >= 2`.
     - `observations`: an `Observations` (values, `observe`, `std`; without times).
@@ -569,13 +584,18 @@ def _map(fn, tree):
 
 
 def _states_and_ok(out, n):
-    """A forecast's `(states, ok)`: its output as it is when that is a pair whose second part
-    is a boolean array `(n,)`, else the output as the states, all successful (`ok` `None`)."""
-    if isinstance(out, tuple) and len(out) == 2:
-        ok = out[1]
-        if getattr(ok, "dtype", None) == jnp.bool_ and getattr(ok, "shape", None) == (n,):
-            return out
-    return out, None
+    """A forecast's `(states, ok)`: a `Forecast`'s parts (`ok` checked), else the output as
+    the states, all successful (`ok` `None`): a state that is itself a pair is never taken
+    for a `Forecast`."""
+    if not isinstance(out, Forecast):
+        return out, None
+    ok = out.ok
+    if getattr(ok, "dtype", None) != jnp.bool_ or getattr(ok, "shape", None) != (n,):
+        raise TypeError(
+            f"the forecast's Forecast.ok must be a boolean array ({n},), got "
+            f"{getattr(ok, 'dtype', type(ok).__name__)} {getattr(ok, 'shape', '')}."
+        )
+    return out.states, ok
 
 
 def _take(tree, idx):

@@ -26,10 +26,12 @@ from .._support.store import (
     check_store,
     digest,
     digest_bytes,
+    fingerprint,
     keep_system,
     open_run,
 )
 from .assimilation import (
+    Forecast,
     Observations,
     Tempering,
     _assimilate,
@@ -57,8 +59,7 @@ def _forecast(method, system, states, dws, step, path, *, m, retry, chunk_size, 
         ys, _, result, _, _ = path_of_noise(
             method, system, y, BrownianStep(dw, None), step, m, False, retry
         )
-        ok = result == RESULTS.successful
-        return ((ys[-1], eta) if path is not None else ys[-1]), ok
+        return Forecast((ys[-1], eta) if path is not None else ys[-1], result == RESULTS.successful)
 
     if chunk_size is not None:
         return jax.lax.map(lambda a: one(*a), (states, dws), batch_size=chunk_size)
@@ -252,25 +253,24 @@ def particle_filter_to_store(
         "log_z": ((), np.float64),
         "observations": ((32,), np.uint8),  # (a digest of those assimilated)
     }
-    fingerprint = {
-        "dt": setup.h,
-        "save_every": m,
-        "t0": float(t0),
-        "system": repr(system),
-        "system_numbers": digest(*jax.tree_util.tree_leaves(system)),
-        "particles": digest(x),
-        "observe": digest(jax.vmap(observations.observe)(x)),
-        "obs_std": digest(run.std),
-        "dtype": str(x.dtype),
-        "method": repr(setup.method),
-        "key": digest(key_data),
-        "key_impl": str(jax.random.key_impl(key)),
-        "options": [*dataclasses.astuple(setup.tempering), setup.retry],
-        "driver": repr(driver),
-    }
+    what = fingerprint(
+        system=system,
+        method=setup.method,
+        dt=setup.h,
+        save_every=m,
+        dtype=x.dtype,
+        key_data=key_data,
+        t0=float(t0),
+        particles=digest(x),
+        observe=digest(jax.vmap(observations.observe)(x)),
+        obs_std=digest(run.std),
+        key_impl=str(jax.random.key_impl(key)),
+        options=[*dataclasses.astuple(setup.tempering), setup.retry],
+        driver=repr(driver),
+    )
     writer = RunStore(
         store.folder,
-        fingerprint,
+        what,
         snapshots,
         carry,
         mode="resume" if store.resume else "create",

@@ -34,6 +34,7 @@ import warnings
 from dataclasses import dataclass
 from typing import Any
 
+import jax
 import numpy as np
 
 from . import saving
@@ -144,6 +145,22 @@ def digest_bytes(*arrays):
 def digest(*arrays):
     """`digest_bytes` as a hexadecimal string (a field of a store's fingerprint)."""
     return digest_bytes(*arrays).hex()
+
+
+def fingerprint(*, system, method, dt, save_every, dtype, key_data, **more):
+    """What makes a stored run this run (`RunStore` compares it on `resume`, naming what
+    differs): the system (its description and its numbers), the method, the step, the steps
+    between records' snapshots, the dtype, the key's data, and the caller's `more`."""
+    return {
+        "dt": float(dt),
+        "save_every": int(save_every),
+        "system": repr(system),
+        "system_numbers": digest(*jax.tree_util.tree_leaves(system)),
+        "dtype": str(dtype),
+        "method": repr(method),
+        "key": digest(key_data),
+        **more,
+    }
 
 
 _SAVED = "_saved/system"  # (the run's system, `keep_system`: a subgroup, unseen by xarray)
