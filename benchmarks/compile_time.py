@@ -120,7 +120,7 @@ def measure(name, how, n_samples, n_steps, retry=None, system_name="rigid"):
             # (several noises: drawn with the library, with the areas for a method that uses them)
             areas = system.n_noises > 1 and method.uses_levy_area()
             if system.n_noises > 1:
-                dW = sj.brownian_increments(
+                dW = sj.BrownianMotion().increments(
                     jax.random.key(0),
                     n_steps,
                     dt,

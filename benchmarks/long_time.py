@@ -239,7 +239,9 @@ def main(argv=None):
         ys, fail = run_ours(method, system, y0, t1, h, n_samples, key, save_every)
         runs[name] = (ys, fail, time.perf_counter() - start)
     if use_diffrax:
-        dW = sj.brownian_increments(key, n_steps, h, n_samples=n_samples)  # simulate's paths
+        dW = sj.BrownianMotion().increments(
+            key, n_steps, h, n_samples=n_samples
+        )  # simulate's paths
         start = time.perf_counter()
         ys, fail = run_diffrax_heun(system, y0, dW, h, save_every)
         runs[DIFFRAX_HEUN] = (ys, fail, time.perf_counter() - start)

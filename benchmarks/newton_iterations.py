@@ -78,7 +78,7 @@ def main(argv=None):
         sol = sj.simulate(
             system, y0, t1=1.0, dt=dt, n_samples=n_samples, key=key, method=method, save_every=1
         )
-        dW = sj.brownian_increments(key, n_steps, dt, n_samples=n_samples)
+        dW = sj.BrownianMotion().increments(key, n_steps, dt, n_samples=n_samples)
         y_next, info = step_infos(system, method, sol.ys, dW, dt)
         # the re-solved steps reproduce the trajectory: the statistics are of the same steps
         assert np.max(np.abs(y_next - np.asarray(sol.ys[:, 1:]))) < 1e-13

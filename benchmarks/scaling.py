@@ -15,7 +15,7 @@
        children are started by a small launcher process, because Linux carries a process'
        ru_maxrss over fork and exec: started from this process they would report its peak.
    Both are also measured for a control that materialises the increments (`vmap(integrate)`
-   over `brownian_increments(key, n_steps, h, n_samples)`, Strang), which must grow: so a
+   over `BrownianMotion().increments(key, n_steps, h, n_samples=...)`, Strang), which must grow: so a
    flat line means something. The script prints whether the runs stayed flat.
 
 A configuration whose predicted run time (from the method's measured cost per sample-step)
@@ -102,7 +102,7 @@ def compiled_memory(method, n_steps, n_samples):
     if method == CONTROL:
 
         def fn(key):
-            dW = sj.brownian_increments(key, n_steps, DT, n_samples=n_samples)
+            dW = sj.BrownianMotion().increments(key, n_steps, DT, n_samples=n_samples)
             return jax.vmap(
                 lambda d: sj.integrate(
                     system, y0, d, DT, method=sj.Strang(), failures=sj.Failures(throw=False)
@@ -164,7 +164,7 @@ def child_rss(method, n_steps, n_samples):
     reset = _reset_peak()
     start = time.perf_counter()
     if method == CONTROL:
-        dW = sj.brownian_increments(key, n_steps, DT, n_samples=n_samples)
+        dW = sj.BrownianMotion().increments(key, n_steps, DT, n_samples=n_samples)
         ys = jax.jit(
             jax.vmap(
                 lambda d: sj.integrate(

@@ -115,7 +115,7 @@ def cost(ns, n_samples, n_steps, skipped=()):
     rows = []
     for n in ns:
         system, y0 = setup(n)
-        dW = sj.brownian_increments(jax.random.key(n), n_steps, h, n_samples=n_samples)
+        dW = sj.BrownianMotion().increments(jax.random.key(n), n_steps, h, n_samples=n_samples)
         cumulative = jnp.concatenate([jnp.zeros((n_samples, 1)), jnp.cumsum(dW, axis=1)], 1)
         runs = {
             name: (ours(system, y0, m, h), dW[..., None])
@@ -164,7 +164,9 @@ def cost(ns, n_samples, n_steps, skipped=()):
 def work_precision(ks, n_samples):
     system, y0 = setup(4)
     n_fine = 2 ** max(ks)
-    dW = sj.brownian_increments(jax.random.key(4), n_fine, 1.0 / n_fine, n_samples=n_samples)
+    dW = sj.BrownianMotion().increments(
+        jax.random.key(4), n_fine, 1.0 / n_fine, n_samples=n_samples
+    )
     w_t = np.asarray(jnp.sum(dW, axis=1))
     reference = sj.drift_flow(system, y0, 1.0 + C * w_t)
     cumulative = jnp.concatenate([jnp.zeros((n_samples, 1)), jnp.cumsum(dW, axis=1)], 1)
@@ -210,7 +212,9 @@ def casimirs(n_steps, n_paths):
     a = np.random.default_rng(1).normal(size=(n, n))
     y0 = jnp.asarray(0.7 * (a - a.T) / np.linalg.norm(a - a.T, 2))
     h = 0.01
-    dW = sj.brownian_increments(jax.random.key(6), n_steps, h, n_samples=n_paths, n_noises=2)
+    dW = sj.BrownianMotion().increments(
+        jax.random.key(6), n_steps, h, n_samples=n_paths, n_noises=2
+    )
     c0 = np.asarray(sj.so(n).casimirs(y0))
     rows = []
     for name, m in {

@@ -25,7 +25,7 @@ a failed sample keeps its last good state); Newton iterations (mean per step, ma
 relative Casimir drift `max |C(y_T)/C(y0) - 1|` and Hamiltonian error
 `max |H(y_T)/H(y0) - 1|` over the successful samples (the exact solution conserves both);
 the RMS error at T against the exact solution `phi_{T + cW_T}(y0)` (from the very same
-increments, `brownian_increments` in the run's dtype, evaluated in float64); wall time with
+increments, `BrownianMotion().increments` in the run's dtype, evaluated in float64); wall time with
 compilation.
 
 A second matrix does the same for **several noises**: the rigid body I = (1, 2, 3) with three
@@ -182,7 +182,7 @@ def make_method(name, r):
 def exact_reference(settings, y0, key, n_steps):
     """y(T) = phi_{T + c W_T}(y0) in float64, with W_T the sum of the run's own increments."""
     dtype = jnp.float32 if settings["dtype"] == "float32" else jnp.float64
-    dW = sj.brownian_increments(
+    dW = sj.BrownianMotion().increments(
         key, n_steps, settings["h"], n_samples=settings["n_samples"], dtype=dtype
     )
     w_t = jnp.sum(dW.astype(jnp.float64), axis=1)

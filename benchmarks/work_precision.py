@@ -19,7 +19,7 @@ The paper's setup (`RigidBody.paper()`, `PAPER_Y0`, c = 0.2), 500 samples, h = 2
   tau = h + c dW, predictor y + f(y) tau, corrector y + (f(y) + f(y~)) tau / 2.
 
 Same increments for everyone but the VBT runs: the fine increments are drawn once with
-`slps_jax.brownian_increments(key, n_fine, h_fine, n_samples)`, a coarse increment is the sum
+`slps_jax.BrownianMotion().increments(key, n_fine, h_fine, n_samples=...)`, a coarse increment is the sum
 of the fine ones it spans, and the reference is `exact_solution(system, y0, 1, sum(dW))`.
 
 Timing: every (method, h) is compiled ahead of time (compile time reported on its own), run
@@ -467,7 +467,9 @@ def main(argv=None):
     system, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
     ks = list(range(kmin, kmax + 1))
     h_fine, n_fine = 2.0**-kmax, 2**kmax
-    fine = sj.brownian_increments(jax.random.key(args.seed), n_fine, h_fine, n_samples=n_samples)
+    fine = sj.BrownianMotion().increments(
+        jax.random.key(args.seed), n_fine, h_fine, n_samples=n_samples
+    )
     data = {
         "fine": fine,
         "coarse": lambda n: fine.reshape(n_samples, n, n_fine // n).sum(axis=2),

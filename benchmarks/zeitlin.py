@@ -283,7 +283,7 @@ def scale(ns, dtypes, budget_s, members, member_ns, write):
             noisy = sj.EulerZeitlin(
                 N, noise=sj.salt_noise(0.05 * z.shr2mat(np.eye(9)[1:], N)), dtype=dtype
             )
-            dW8, A8 = sj.brownian_increments(
+            dW8, A8 = sj.BrownianMotion().increments(
                 jax.random.key(N), 1, 0.64 / N, n_noises=8, levy_area=True
             )
             areas = lambda m, w, d, a: sj.integrate(

@@ -261,7 +261,9 @@ def transport(N=128, n_steps=32):
             *through_simulate(noisy, driver=sj.BrownianMotion(levy_area=False)),
         ),
     ]
-    dW, A = sj.brownian_increments(jax.random.key(1), n_steps, h, n_noises=8, levy_area=True)
+    dW, A = sj.BrownianMotion().increments(
+        jax.random.key(1), n_steps, h, n_noises=8, levy_area=True
+    )
     given = jax.jit(
         lambda m, w, d, a: sj.integrate(m, w, d, h, areas=a, failures=sj.Failures(throw=False))
     )

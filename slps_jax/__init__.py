@@ -35,8 +35,6 @@ from ._algebra import su as su
 from ._brownian import BrownianMotion as BrownianMotion
 from ._brownian import BrownianStep as BrownianStep
 from ._brownian import OrnsteinUhlenbeck as OrnsteinUhlenbeck
-from ._brownian import brownian_increments as brownian_increments
-from ._brownian import ou_increments as ou_increments
 
 # Driver
 from ._driver.failures import Failures as Failures
@@ -139,8 +137,6 @@ __all__ = [
     "BrownianMotion",
     "BrownianStep",
     "OrnsteinUhlenbeck",
-    "brownian_increments",
-    "ou_increments",
     "Failures",
     "integrate",
     "simulate",

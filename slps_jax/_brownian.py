@@ -409,6 +409,19 @@ class BrownianPath(AbstractPath):
         return draw_joined(key, n, m, fine_dt, self.bound, self.dt.dtype, self.n_noises, self.terms)
 
 
+def _check_dt(dt):
+    """`dt` as a Python float: a positive finite number."""
+    if isinstance(dt, (bool, np.bool_, str)) or np.ndim(dt) != 0:
+        raise TypeError(f"dt must be a positive number, got {dt!r}.")
+    try:
+        dt = float(dt)
+    except (TypeError, ValueError):
+        raise TypeError(f"dt must be a positive number, got {dt!r}.") from None
+    if not (math.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt must be positive and finite, got {dt}.")
+    return dt
+
+
 def _check_counts(n_steps, n_samples):
     """`n_steps` a positive integer, `n_samples` `None` or one (the materialised paths')."""
     for name, n in (("n_steps", n_steps), ("n_samples", n_samples)):
@@ -429,7 +442,8 @@ def brownian_increments(
     n_noises=None,
     levy_area=False,
 ):
-    """The increments `simulate` uses, materialised: for `integrate`, plots and checks.
+    """`BrownianMotion(truncate_k).increments`: the increments `simulate` uses, materialised
+    (for `integrate`, plots and checks).
 
     **Arguments:**
 
@@ -452,14 +466,7 @@ def brownian_increments(
     when it draws areas).
     """
     key = check_key(key)
-    if isinstance(dt, (bool, np.bool_, str)) or np.ndim(dt) != 0:
-        raise TypeError(f"dt must be a positive number, got {dt!r}.")
-    try:
-        dt = float(dt)
-    except (TypeError, ValueError):
-        raise TypeError(f"dt must be a positive number, got {dt!r}.") from None
-    if not (math.isfinite(dt) and dt > 0):
-        raise ValueError(f"dt must be positive and finite, got {dt}.")
+    dt = _check_dt(dt)
     _check_counts(n_steps, n_samples)
     if n_noises is not None and (
         isinstance(n_noises, (bool, np.bool_))
@@ -540,10 +547,27 @@ class AbstractDriver(abc.ABC):
         Lévy areas when `levy_area` (the option resolved for the method, a bool)."""
 
     @abc.abstractmethod
-    def increments(self, key, n_steps, dt, *, n_samples, n_noises, dtype, levy_area=False):
-        """`n_samples` samples of `n_steps` steps, as `simulate` draws them with `key`: a
-        `BrownianStep` of increments `(n_samples, n_steps, n_noises)` and, with `levy_area`,
-        areas `(n_samples, n_steps, n_noises, n_noises)`."""
+    def increments(
+        self, key, n_steps, dt, *, n_samples=None, n_noises=None, dtype=None, levy_area=False
+    ):
+        """The noise `simulate` draws with this driver, materialised: for `integrate`, plots
+        and checks. Row `i` is what `simulate` draws for sample `i` with the same key.
+
+        **Arguments:**
+
+        - `key`: a `jax.random.key`; `n_steps`, `dt`: number and size of the steps.
+        - `n_samples`: `None` for one path (sample 0's), else that many paths.
+        - `n_noises`: the number `s` of noises (the system's `n_noises`): each step then has
+          `s` increments, a last axis of length `s`; `None`: one noise, no such axis (an
+          `OrnsteinUhlenbeck` of `s` correlation times: `s`).
+        - `dtype`: a floating dtype, by default the default float (float64 with
+          `jax_enable_x64`); use the system's dtype (`system.dtype`).
+        - `levy_area`: also return the Lévy areas of every step, shape `(..., n_steps, s,
+          s)`, antisymmetric (needs `n_noises`; a driver without areas refuses it).
+
+        **Returns:** `(n_steps,)` or `(n_samples, n_steps)`, with a last axis `(s,)` for
+        several noises; with `levy_area=True` the pair `(dW, A)`.
+        """
 
 
 def check_driver(driver):
@@ -562,7 +586,8 @@ class BrownianMotion(AbstractDriver):
     r"""The default driver of an ensemble: independent standard Brownian motions, one per
     noise, each step's increments drawn truncated, and with them, when asked for, the steps'
     Lévy areas. `simulate(system, y0, ..., driver=BrownianMotion(levy_area=True))`;
-    `brownian_increments` materialises the same increments for `integrate`.
+    `BrownianMotion().increments(key, n_steps, dt, ...)` materialises the same increments for
+    `integrate`.
 
     **Arguments:**
 
@@ -612,8 +637,13 @@ class BrownianMotion(AbstractDriver):
         check_truncation(dt, self.truncate_k)
         return BrownianPath.of(dt, n_noises, dtype, truncate_k=self.truncate_k, levy_area=levy_area)
 
-    def increments(self, key, n_steps, dt, *, n_samples, n_noises, dtype, levy_area=False):
-        out = brownian_increments(
+    def increments(
+        self, key, n_steps, dt, *, n_samples=None, n_noises=None, dtype=None, levy_area=False
+    ):
+        """The truncated increments `simulate` draws (and with `levy_area` their Lévy areas,
+        by `levy_area_terms(dt, n_noises)` series terms; zero for one noise), materialised:
+        see `AbstractDriver.increments`."""
+        return brownian_increments(
             key,
             n_steps,
             dt,
@@ -623,7 +653,6 @@ class BrownianMotion(AbstractDriver):
             dtype=dtype,
             truncate_k=self.truncate_k,
         )
-        return BrownianStep(*out) if levy_area else BrownianStep(out, None)
 
 
 class OrnsteinUhlenbeck(AbstractDriver):
@@ -632,8 +661,8 @@ class OrnsteinUhlenbeck(AbstractDriver):
     step's increment the integral $\int\eta_r\,dt$ over the step (a random ODE: no Lévy
     areas, no truncation).
 
-    `simulate(system, y0, ..., driver=OrnsteinUhlenbeck(T))`; `ou_increments` materialises
-    the same increments for `integrate`.
+    `simulate(system, y0, ..., driver=OrnsteinUhlenbeck(T))`; `increments` materialises the
+    same increments for `integrate`.
 
     **Arguments:**
 
@@ -662,11 +691,23 @@ class OrnsteinUhlenbeck(AbstractDriver):
 
     carries_state: ClassVar[bool] = True
 
-    def increments(self, key, n_steps, dt, *, n_samples, n_noises, dtype, levy_area=False):
+    def increments(
+        self, key, n_steps, dt, *, n_samples=None, n_noises=None, dtype=None, levy_area=False
+    ):
+        r"""The increments `simulate(..., driver=self)` draws, materialised: over each step
+        the integral $\int\eta_r\,dt$ of the traces, started from their stationary law,
+        each step's pair $(\eta_{n+1}, \int\eta)$ drawn exactly from its Gaussian law given
+        $\eta_n$ (see `AbstractDriver.increments`; no Lévy areas)."""
+        key = check_key(key)
+        dt = _check_dt(dt)
+        _check_counts(n_steps, n_samples)
+        several = n_noises is not None or self.correlation_time.ndim == 1
+        s = self.correlation_time.size if n_noises is None else n_noises
+        dtype = jnp.result_type(float) if dtype is None else dtype
         # (the path's own checks: no areas, one correlation time per noise)
-        path = self.path(float(dt), n_noises, dtype, levy_area=levy_area)
-        out = _ou_paths(check_key(key), path, n_steps=int(n_steps), n_samples=n_samples)
-        return BrownianStep(out, None)
+        path = self.path(dt, s, dtype, levy_area=levy_area)
+        out = _ou_paths(key, path, n_steps=int(n_steps), n_samples=n_samples)
+        return out if several else out[..., 0]
 
     def path(self, dt, n_noises, dtype, *, levy_area=False):
         if levy_area:
@@ -749,38 +790,6 @@ def ou_step(consts, eta, z):
     $\eta_n$."""
     a, b, l11, l21, l22 = consts
     return a * eta + l11 * z[0], b * eta + l21 * z[0] + l22 * z[1]
-
-
-def ou_increments(key, n_steps, dt, correlation_time, *, n_samples=None, dtype=None):
-    r"""The increments that `simulate(..., driver=OrnsteinUhlenbeck(correlation_time))`
-    draws, materialised for `integrate` (a smooth driver: no Lévy areas): over each step the
-    integral $\int\eta_r\,dt$ of unit-variance Ornstein–Uhlenbeck traces
-    $d\eta_r = -\eta_r/T_r\,dt + \sqrt{2/T_r}\,dB_r$, started from their stationary law, each
-    step's pair $(\eta_{n+1}, \int\eta)$ drawn exactly from its Gaussian law given $\eta_n$.
-
-    **Arguments:**
-
-    - `key`: a `jax.random.key`; `n_steps`, `dt`: number and size of the steps.
-    - `correlation_time`: `(s,)` positive times $T_r$ (`fit.correlation_time`), or a scalar
-      for one trace.
-    - `n_samples`: `None` for one path (sample 0's), else that many; row `i` is what
-      `simulate` draws for sample `i` with the same key.
-    - `dtype`: a floating dtype (default: the default float).
-
-    **Returns:** `(n_steps, s)`, or `(n_samples, n_steps, s)`.
-    """
-    key = check_key(key)
-    _check_counts(n_steps, n_samples)
-    dt = float(dt) if np.ndim(dt) == 0 and not isinstance(dt, (bool, str)) else math.nan
-    if not (math.isfinite(dt) and dt > 0):
-        raise ValueError(f"ou_increments: dt must be positive and finite, got {dt!r}.")
-    try:
-        driver = OrnsteinUhlenbeck(correlation_time)
-    except ValueError as e:
-        raise ValueError(f"ou_increments: {e}") from None
-    s = max(driver.correlation_time.size, 1)
-    path = driver.path(dt, s, jnp.result_type(float) if dtype is None else dtype)
-    return _ou_paths(key, path, n_steps=int(n_steps), n_samples=n_samples)
 
 
 @functools.partial(jax.jit, static_argnames=("n_steps", "n_samples"))

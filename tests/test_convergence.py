@@ -17,7 +17,9 @@ LEVELS = [5, 6, 7, 8, 9]  # h = 2^-5 ... 2^-9
 def study():
     model, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
     h_fine = 2.0 ** -LEVELS[-1]
-    fine = sj.brownian_increments(jax.random.key(42), 2 ** LEVELS[-1], h_fine, n_samples=N_SAMPLES)
+    fine = sj.BrownianMotion().increments(
+        jax.random.key(42), 2 ** LEVELS[-1], h_fine, n_samples=N_SAMPLES
+    )
     exact = exact_sde_solution(model.inertia, float(model.c), y0, np.asarray(fine.sum(1)), 1.0)
     return model, y0, fine, exact
 

@@ -19,7 +19,7 @@ FREEZE = sj.Failures(retry_substeps=None)
 
 def test_casimir_preserved_over_ten_thousand_steps(paper):
     model, y0 = paper
-    dW = sj.brownian_increments(jax.random.key(3), 10_000, 0.01)
+    dW = sj.BrownianMotion().increments(jax.random.key(3), 10_000, 0.01)
     ys_lp = sj.integrate(model, y0, dW, 0.01, save_every=100, method=LP)
     ys_em = sj.integrate(model, y0, dW, 0.01, method=sj.EulerMaruyama(), save_every=100)
     r0 = float(jnp.linalg.norm(y0))
@@ -33,7 +33,7 @@ def test_casimir_preserved_over_ten_thousand_steps(paper):
 
 def test_midpoint_preserves_both_quadratic_invariants(paper):
     model, y0 = paper
-    dW = sj.brownian_increments(jax.random.key(4), 2000, 0.01)
+    dW = sj.BrownianMotion().increments(jax.random.key(4), 2000, 0.01)
     ys = sj.integrate(model, y0, dW, 0.01, method=sj.Midpoint(), save_every=2000)
     np.testing.assert_allclose(model.casimir(ys[-1]), model.casimir(y0), rtol=1e-12)
     np.testing.assert_allclose(model.hamiltonian(ys[-1]), model.hamiltonian(y0), rtol=1e-12)
@@ -43,7 +43,7 @@ def test_simulate_matches_integrate_on_the_same_increments(paper):
     model, y0 = paper
     key = jax.random.key(5)
     sol = sj.simulate(model, y0, t1=0.5, dt=0.01, n_samples=4, key=key, save_every=10, method=LP)
-    dW = sj.brownian_increments(key, 50, 0.01, n_samples=4)
+    dW = sj.BrownianMotion().increments(key, 50, 0.01, n_samples=4)
     for i in range(4):
         ys = sj.integrate(model, y0, dW[i], 0.01, save_every=10, method=LP)
         np.testing.assert_allclose(sol.ys[i], ys, atol=1e-14)
@@ -52,7 +52,7 @@ def test_simulate_matches_integrate_on_the_same_increments(paper):
     np.testing.assert_allclose(sol.ys[:, 0], np.broadcast_to(y0, (4, 3)))
     # Noise as a vector: (n_steps, 1) is the same path; with several noises per step the
     # first component is the one-noise draw.
-    dW1 = sj.brownian_increments(key, 50, 0.01, n_samples=4, n_noises=1)
+    dW1 = sj.BrownianMotion().increments(key, 50, 0.01, n_samples=4, n_noises=1)
     assert dW1.shape == (4, 50, 1)
     np.testing.assert_array_equal(dW1[..., 0], dW)
     np.testing.assert_allclose(
@@ -60,7 +60,7 @@ def test_simulate_matches_integrate_on_the_same_increments(paper):
         sj.integrate(model, y0, dW[0], 0.01, method=LP),
         atol=0,
     )
-    dW3 = sj.brownian_increments(key, 50, 0.01, n_samples=4, n_noises=3)
+    dW3 = sj.BrownianMotion().increments(key, 50, 0.01, n_samples=4, n_noises=3)
     assert dW3.shape == (4, 50, 3)
     np.testing.assert_array_equal(dW3[..., 0], dW)
     with pytest.raises(ValueError, match=r"shape \(n_steps, 1\)"):
@@ -129,10 +129,10 @@ def test_newton_stats_only_when_asked(paper):
 def test_truncation(paper):
     model, _ = paper
     h = 0.01
-    dW = sj.brownian_increments(jax.random.key(10), 20_000, h, truncate_k=0.1)
+    dW = sj.BrownianMotion(truncate_k=0.1).increments(jax.random.key(10), 20_000, h)
     bound = np.sqrt(2 * 0.1 * abs(np.log(h)))
     assert np.max(np.abs(dW)) == pytest.approx(np.sqrt(h) * bound, rel=1e-12)
-    raw = sj.brownian_increments(jax.random.key(10), 20_000, h, truncate_k=None)
+    raw = sj.BrownianMotion(truncate_k=None).increments(jax.random.key(10), 20_000, h)
     np.testing.assert_allclose(
         np.clip(raw, -np.sqrt(h) * bound, np.sqrt(h) * bound), dW, atol=1e-15
     )
@@ -142,7 +142,7 @@ def test_truncation(paper):
 def test_failed_sample_is_flagged_frozen_and_does_not_poison_others(paper):
     model, y0 = paper
     y0 = y0 * 0.99
-    dW = sj.brownian_increments(jax.random.key(11), 40, 0.01, n_samples=3)
+    dW = sj.BrownianMotion().increments(jax.random.key(11), 40, 0.01, n_samples=3)
     dW = dW.at[1, 20].set(400.0)  # tau = 80 at step 20: no root on the branch theta < pi/2
     run = jax.jit(jax.vmap(lambda w: sj.integrate(model, y0, w, 0.01, method=LP, failures=FREEZE)))
     out = np.asarray(run(dW))
@@ -166,7 +166,7 @@ def test_vmapped_integrate_raises_once_for_the_batch(paper):
     # throw=True under jit(vmap(...)) reports through one host callback for the whole batch:
     # jax.debug.callback's own vmap rule would compile one callback per sample.
     model, y0 = paper
-    dW = sj.brownian_increments(jax.random.key(11), 40, 0.01, n_samples=6)
+    dW = sj.BrownianMotion().increments(jax.random.key(11), 40, 0.01, n_samples=6)
     run = jax.jit(
         jax.vmap(lambda w: sj.integrate(model, y0 * 0.99, w, 0.01, method=LP, failures=RAISE))
     )
@@ -190,7 +190,7 @@ def test_loop_layout_takes_exactly_n_steps(paper, n):
     # (_integrate._layout); the final state must be that of n plain steps (one save per
     # step: no padding at all), and a failure must be reported at its own step.
     model, y0 = paper
-    dW = sj.brownian_increments(jax.random.key(n), n, 1.0 / n)
+    dW = sj.BrownianMotion().increments(jax.random.key(n), n, 1.0 / n)
     final = sj.integrate(model, y0, dW, 1.0 / n, method=LP)
     every = sj.integrate(model, y0, dW, 1.0 / n, save_every=1, method=LP)
     assert every.shape == (n + 1, 3)
@@ -264,7 +264,7 @@ def test_scaling_option_handles_norm_above_one():
     y0 = jnp.array([1.4, 1.4, 0.0])
     with pytest.raises(ValueError, match="scale"):
         sj.simulate(model, y0, t1=0.1, dt=0.01, n_samples=2, key=jax.random.key(0), method=LP)
-    dW = sj.brownian_increments(jax.random.key(13), 100, 0.01)
+    dW = sj.BrownianMotion().increments(jax.random.key(13), 100, 0.01)
     y1 = sj.integrate(model, y0, dW, 0.01, method=sj.LiePoisson(scale=3.0))
     np.testing.assert_allclose(np.linalg.norm(y1), np.linalg.norm(y0), rtol=1e-14)
     # z = y / lambda solves the same SDE with time scaled by lambda.
@@ -289,7 +289,7 @@ def test_float32(paper):
     np.testing.assert_allclose(r, np.linalg.norm(sj.PAPER_Y0), rtol=1e-5)
     assert int(sol.stats["n_failed"]) == 0
     # Same increments in both precisions: float32 stays within its round-off of float64.
-    dW = sj.brownian_increments(jax.random.key(14), 32, 2**-5, n_samples=8)
+    dW = sj.BrownianMotion().increments(jax.random.key(14), 32, 2**-5, n_samples=8)
     y32 = jax.vmap(
         lambda w: sj.integrate(model32, sj.PAPER_Y0, w.astype(jnp.float32), 2**-5, method=LP)
     )(dW)
@@ -304,7 +304,7 @@ def test_model_is_a_pytree_and_gradients_reach_it(paper):
     model, y0 = paper
     leaves = jax.tree_util.tree_leaves(model)
     assert len(leaves) == 2
-    dW = sj.brownian_increments(jax.random.key(15), 16, 1 / 16)
+    dW = sj.BrownianMotion().increments(jax.random.key(15), 16, 1 / 16)
 
     def final_energy(inertia, c):
         m = sj.RigidBody(inertia, c)

@@ -391,7 +391,7 @@ def test_exact_method_evaluates_the_flow_at_saved_states_only():
     model = sj.RigidBody.paper()
     y0 = jnp.asarray(sj.PAPER_Y0)
     dt = 2.0**-6
-    dW = sj.brownian_increments(jax.random.key(3), 256, dt)
+    dW = sj.BrownianMotion().increments(jax.random.key(3), 256, dt)
     ys = sj.integrate(model, y0, dW, dt, method=sj.Exact(), save_every=64)
     w = np.concatenate([[0.0], np.cumsum(np.asarray(dW))])[::64]
     expected = np.stack([sj.exact_solution(model, y0, k * 64 * dt, wk) for k, wk in enumerate(w)])

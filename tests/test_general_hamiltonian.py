@@ -103,7 +103,7 @@ def test_rigid_body_hamiltonian_agrees_with_the_fast_path(method):
     """H = y^T I^{-1} y / 2 as a function: the same numbers as RigidBody (analytic
     derivatives) to round-off. Sym4 runs Sym2 six times, so Sym2 is covered."""
     general = sj.LiePoissonSystem(rigid, RB.inertia, RB.c)
-    dW = sj.brownian_increments(jax.random.key(1), 256, 2.0**-6)
+    dW = sj.BrownianMotion().increments(jax.random.key(1), 256, 2.0**-6)
     a = sj.integrate(RB, Y0, dW, 2.0**-6, method=method, save_every=64)
     b = sj.integrate(general, Y0, dW, 2.0**-6, method=method, save_every=64)
     np.testing.assert_allclose(b, a, rtol=0, atol=1e-12)
@@ -173,7 +173,7 @@ def test_quartic_strong_order(quartic_study, name, low, high):
 
 def test_quartic_casimir_at_round_off_over_ten_thousand_steps():
     m = quartic_model()
-    dW = sj.brownian_increments(jax.random.key(3), 10_000, 0.01)
+    dW = sj.BrownianMotion().increments(jax.random.key(3), 10_000, 0.01)
     ys = sj.integrate(m, Y0, dW, 0.01, method=sj.LiePoissonSym4(), save_every=100)
     drift = np.max(np.abs(np.linalg.norm(np.asarray(ys), axis=-1) / np.linalg.norm(Y0) - 1))
     assert drift < 1e-12, drift
@@ -182,7 +182,7 @@ def test_quartic_casimir_at_round_off_over_ten_thousand_steps():
 def test_derivatives_reach_params_and_c():
     """Forward mode through the Newton solves (Sym2), reverse mode through Euler-Maruyama,
     both against central differences."""
-    dW = sj.brownian_increments(jax.random.key(4), 16, 1 / 16)
+    dW = sj.BrownianMotion().increments(jax.random.key(4), 16, 1 / 16)
 
     def final(eps, c, method):
         m = sj.LiePoissonSystem(quartic, {"inertia": RB.inertia, "eps": eps}, c)
@@ -206,7 +206,7 @@ def test_float32():
         np.float32(0.2),
     )
     assert m32.c.dtype == jnp.float32
-    dW = sj.brownian_increments(jax.random.key(5), 500, 0.01)
+    dW = sj.BrownianMotion().increments(jax.random.key(5), 500, 0.01)
     y64 = sj.integrate(m64, Y0, dW, 0.01, method=sj.LiePoissonSym2(), save_every=100)
     y32 = sj.integrate(
         m32,

@@ -98,7 +98,9 @@ def test_gradient_approaches_exact_solution_gradient_as_h_shrinks():
 
     def exact_estimate(p, dt):
         model = sj.RigidBody(p[:3], p[3])
-        w_t = jnp.sum(sj.brownian_increments(key, int(round(1 / dt)), dt, n_samples=n), axis=1)
+        w_t = jnp.sum(
+            sj.BrownianMotion().increments(key, int(round(1 / dt)), dt, n_samples=n), axis=1
+        )
         return jnp.mean(jax.vmap(lambda w: sj.exact_solution(model, Y0, 1.0, w))(w_t), axis=0)
 
     def lp_estimate(p, dt):

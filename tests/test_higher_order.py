@@ -156,7 +156,7 @@ def test_strong_order_two(study, name):
 def test_casimir_at_round_off_over_ten_thousand_steps(paper, method):
     model, y0 = paper
     n, h = 10_000, 0.01
-    dW = sj.brownian_increments(jax.random.key(3), n, h)
+    dW = sj.BrownianMotion().increments(jax.random.key(3), n, h)
     ys = sj.integrate(model, y0, dW, h, method=method, save_every=100)
     drift = np.max(np.abs(np.linalg.norm(np.asarray(ys), axis=-1) / np.linalg.norm(y0) - 1.0))
     assert drift < 1e-12, drift
@@ -214,7 +214,7 @@ def test_float32(paper, method, tol):
     model64, y0 = paper
     model32 = sj.RigidBody(np.asarray(model64.inertia, np.float32), np.float32(0.2))
     n, h = 1000, 0.01
-    dW = sj.brownian_increments(jax.random.key(5), n, h)
+    dW = sj.BrownianMotion().increments(jax.random.key(5), n, h)
     y32 = sj.integrate(
         model32, y0.astype(jnp.float32), dW.astype(jnp.float32), h, method=method, save_every=100
     )

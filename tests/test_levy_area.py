@@ -32,8 +32,8 @@ def sampled():
     """Areas of 3 noises at h = 2^-4 (p = 1 series term: the tail approximation carries the
     most weight there), 50 000 samples x 4 steps, untruncated."""
     h = 2.0**-4
-    dW, A = sj.brownian_increments(
-        jax.random.key(0), 4, h, n_samples=50_000, n_noises=3, levy_area=True, truncate_k=None
+    dW, A = sj.BrownianMotion(truncate_k=None).increments(
+        jax.random.key(0), 4, h, n_samples=50_000, n_noises=3, levy_area=True
     )
     return h, np.asarray(dW).reshape(-1, 3), np.asarray(A).reshape(-1, 3, 3)
 
@@ -75,15 +75,15 @@ def test_terms_rule():
 
 def test_areas_do_not_depend_on_batch_and_increments_do_not_depend_on_areas():
     key = jax.random.key(3)
-    dW5, A5 = sj.brownian_increments(key, 6, 0.1, n_samples=5, n_noises=3, levy_area=True)
-    dW2, A2 = sj.brownian_increments(key, 9, 0.1, n_samples=2, n_noises=3, levy_area=True)
+    dW5, A5 = sj.BrownianMotion().increments(key, 6, 0.1, n_samples=5, n_noises=3, levy_area=True)
+    dW2, A2 = sj.BrownianMotion().increments(key, 9, 0.1, n_samples=2, n_noises=3, levy_area=True)
     np.testing.assert_array_equal(A5[:2], A2[:, :6])
     np.testing.assert_array_equal(dW5[:2], dW2[:, :6])
-    plain = sj.brownian_increments(key, 6, 0.1, n_samples=5, n_noises=3)
+    plain = sj.BrownianMotion().increments(key, 6, 0.1, n_samples=5, n_noises=3)
     # the same draws; to rounding only, as they come from two compiled programs (with and
     # without the areas), whose fusions may round a product differently (seen: 1 ulp)
     np.testing.assert_allclose(plain, dW5, rtol=4 * np.finfo(plain.dtype).eps, atol=0)
-    one = sj.brownian_increments(key, 6, 0.1, n_noises=3, levy_area=True)
+    one = sj.BrownianMotion().increments(key, 6, 0.1, n_noises=3, levy_area=True)
     np.testing.assert_array_equal(one[1], A5[0])
 
 
@@ -100,7 +100,8 @@ def _chen(dW, A):
 def test_joined_steps_follow_chen_and_split_steps_give_the_step_back():
     key = jax.random.key(5)
     fine_dW, fine_A = (
-        np.asarray(x) for x in sj.brownian_increments(key, 8, 2.0**-6, n_noises=3, levy_area=True)
+        np.asarray(x)
+        for x in sj.BrownianMotion().increments(key, 8, 2.0**-6, n_noises=3, levy_area=True)
     )
     sample_key = _brownian.sample_keys(key, 1)[0]
     terms = _brownian.levy_area_terms(2.0**-6, 3)
@@ -121,12 +122,12 @@ def test_joined_steps_follow_chen_and_split_steps_give_the_step_back():
     np.testing.assert_allclose(joined.area, step.area, atol=1e-16)
 
 
-def test_simulate_uses_the_areas_brownian_increments_gives():
-    """Row i of brownian_increments(levy_area=True) is what simulate draws for sample i."""
+def test_simulate_uses_the_areas_the_driver_s_increments_give():
+    """Row i of BrownianMotion().increments(levy_area=True) is what simulate draws for sample i."""
     model = salt_body()
     key = jax.random.key(11)
     sol = sj.simulate(model, Y0, t1=0.5, dt=1 / 16, n_samples=3, key=key, method=sj.Midpoint())
-    dW, A = sj.brownian_increments(key, 8, 1 / 16, n_samples=3, n_noises=3, levy_area=True)
+    dW, A = sj.BrownianMotion().increments(key, 8, 1 / 16, n_samples=3, n_noises=3, levy_area=True)
     for i in range(3):
         y = sj.integrate(model, Y0, dW[i], 1 / 16, areas=A[i], method=sj.Midpoint())
         np.testing.assert_allclose(sol.ys[i, -1], y, rtol=0, atol=1e-14)
@@ -171,7 +172,7 @@ def test_one_noise_has_no_areas(paper):
 
     a, b = run(True), run(False)
     np.testing.assert_array_equal(a.ys, b.ys)
-    dW, A = sj.brownian_increments(key, 8, 1 / 32, n_noises=1, levy_area=True)
+    dW, A = sj.BrownianMotion().increments(key, 8, 1 / 32, n_noises=1, levy_area=True)
     assert A.shape == (8, 1, 1) and not np.any(A)
 
 
@@ -222,7 +223,7 @@ def test_a_retried_step_keeps_its_increments_and_areas():
 
 def test_levy_area_arguments_are_checked():
     model = salt_body()
-    dW, A = sj.brownian_increments(jax.random.key(0), 4, 0.1, n_noises=3, levy_area=True)
+    dW, A = sj.BrownianMotion().increments(jax.random.key(0), 4, 0.1, n_noises=3, levy_area=True)
     with pytest.raises(TypeError, match="Heun does not use Lévy areas.*Midpoint"):
         sj.integrate(model, Y0, dW, 0.1, areas=A, method=sj.Heun())
     with pytest.raises(ValueError, match=r"shape \(n_steps, s, s\) = \(4, 3, 3\)"):
@@ -247,13 +248,13 @@ def test_levy_area_arguments_are_checked():
                 driver=sj.BrownianMotion(levy_area=option),
             )
     with pytest.raises(ValueError, match="needs n_noises"):
-        sj.brownian_increments(jax.random.key(0), 4, 0.1, levy_area=True)
+        sj.BrownianMotion().increments(jax.random.key(0), 4, 0.1, levy_area=True)
 
 
 def test_coarsen_is_join_over_blocks():
     dW, A = (
         np.asarray(x)
-        for x in sj.brownian_increments(
+        for x in sj.BrownianMotion().increments(
             jax.random.key(9), 12, 0.05, n_samples=2, n_noises=3, levy_area=True
         )
     )

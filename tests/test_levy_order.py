@@ -199,7 +199,7 @@ def test_no_areas_equals_zero_areas(cls):
     model, y0 = sj.RigidBody(INERTIA, noise=sj.salt_noise(CHI)), Y0
     if cls.missing(model):
         pytest.skip(f"{cls.__name__} does not run this system")
-    dW, A = sj.brownian_increments(jax.random.key(3), 8, 1 / 8, n_noises=3, levy_area=True)
+    dW, A = sj.BrownianMotion().increments(jax.random.key(3), 8, 1 / 8, n_noises=3, levy_area=True)
     without = sj.integrate(model, y0, dW, 1 / 8, method=cls())
     zero = sj.integrate(model, y0, dW, 1 / 8, areas=0 * A, method=cls())
     np.testing.assert_allclose(zero, without, rtol=0, atol=1e-14)
@@ -208,7 +208,7 @@ def test_no_areas_equals_zero_areas(cls):
 def test_gradients_through_the_area_term_match_finite_differences():
     """d/d(inertia, chi) of the final state on fixed increments and areas, three methods,
     against central differences."""
-    dW, A = sj.brownian_increments(jax.random.key(7), 8, 1 / 16, n_noises=3, levy_area=True)
+    dW, A = sj.BrownianMotion().increments(jax.random.key(7), 8, 1 / 16, n_noises=3, levy_area=True)
     weights = jnp.asarray([0.3, -0.7, 0.5])
 
     def loss(theta, method):

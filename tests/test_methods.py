@@ -138,7 +138,7 @@ def test_method_on_system(cls, system):
     # Newton stops at 64 float32 ulps (8e-6) per step, 16 steps (measured up to 2e-5).
     # (with the Lévy areas simulate draws for a method that uses them)
     areas = cls.uses_levy_area() and model.n_noises > 1
-    dW = sj.brownian_increments(
+    dW = sj.BrownianMotion().increments(
         key, N_STEPS, DT, n_samples=N_SAMPLES, n_noises=model.n_noises, levy_area=areas
     )
     dW, A = dW if areas else (dW, None)
@@ -210,7 +210,7 @@ def test_auto_is_midpoint_on_so3_and_isospectral_midpoint_on_matrix_algebras():
         sj.simulate(so4, Y0, **kw).ys,
         sj.simulate(so4, Y0, method=sj.IsospectralMidpoint(), **kw).ys,
     )
-    dW = sj.brownian_increments(jax.random.key(1), 4, 2.0**-4)
+    dW = sj.BrownianMotion().increments(jax.random.key(1), 4, 2.0**-4)
     paper, y0 = SYSTEMS["paper rigid body"]
     np.testing.assert_array_equal(
         sj.integrate(paper, y0, dW, 2.0**-4),

@@ -61,7 +61,7 @@ def test_simulate_failed_samples_frozen_at_last_good_state():
         np.testing.assert_array_equal(ys[i, f:], np.broadcast_to(ys[i, f], ys[i, f:].shape))
         np.testing.assert_allclose(np.linalg.norm(ys[i, : f + 1], axis=-1), 0.99, rtol=1e-13)
     # The unflagged samples' paths are close to the exact solution on the same increments.
-    dW = np.asarray(sj.brownian_increments(jax.random.key(20), 16, 2**-5, n_samples=16))
+    dW = np.asarray(sj.BrownianMotion().increments(jax.random.key(20), 16, 2**-5, n_samples=16))
     ok = np.flatnonzero(~failed)
     if ok.size:
         ref = exact_sde_solution(model.inertia, 1.0, y0, dW[ok].sum(1), 0.5)
@@ -77,7 +77,7 @@ def test_failure_at_an_injected_increment(paper, method, step):
     # dW = 1e300 at step 7: the implicit solves fail there; Euler-Maruyama's step is still
     # finite (about 1e299) and overflows at step 8.
     model, y0 = paper
-    dW = np.array(sj.brownian_increments(jax.random.key(21), 12, 0.01))
+    dW = np.array(sj.BrownianMotion().increments(jax.random.key(21), 12, 0.01))
     dW[7] = 1e300
     ys = np.asarray(
         sj.integrate(
@@ -106,7 +106,7 @@ def test_the_streaming_example_s_hard_sample_succeeds_with_default_arguments(pap
     # tests/test_benchmarks.py.)
     model, y0 = paper
     key = jax.random.key(0)
-    dW = np.asarray(sj.brownian_increments(key, 32, 2**-5, n_samples=42822)[42821])
+    dW = np.asarray(sj.BrownianMotion().increments(key, 32, 2**-5, n_samples=42822)[42821])
     with pytest.raises(RuntimeError, match="step 1 could not be solved"):
         sj.integrate(
             model,
@@ -230,7 +230,7 @@ def test_retry_recovers_failed_samples_accurately():
     assert int(sol.stats["n_failed"]) == 0 and int(sol.stats["n_retried_steps"]) > 0
     y1 = np.asarray(sol.ys[:, -1])
     np.testing.assert_allclose(np.linalg.norm(y1, axis=-1), 0.99, rtol=1e-13)
-    dW = np.asarray(sj.brownian_increments(RETRY_RUN["key"], 10, 0.1, n_samples=24))
+    dW = np.asarray(sj.BrownianMotion().increments(RETRY_RUN["key"], 10, 0.1, n_samples=24))
     ref = exact_sde_solution(model.inertia, 1.0, y0, dW.sum(1), 1.0)
     err = np.linalg.norm(y1 - ref, axis=-1)
     # Midpoint's error on the same paths is ~1e-2 at this step; Strang's ~4e-2. LiePoisson's
@@ -456,11 +456,12 @@ BAD_INCREMENTS = [
 
 
 @pytest.mark.parametrize("bad,exc,match", BAD_INCREMENTS)
-def test_brownian_increments_rejects_bad_input(bad, exc, match):
+def test_brownian_motion_increments_reject_bad_input(bad, exc, match):
     kwargs = dict(key=KEY, n_steps=10, dt=0.1)
     kwargs.update(bad)
     with pytest.raises(exc, match=match):
-        sj.brownian_increments(kwargs.pop("key"), kwargs.pop("n_steps"), kwargs.pop("dt"), **kwargs)
+        driver = sj.BrownianMotion(truncate_k=kwargs.pop("truncate_k", 4))
+        driver.increments(kwargs.pop("key"), kwargs.pop("n_steps"), kwargs.pop("dt"), **kwargs)
 
 
 BAD_FLOW = [
@@ -569,7 +570,7 @@ def test_dtype_policy_model_dtype_wins(paper):
     """float32 y0 + float64 model: promoted (exact); float64 y0 + float32 model: rounded."""
     model, _ = paper
     y0_32 = np.asarray([0.5, 0.4, 0.3], np.float32)
-    dW = np.asarray(sj.brownian_increments(KEY, 8, 0.05))
+    dW = np.asarray(sj.BrownianMotion().increments(KEY, 8, 0.05))
     kwargs = dict(method=sj.Strang())
     a = sj.integrate(model, y0_32, dW, 0.05, **kwargs)
     b = sj.integrate(model, y0_32.astype(np.float64), dW, 0.05, **kwargs)
@@ -712,7 +713,7 @@ def test_other_methods_step_properties(inertia, direction, radius, c, h, xi):
 
 def test_same_result_with_and_without_jit(paper):
     model, y0 = paper
-    dW = sj.brownian_increments(jax.random.key(30), 3, 0.05)
+    dW = sj.BrownianMotion().increments(jax.random.key(30), 3, 0.05)
     jitted = sj.integrate(model, y0, dW, 0.05, method=sj.Strang())
     step = sj.LiePoisson().step
     lp_jit = jax.jit(step)(model, y0, 0.05, dW[0])[0]

@@ -172,7 +172,7 @@ def test_paper_case_through_noise_equals_rigid_body():
     paper = sj.RigidBody.paper()
     y0 = jnp.asarray(sj.PAPER_Y0)
     dt = 2.0**-6
-    dW = sj.brownian_increments(jax.random.key(1), 1000, dt, n_noises=1)
+    dW = sj.BrownianMotion().increments(jax.random.key(1), 1000, dt, n_noises=1)
     expected = sj.integrate(paper, y0, dW, dt, save_every=1, method=sj.LiePoisson())
     for model in (
         sj.LiePoissonSystem(rigid_body_h, paper.inertia, noise=paper_noise),
@@ -195,7 +195,7 @@ def test_c_is_the_proportional_family():
     assert repr(fam) == repr(paper) and "c=" in repr(paper)
     assert fam.n_noises == 1 and salt().c is None
     y0, dt = jnp.asarray(sj.PAPER_Y0), 2.0**-6
-    dW = sj.brownian_increments(jax.random.key(2), 64, dt, n_noises=1)
+    dW = sj.BrownianMotion().increments(jax.random.key(2), 64, dt, n_noises=1)
     for method in (sj.LiePoisson(), sj.Midpoint(), sj.Exact()):
         np.testing.assert_array_equal(
             sj.integrate(fam, y0, dW, dt, method=method),
@@ -237,7 +237,9 @@ def test_casimir_kept_with_three_noises():
     """|y| to 1e-13 over 10^4 steps with three SALT noises, for every Poisson method (with
     the Lévy areas for those that use them)."""
     dt = 2.0**-8
-    dW, A = sj.brownian_increments(jax.random.key(2), 10_000, dt, n_noises=3, levy_area=True)
+    dW, A = sj.BrownianMotion().increments(
+        jax.random.key(2), 10_000, dt, n_noises=3, levy_area=True
+    )
     for name, method in POISSON.items():
         ys = sj.integrate(
             salt(),
@@ -293,7 +295,9 @@ def coupled():
     """200 Brownian paths at 2^-14 and the Midpoint reference on them."""
     n_fine, n_samples = 2**14, 200
     keys = jax.random.split(jax.random.key(0), n_samples)
-    dW = jax.vmap(lambda k: sj.brownian_increments(k, n_fine, 1.0 / n_fine, n_noises=3))(keys)
+    dW = jax.vmap(lambda k: sj.BrownianMotion().increments(k, n_fine, 1.0 / n_fine, n_noises=3))(
+        keys
+    )
     return dW, paths(salt(), dW, 1.0 / n_fine, sj.Midpoint())
 
 
@@ -354,7 +358,9 @@ def test_linear_hamiltonians_exact_moments(method):
     y0 = jnp.asarray([0.4, 0.3, 0.2])
     n_samples, n_fine = 4000, 32
     keys = jax.random.split(jax.random.key(3), n_samples)
-    dW = jax.vmap(lambda k: sj.brownian_increments(k, n_fine, 1.0 / n_fine, n_noises=3))(keys)
+    dW = jax.vmap(lambda k: sj.BrownianMotion().increments(k, n_fine, 1.0 / n_fine, n_noises=3))(
+        keys
+    )
 
     def moments(n):
         y = jax.jit(jax.vmap(lambda d: sj.integrate(model, y0, d, 1.0 / n, method=method)))(
@@ -381,7 +387,7 @@ def test_linear_hamiltonians_exact_moments(method):
 def test_gradients_chi_and_inertia_match_finite_differences(method):
     dt, n = 2.0**-5, 32
     keys = jax.random.split(jax.random.key(4), 8)
-    dW = jax.vmap(lambda k: sj.brownian_increments(k, n, dt, n_noises=3))(keys)
+    dW = jax.vmap(lambda k: sj.BrownianMotion().increments(k, n, dt, n_noises=3))(keys)
 
     def estimate(theta):
         model = sj.RigidBody(theta[:3], noise=sj.salt_noise(theta[3:].reshape(3, 3)))
@@ -482,7 +488,7 @@ def test_bad_input_refused():
 
 
 def test_simulate_draws_one_increment_per_noise():
-    """simulate's sample i equals integrate on row i of brownian_increments(n_noises=3), and
+    """simulate's sample i equals integrate on row i of BrownianMotion().increments(n_noises=3), and
     the noise families equal the same Hamiltonians given as functions."""
     key = jax.random.key(5)
     sol = sj.simulate(
@@ -495,7 +501,7 @@ def test_simulate_draws_one_increment_per_noise():
         driver=sj.BrownianMotion(levy_area=False),
         method=sj.LiePoisson(),
     )
-    dWs = sj.brownian_increments(key, 8, 2.0**-5, n_samples=3, n_noises=3)
+    dWs = sj.BrownianMotion().increments(key, 8, 2.0**-5, n_samples=3, n_noises=3)
     assert dWs.shape == (3, 8, 3)
     for i in range(3):
         np.testing.assert_allclose(
@@ -503,7 +509,7 @@ def test_simulate_draws_one_increment_per_noise():
             sj.integrate(salt(), Y0, dWs[i], 2.0**-5, method=sj.LiePoisson()),
             atol=1e-15,
         )
-    dW, A = sj.brownian_increments(key, 8, 2.0**-5, n_noises=3, levy_area=True)
+    dW, A = sj.BrownianMotion().increments(key, 8, 2.0**-5, n_noises=3, levy_area=True)
     sigma = 0.3 * np.eye(3) + 0.1
     for family, fn in (
         (sj.salt_noise(CHI), lambda y, p: jnp.asarray(CHI) @ y),

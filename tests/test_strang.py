@@ -82,7 +82,7 @@ def test_axis_vector_fields_sum_to_full_vector_field(paper):
 def test_casimir_preserved_over_many_steps(paper):
     model, y0 = paper
     n, h = 10_000, 0.01
-    dW = sj.brownian_increments(jax.random.key(3), n, h)
+    dW = sj.BrownianMotion().increments(jax.random.key(3), n, h)
     ys = sj.integrate(model, y0, dW, h, method=sj.Strang(), save_every=100)
     norms = np.linalg.norm(np.asarray(ys), axis=-1)
     drift = np.max(np.abs(norms / np.linalg.norm(y0) - 1.0))
@@ -109,7 +109,7 @@ def test_float32(paper):
     model32 = sj.RigidBody(np.asarray(model64.inertia, np.float32), np.float32(0.2))
     assert model32.inertia.dtype == jnp.float32
     n, h = 1000, 0.01
-    dW = sj.brownian_increments(jax.random.key(5), n, h)
+    dW = sj.BrownianMotion().increments(jax.random.key(5), n, h)
     y32 = sj.integrate(
         model32, y0.astype(jnp.float32), dW.astype(jnp.float32), h, method=sj.Strang()
     )

@@ -46,7 +46,7 @@ def test_orders(study):
 def test_errors_match_an_independent_computation(study):
     """The same samples and paths, integrated with `integrate` and scipy's reference."""
     model, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
-    fine = sj.brownian_increments(jax.random.key(20), 256, DTS[-1], n_samples=200)
+    fine = sj.BrownianMotion().increments(jax.random.key(20), 256, DTS[-1], n_samples=200)
     exact = exact_sde_solution(model.inertia, 0.2, y0, np.asarray(fine.sum(1)), 1.0)
     coarse = fine.reshape(200, -1, 2).sum(-1)  # h = 2^-7
     y = jax.jit(jax.vmap(lambda w: sj.integrate(model, y0, w, DTS[2], method=sj.LiePoisson())))(
@@ -84,7 +84,7 @@ def test_study_rejects_bad_input():
 
 def test_exact_method_reproduces_exact_solution(paper):
     model, y0 = paper
-    dW = sj.brownian_increments(jax.random.key(22), 400, 0.05, n_samples=5)
+    dW = sj.BrownianMotion().increments(jax.random.key(22), 400, 0.05, n_samples=5)
     ys = jax.vmap(lambda w: sj.integrate(model, y0, w, 0.05, method=sj.Exact()))(dW)
     ref = exact_sde_solution(model.inertia, 0.2, y0, np.asarray(dW.sum(1)), 20.0)
     np.testing.assert_allclose(ys, ref, atol=1e-10)

@@ -27,7 +27,7 @@ def synthetic():
     model = sj.EulerZeitlin(N, noise=sj.salt_noise(-xi))
     rng = np.random.default_rng(0)
     w0 = z.shr2mat(np.concatenate([[0.0], rng.normal(size=24) / 3]), N)
-    dW = sj.brownian_increments(jax.random.key(1), K, h, n_noises=2)
+    dW = sj.BrownianMotion().increments(jax.random.key(1), K, h, n_noises=2)
     ws = np.asarray(sj.integrate(model, w0, dW, h, save_every=1, method=sj.IsospectralMidpoint()))
     drift = -np.asarray(jax.vmap(sj.EulerZeitlin(N).gradient)(ws[:-1]))
     streams = drift + np.einsum("nr,rij->nij", np.asarray(dW), xi) / h
@@ -111,7 +111,7 @@ def test_a_flow_both_resolutions_carry_exactly_misses_no_transport():
 
 def test_ornstein_uhlenbeck_transport_is_recovered():
     """su(16) driven by two known orthogonal streams with unit Ornstein–Uhlenbeck traces of
-    correlation time 0.5 s (`ou_increments`), 1000 s at h = 0.05: the fit recovers each
+    correlation time 0.5 s (`OrnsteinUhlenbeck.increments`), 1000 s at h = 0.05: the fit recovers each
     correlation time within 25 % and each variance within 15 %; over the 2e4 steps the
     Casimirs drift by less than 1e-10 of their scale (the default step, isospectral to its
     solver's tolerance in float64)."""
@@ -120,7 +120,7 @@ def test_ornstein_uhlenbeck_transport_is_recovered():
     model = sj.EulerZeitlin(N, noise=sj.salt_noise(-xi))
     rng = np.random.default_rng(2)
     w0 = z.shr2mat(np.concatenate([[0.0], rng.normal(size=24) / 3]), N)
-    drive = sj.ou_increments(jax.random.key(3), K, h, [T, T])
+    drive = sj.OrnsteinUhlenbeck([T, T]).increments(jax.random.key(3), K, h)
     ws = np.asarray(sj.integrate(model, w0, drive, h, save_every=1))
     drift = -0.5 * np.asarray(jax.vmap(sj.EulerZeitlin(N).gradient)(ws[:-1] + ws[1:]))
     streams = drift + np.einsum("nr,rij->nij", np.asarray(drive), xi) / h
@@ -142,7 +142,7 @@ def test_the_fitted_diffusivity_does_not_depend_on_the_window():
     degrees 1..10): the sum of 2 sigma_r^2 T_r over the kept modes changes by less than 30 %
     between windows of 1, 10 and 50 steps (a window-integrated forecast error changes by
     orders of magnitude). Ensembles with the fitted noise keep every member's Casimirs to
-    1e-12 over a 4 s forecast, white (`simulate`) or Ornstein–Uhlenbeck (`ou_increments`)."""
+    1e-12 over a 4 s forecast, white (`simulate`) or Ornstein–Uhlenbeck (`OrnsteinUhlenbeck.increments`)."""
     M, N, h, steps = 32, 8, 0.01, 2000
     rng = np.random.default_rng(0)
     om = np.zeros(121)
@@ -163,7 +163,9 @@ def test_the_fitted_diffusivity_does_not_depend_on_the_window():
         n_samples=members,
         key=jax.random.key(0),
     ).ys[:, -1]
-    drive = sj.ou_increments(jax.random.key(1), n, h, ou.correlation_time, n_samples=members)
+    drive = sj.OrnsteinUhlenbeck(ou.correlation_time).increments(
+        jax.random.key(1), n, h, n_samples=members
+    )
     system = sj.EulerZeitlin(N, noise=ou.noise)
     red = jax.vmap(lambda d: sj.integrate(system, w0, d, h))(drive)
     scale = np.sum(np.abs(np.linalg.eigvals(w0))[:, None] ** np.arange(2, N + 1), axis=0)

@@ -248,7 +248,7 @@ def test_complex64_model_casts_its_input_and_keeps_the_casimirs_to_its_round_off
     drift = np.max(np.abs(c / c[:, :1] - 1)[..., :3])
     assert drift < 10 * np.finfo(np.float32).eps * math.sqrt(steps), drift
     # the same increments (float64, cast by the complex64 model) over 50 steps
-    dW, A = sj.brownian_increments(jax.random.key(2), 50, 0.01, n_noises=3, levy_area=True)
+    dW, A = sj.BrownianMotion().increments(jax.random.key(2), 50, 0.01, n_noises=3, levy_area=True)
     y = {
         dt: sj.integrate(
             sj.EulerZeitlin(N, noise=sj.salt_noise(X), dtype=dt),
@@ -311,7 +311,7 @@ def test_lie_poisson_on_the_unitary_group_equals_so_n_on_real_states():
     p = jnp.asarray(1.0 + np.add.outer(np.arange(n), np.arange(n)) % 3)
     a = np.random.default_rng(2).normal(size=(n, n))
     y0 = 0.6 * (a - a.T) / np.linalg.norm(a - a.T, 2)
-    dW = sj.brownian_increments(jax.random.key(4), 32, dt)
+    dW = sj.BrownianMotion().increments(jax.random.key(4), 32, dt)
     real = sj.integrate(
         sj.LiePoissonSystem(_weighted_square, p, c=0.4, algebra=sj.so(n)),
         y0,
@@ -419,7 +419,7 @@ def test_final_updates_agree_at_the_root_and_the_default_follows_the_precision()
     N = 16
     X = 0.2 * z.shr2mat(np.eye(N * N)[[1, 2, 3]], N)
     w0 = z.shr2mat(np.concatenate([[0.0], np.random.default_rng(3).normal(size=24)]), N)
-    dW, A = sj.brownian_increments(jax.random.key(4), 3, 0.01, n_noises=3, levy_area=True)
+    dW, A = sj.BrownianMotion().increments(jax.random.key(4), 3, 0.01, n_noises=3, levy_area=True)
     model = sj.EulerZeitlin(N, noise=sj.salt_noise(X))
     y = {
         f: sj.integrate(model, w0, dW, 0.01, areas=A, method=sj.IsospectralMidpoint(final_update=f))

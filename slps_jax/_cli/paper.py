@@ -123,15 +123,15 @@ def run(out_dir="paper-output", fast=False, seed=0, stream=None):
     t0 = time.perf_counter()
     runs = {}
     dt41, n41 = cfg["path_dt"], int(round(cfg["path_t1"] / cfg["path_dt"]))
-    dW41 = sj.brownian_increments(jax.random.fold_in(key, 1), n41, dt41)
+    dW41 = sj.BrownianMotion().increments(jax.random.fold_in(key, 1), n41, dt41)
     runs["4.1", "LiePoisson"] = (_path, (system, y0, methods["LiePoisson"], dW41, dt41, 1))
     dt42, n42 = cfg["drift_dt"], int(round(cfg["drift_t1"] / cfg["drift_dt"]))
     every42 = max(1, n42 // 400)
-    dW42 = sj.brownian_increments(jax.random.fold_in(key, 2), n42, dt42)
+    dW42 = sj.BrownianMotion().increments(jax.random.fold_in(key, 2), n42, dt42)
     for name, method in methods.items():
         runs["4.2", name] = (_path, (system, y0, method, dW42, dt42, every42))
     dt43, n43 = 1e-2, int(round(cfg["sphere_t1"] / 1e-2))
-    dW43 = sj.brownian_increments(jax.random.fold_in(key, 3), n43, dt43)
+    dW43 = sj.BrownianMotion().increments(jax.random.fold_in(key, 3), n43, dt43)
     for name in ("LiePoisson", "EulerMaruyama"):
         runs["4.3", name] = (_path, (system, y0, methods[name], dW43, dt43, 1))
     runs["4.1 and 4.3", "exact"] = (_exact_paths, (system, y0, (dW41, dt41), (dW43, dt43)))

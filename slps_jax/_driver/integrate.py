@@ -385,7 +385,7 @@ def integrate(
     - `areas`: `None` (default), or the Lévy areas of the steps, shape
       `(n_steps, s, s)`, antisymmetric: `A[n, q, r]` $= \tfrac12(J_{qr} - J_{rq})$,
       $J_{qr} = \int_{t_n}^{t_{n+1}} (W_q(t) - W_q(t_n)) \circ dW_r(t)$
-      (`brownian_increments(..., levy_area=True)` draws them). With them a method that
+      (`BrownianMotion().increments(..., levy_area=True)` draws them). With them a method that
       `uses_levy_area` has strong order 1 for several non-commuting noises; refused for
       one that does not.
     - `method`: a method instance, or `"auto"` (default): `Midpoint()` on so(3)*,
@@ -494,8 +494,8 @@ def simulate(
       noises, which makes such a method strong order 1 for non-commuting noise; `True`,
       `False`). `sj.OrnsteinUhlenbeck(T)`: smooth unit Ornstein–Uhlenbeck traces of
       correlation times `T` (one per noise), each step's increment their integral over the
-      step, drawn exactly (no truncation, no Lévy areas; `sj.ou_increments` gives the same
-      increments for `integrate`).
+      step, drawn exactly (no truncation, no Lévy areas; `sj.OrnsteinUhlenbeck(T).increments`
+      gives the same increments for `integrate`).
 
     **Returns:** a `Solution`.
     """

@@ -33,7 +33,7 @@ class TransportNoiseFit:
         $2\sigma_r^2T_r$ (`variance_rate`);
       - `time_model="ou"`: $\xi_r = e_r\,\sigma_r$, driven by unit-variance
         Ornstein–Uhlenbeck traces of correlation times `correlation_time`
-        (`ou_increments`).
+        (`OrnsteinUhlenbeck(T).increments`).
     - `modes`: `(r, N, N)`, the kept EOFs $e_r$ as stream matrices, orthonormal for
       `zeitlin.inner`.
     - `std`: `(r,)`, $\sigma_r$: each trace's standard deviation, a transport stream per
@@ -255,7 +255,7 @@ def fit_transport_noise(
     - `variance`: keep the fewest modes that explain this share (default 0.9); or
     - `n_modes`: keep this many.
     - `time_model`: `"white"` (default: Brownian drivers, $\xi_r = e_r\sigma_r\sqrt{2T_r}$)
-      or `"ou"` ($\xi_r = e_r\sigma_r$ for unit Ornstein–Uhlenbeck drivers, `ou_increments`).
+      or `"ou"` ($\xi_r = e_r\sigma_r$ for unit Ornstein–Uhlenbeck drivers, `OrnsteinUhlenbeck`).
     - `regularization`: `"l-curve"` (default: the Tikhonov parameter at the L-curve's
       corner, pooled over the samples) or a number $\alpha \ge 0$ ($0$: the minimum-norm
       least-squares solution).
