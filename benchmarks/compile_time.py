@@ -120,7 +120,9 @@ def measure(name, how, n_samples, n_steps, retry=None, system_name="rigid"):
             # (several noises: drawn with the library, with the areas for a method that uses them)
             areas = system.n_noises > 1 and method.uses_levy_area()
             if system.n_noises > 1:
-                dW = sj.BrownianMotion().increments(
+                # (the driver's method now, the function `brownian_increments` before it)
+                draw = getattr(sj, "brownian_increments", None) or sj.BrownianMotion().increments
+                dW = draw(
                     jax.random.key(0),
                     n_steps,
                     dt,
