@@ -17,7 +17,7 @@ import jax
 import jax.core
 import numpy as np
 
-from .._support.checks import check_retry, check_throw, user_stacklevel
+from .._support.checks import check_option, check_retry, check_throw, user_stacklevel
 from .._support.solution import RESULTS
 from .sharding import gather
 
@@ -62,12 +62,8 @@ class Failures:
         return self.retry_substeps is not None
 
 
-def check_failures(failures) -> Failures:
-    if not isinstance(failures, Failures):
-        raise TypeError(
-            f"failures must be a Failures(retry_substeps=..., throw=...), got {failures!r}."
-        )
-    return failures
+def check_failures(caller, failures) -> Failures:
+    return check_option(caller, "failures", failures, Failures)
 
 
 def summary(fail_step, result):

@@ -403,7 +403,7 @@ def integrate(
     """
     check_system(system)
     method = check_method(method, system)
-    failures = check_failures(failures)
+    failures = check_failures("integrate", failures)
     y0 = check_y0(y0, method, system)
     dW = real_array("dW", dW)
     s = system.n_noises

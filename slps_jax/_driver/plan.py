@@ -234,7 +234,7 @@ def plan_ensemble(
             raise ValueError(
                 f"n_samples must be below 2^32 (sample indices are uint32), got {n_samples}."
             )
-        chunk_size = min(check_count("chunk_size", chunk_size), n_samples)
+        chunk_size = min(chunk_size, n_samples)  # (a size `Chunks` checked)
         sharding = check_sharding(sharding, chunk_size, name="chunk_size")
     key = _brownian.check_key(key)
     save_every = check_save_every(save_every, n_steps)
@@ -249,7 +249,7 @@ def plan_ensemble(
         chunk_size,
         key,
         save_every,
-        check_failures(failures),
+        check_failures(caller, failures),
         sharding,
         path,
     )

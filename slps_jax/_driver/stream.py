@@ -20,7 +20,7 @@ import numpy as np
 
 from .. import _brownian
 from .._methods.base import AbstractMethod
-from .._support.checks import check_count
+from .._support.checks import check_count, check_option
 from .._support.progress import advance, progress_bar
 from .failures import Failures, message, warn_or_raise
 from .integrate import ensemble
@@ -244,13 +244,8 @@ def ensemble_statistics(
     **Returns:** an `EnsembleStatistics` (NumPy arrays). Failed samples are never used as
     data.
     """
-    if not isinstance(chunks, Chunks):
-        raise TypeError(f"ensemble_statistics: chunks must be a Chunks(size, ...), got {chunks!r}.")
-    if not isinstance(statistics, Statistics):
-        raise TypeError(
-            f"ensemble_statistics: statistics must be a Statistics(names, observable=...), got "
-            f"{statistics!r}."
-        )
+    check_option("ensemble_statistics", "chunks", chunks, Chunks)
+    check_option("ensemble_statistics", "statistics", statistics, Statistics)
     p = plan_ensemble(
         "ensemble_statistics",
         system,

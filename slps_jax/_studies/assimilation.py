@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._brownian import check_key
-from .._support.checks import check_count, is_int, is_real
+from .._support.checks import check_count, check_option, is_int, is_real
 
 
 def effective_sample_size(log_weights):
@@ -241,12 +241,7 @@ class Tempering:
 
 
 def check_tempering(caller, tempering) -> Tempering:
-    if not isinstance(tempering, Tempering):
-        raise TypeError(
-            f"{caller}: tempering must be a Tempering(ess_threshold=..., jitter_steps=..., "
-            f"jitter_rho=..., jitter_lag=...), got {tempering!r}."
-        )
-    return tempering
+    return check_option(caller, "tempering", tempering, Tempering)
 
 
 def check_observations(caller, observations, *, timed) -> Observations:

@@ -25,7 +25,7 @@ from .._driver.plan import (
     plan_ensemble,
 )
 from .._methods.base import AbstractMethod
-from .._support.checks import check_count, steps_on_grid
+from .._support.checks import check_count, check_option, steps_on_grid
 from .._systems.noise import _AbstractParameterNoise
 from .._systems.rigid_body import RigidBody
 
@@ -316,14 +316,9 @@ def calibrate(
             "calibrate fits the parameters of a noise family (salt_noise, "
             "random_inertia_noise); a noise given as a function has none."
         )
-    if not isinstance(observed, ObservedStatistics):
-        raise TypeError(
-            f"calibrate: observed must be an ObservedStatistics(values, times, ...), got "
-            f"{type(observed).__name__}."
-        )
-    if not isinstance(optimisation, Optimisation):
-        raise TypeError(f"calibrate: optimisation must be an Optimisation, got {optimisation!r}.")
-    failures = check_failures(failures)
+    check_option("calibrate", "observed", observed, ObservedStatistics)
+    check_option("calibrate", "optimisation", optimisation, Optimisation)
+    failures = check_failures("calibrate", failures)
     statistic, observed_stderr = observed.statistic, observed.stderr
     observed_n_samples, ts = observed.n_samples, observed.times
     optimizer, steps, rtol = optimisation.optimizer, optimisation.steps, optimisation.rtol
@@ -383,7 +378,7 @@ def calibrate(
             truncate_k=cast(_brownian.BrownianMotion, brownian).truncate_k,
             levy_area=check_levy_option(brownian.levy_area, method, init),
         ),
-        check_failures(failures),
+        failures,
         statistic,
     )
 

@@ -262,7 +262,7 @@ def _study(
         check_method(reference)
         y0 = check_y0(y0, reference, system)
     n_samples = check_count("n_samples", n_samples, minimum=2)
-    failures = check_failures(failures)
+    failures = check_failures(caller, failures)
     retry = failures.retry_substeps
     key = _brownian.check_key(key)
     fine_dt = float(dts[-1])

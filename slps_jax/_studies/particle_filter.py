@@ -381,7 +381,7 @@ def _setup(
     checked_key(name, key)
     tempering = check_tempering(name, tempering)
     observations = check_observations(name, observations, timed=True)
-    failures = check_failures(failures)
+    failures = check_failures(name, failures)
     if failures.throw:
         raise ValueError(
             f"{name}: a particle whose forecast fails gets likelihood 0 (it is left out by "

@@ -17,7 +17,7 @@ from .._brownian import BrownianMotion, OrnsteinUhlenbeck, sample_keys
 from .._driver.failures import Failures, check_failures
 from .._driver.integrate import ensemble
 from .._driver.plan import check_driver, check_method, check_system, driver_path
-from .._support.checks import check_count, check_positive
+from .._support.checks import check_count, check_option, check_positive
 from .scores import crps_ensemble
 
 FACTORS = tuple(2.0 ** np.arange(-3.0, 3.25, 0.5))  # 1/8 ... 8, ratios of sqrt 2
@@ -113,7 +113,7 @@ def forecast_ensembles(
     dt = float(np.asarray(check_positive("dt", dt)))
     check_system(system)
     method = check_method(method, system)
-    failures = check_failures(failures)
+    failures = check_failures("forecast_ensembles", failures)
     starts = jnp.asarray(starts)
     if starts.ndim != len(system.algebra.shape) + 1 or starts.shape[1:] != system.algebra.shape:
         raise ValueError(
@@ -284,8 +284,7 @@ def tune_amplitude(
             f"tune_amplitude: the system has no noise amplitudes to scale (none, or all "
             f"zero): {system!r}."
         )
-    if not isinstance(search, AmplitudeSearch):
-        raise TypeError(f"tune_amplitude: search must be an AmplitudeSearch, got {search!r}.")
+    check_option("tune_amplitude", "search", search, AmplitudeSearch)
     factors, refine = np.asarray(search.factors), search.refine
 
     def score(f):

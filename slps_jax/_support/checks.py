@@ -108,6 +108,15 @@ def check_save_every(save_every, n_steps):
     return int(save_every)
 
 
+def check_option(caller, name, value, kind):
+    """`value`, an option object of class `kind` (`Failures`, `Store`, ...), or a `TypeError`
+    naming the argument and the class: the one check of every entry point's option objects."""
+    if not isinstance(value, kind):
+        article = "an" if kind.__name__[0] in "AEIOU" else "a"
+        raise TypeError(f"{caller}: {name} must be {article} {kind.__name__}(...), got {value!r}.")
+    return value
+
+
 def check_retry(retry_substeps):
     if retry_substeps is None:
         return None

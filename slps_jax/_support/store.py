@@ -38,7 +38,7 @@ import jax
 import numpy as np
 
 from . import saving
-from .checks import user_stacklevel
+from .checks import check_option, user_stacklevel
 
 _FORMAT = "slps-jax run store"
 _VERSION = 1
@@ -115,9 +115,7 @@ class Store:
 
 
 def check_store(caller, store) -> Store:
-    if not isinstance(store, Store):
-        raise TypeError(f"{caller}: store must be a Store(folder, ...), got {store!r}.")
-    return store
+    return check_option(caller, "store", store, Store)
 
 
 def _zarr() -> Any:  # (zarr's JSON types do not help here: its objects are Any)
