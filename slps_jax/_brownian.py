@@ -315,6 +315,24 @@ class AbstractPath(eqx.Module):
     def draws(self, key) -> AbstractDraws:
         """The noise of the steps of the sample whose key is `key`."""
 
+    @abc.abstractmethod
+    def innovations(self, n_steps) -> tuple[tuple[int, ...], float]:
+        """`(shape, variance)` of the independent Gaussian numbers from which `steps_from`
+        makes `n_steps` steps of one sample's noise: what a move in the space of the noise
+        (the filter's pCN) proposes. A path whose noise is not Gaussian in them (truncated,
+        or with Lévy areas) raises `ValueError`, naming the option."""
+
+    @abc.abstractmethod
+    def initial_state(self, key, batch=()):
+        """The state of `batch` samples before their first step, drawn from `key` (`()`: a
+        path without a state)."""
+
+    @abc.abstractmethod
+    def steps_from(self, state, innovations, n_live=None):
+        """`(state, noises)`: the noises of the steps that `innovations` (`innovations`'
+        shape) make from `state` (a `BrownianStep` with a leading axis), and the state after
+        the first `n_live` of them (all by default; the rest are padding)."""
+
     def coarsened(self, m, dt) -> AbstractPath:
         """The same noise in steps `dt` of `m` of this path's steps (where `coarsens`)."""
         raise TypeError(f"{type(self).__name__} does not coarsen its steps.")
@@ -407,6 +425,22 @@ class BrownianPath(AbstractPath):
     def _draw(self, key, n, m, fine_dt):
         """Coarse step `n` made of `m` fine steps of size `fine_dt` (`draw_joined`)."""
         return draw_joined(key, n, m, fine_dt, self.bound, self.dt.dtype, self.n_noises, self.terms)
+
+    def innovations(self, n_steps):
+        """The increments themselves, `(n_steps, n_noises)` of variance `dt`: given as
+        Gaussian numbers, so neither truncated nor with Lévy areas."""
+        if np.isfinite(np.asarray(self.bound)) or self.has_areas:
+            raise ValueError(
+                "steps from given Gaussian increments are neither truncated nor with Lévy "
+                "areas: use BrownianMotion(truncate_k=None, levy_area=False)."
+            )
+        return (n_steps, self.n_noises), float(self.dt)
+
+    def initial_state(self, key, batch=()):
+        return ()
+
+    def steps_from(self, state, innovations, n_live=None):
+        return state, BrownianStep(innovations, None)
 
 
 def _check_dt(dt):
@@ -754,6 +788,31 @@ class OrnsteinUhlenbeckPath(AbstractPath):
     def draws(self, key):
         return StatefulDraws(self, key)
 
+    def innovations(self, n_steps):
+        """Two standard normal numbers per noise and step, `(n_steps, 2, n_noises)`: those
+        of the traces' exact step (`ou_step`)."""
+        return (n_steps, 2, self.n_noises), 1.0
+
+    def initial_state(self, key, batch=()):
+        """The traces drawn from their stationary law, standard normal: `(*batch, n_noises)`."""
+        return jax.random.normal(key, (*batch, self.n_noises), self.dt.dtype)
+
+    def steps_from(self, eta, innovations, n_live=None):
+        """The traces' exact steps (`ou_step`), one per row of `innovations`; the traces
+        stop after the first `n_live` steps."""
+        if n_live is None:
+            eta, dW = jax.lax.scan(lambda e, z: ou_step(self.consts, e, z), eta, innovations)
+            return eta, BrownianStep(dW, None)
+
+        def step(eta, zj):
+            z, live = zj
+            nxt, increment = ou_step(self.consts, eta, z)
+            return jnp.where(live, nxt, eta), increment
+
+        live = jnp.arange(innovations.shape[0]) < n_live
+        eta, dW = jax.lax.scan(step, eta, (innovations, live))
+        return eta, BrownianStep(dW, None)
+
 
 class StatefulDraws(AbstractDraws):
     """The steps' noise of one sample of a driver with a state: `init`, the state before the
@@ -763,24 +822,15 @@ class StatefulDraws(AbstractDraws):
 
     def __init__(self, path, key):
         k0, self.key = jax.random.split(key)
-        dtype = path.dt.dtype
         self.path = path
-        self.init = jax.random.normal(k0, (path.n_noises,), dtype)
+        self.init = path.initial_state(k0)
 
     def block(self, eta, n0, length, n_live):
-        a = self.path.consts[0]
-        s, dtype = a.shape[0], a.dtype
+        shape, _ = self.path.innovations(length)
         z = jax.vmap(
-            lambda j: jax.random.normal(jax.random.fold_in(self.key, n0 + j), (2, s), dtype)
+            lambda j: jax.random.normal(jax.random.fold_in(self.key, n0 + j), shape[1:], eta.dtype)
         )(jnp.arange(length, dtype=jnp.asarray(n0).dtype))
-
-        def step(eta, zj):
-            z, live = zj
-            nxt, increment = ou_step(self.path.consts, eta, z)
-            return jnp.where(live, nxt, eta), increment
-
-        eta, dW = jax.lax.scan(step, eta, (z, jnp.arange(length) < n_live))
-        return eta, BrownianStep(dW, None)
+        return self.path.steps_from(eta, z, n_live)
 
 
 def ou_step(consts, eta, z):

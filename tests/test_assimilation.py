@@ -436,8 +436,17 @@ def test_an_ornstein_uhlenbeck_driver_keeps_orbits_and_resumes_from_disk(tmp_pat
         sj.particle_filter(
             system, x, observed(ys), **kw, driver=sj.OrnsteinUhlenbeck([1.0, 2.0, 3.0, 4.0])
         )
-    with pytest.raises(TypeError, match="driver"):
-        sj.particle_filter(system, x, observed(ys), **kw, driver=sj.BrownianMotion())
+    # the default is Gaussian Brownian increments: a driver that truncates them or draws
+    # Lévy areas is refused (pCN keeps a Gaussian law), and one that does neither is it
+    gaussian = sj.BrownianMotion(truncate_k=None, levy_area=False)
+    for refused in (sj.BrownianMotion(), sj.BrownianMotion(truncate_k=None, levy_area=True)):
+        with pytest.raises(ValueError, match=r"truncate_k=None, levy_area=False"):
+            sj.particle_filter(system, x, observed(ys), **kw, driver=refused)
+    with pytest.raises(TypeError, match="driver must be None"):
+        sj.particle_filter(system, x, observed(ys), **kw, driver="ou")
+    plain = sj.particle_filter(system, x, observed(ys[:1]), **kw)
+    given = sj.particle_filter(system, x, observed(ys[:1]), **kw, driver=gaussian)
+    assert np.array_equal(plain.particles, given.particles)
 
 
 BAD_FILTER = [

@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._brownian import BrownianStep, OrnsteinUhlenbeck, ou_step
+from .._brownian import AbstractDriver, BrownianMotion, check_driver
 from .._driver.failures import Failures, check_failures
 from .._driver.integrate import path_of_noise
 from .._driver.plan import check_method, check_y0
@@ -45,32 +45,28 @@ from .assimilation import (
 
 
 @functools.partial(jax.jit, static_argnames=("method", "m", "retry", "chunk_size", "auto"))
-def _forecast(method, system, states, dws, step, path, *, m, retry, chunk_size, auto):
-    """`particle_filter`'s forecast: every particle `m` steps of `method` with its own
-    increments, and whether it succeeded; compiled once per method, system structure,
-    shapes and layout. With an Ornstein–Uhlenbeck `path` a particle is its state and its
-    traces, and `dws` are the standard normal numbers the traces' exact steps take
-    (`ou_step`); `None`: Brownian increments."""
+def _forecast(method, system, particles, innovations, step, path, *, m, retry, chunk_size, auto):
+    """`particle_filter`'s forecast: every particle `m` steps of `method` with the noise its
+    `innovations` make (`AbstractPath.steps_from`), and whether it succeeded; compiled once
+    per method, system structure, shapes and layout. A particle is its state and its
+    driver's state (`()` for Brownian increments, Ornstein–Uhlenbeck traces)."""
 
-    def one(state, dw):
-        y, eta = state if path is not None else (state, None)
-        if path is not None:
-            eta, dw = jax.lax.scan(lambda e, z: ou_step(path.consts, e, z), eta, dw)
-        ys, _, result, _, _ = path_of_noise(
-            method, system, y, BrownianStep(dw, None), step, m, False, retry
-        )
-        return Forecast((ys[-1], eta) if path is not None else ys[-1], result == RESULTS.successful)
+    def one(particle, innovations):
+        y, state = particle
+        state, noise = path.steps_from(state, innovations)
+        ys, _, result, _, _ = path_of_noise(method, system, y, noise, step, m, False, retry)
+        return Forecast((ys[-1], state), result == RESULTS.successful)
 
     if chunk_size is not None:
-        return jax.lax.map(lambda a: one(*a), (states, dws), batch_size=chunk_size)
+        return jax.lax.map(lambda a: one(*a), (particles, innovations), batch_size=chunk_size)
     if auto is not None:
-        states, dws = jax.lax.with_sharding_constraint((states, dws), auto)
-    return jax.vmap(one)(states, dws)
+        particles, innovations = jax.lax.with_sharding_constraint((particles, innovations), auto)
+    return jax.vmap(one)(particles, innovations)
 
 
 @dataclasses.dataclass(frozen=True)
 class _OnState:
-    """`observe` of a particle that carries its driver's traces beside its state: of the
+    """`observe` of a particle, which carries its driver's state beside its state: of the
     state alone (equal, and hashed alike, for the same `observe`: compiled once)."""
 
     observe: Any
@@ -92,7 +88,7 @@ def particle_filter(
     failures: Failures = Failures(),
     chunk_size: int | None = None,
     sharding=None,
-    driver: OrnsteinUhlenbeck | None = None,
+    driver: AbstractDriver | None = None,
 ):
     r"""Assimilate observations into an ensemble of a stochastic Lie–Poisson system: the
     filter of `assimilate` (adaptive tempering, systematic resampling, pCN jittering of each
@@ -126,11 +122,14 @@ def particle_filter(
       (JAX's SPMD partitioner), and the tempering and resampling, which need all the
       weights, gather them. The result is that of the unsharded filter, to round-off
       (`tests/test_scale.py`). One process only; not with `chunk_size`.
-    - `driver`: `None` (default): Brownian increments; `sj.OrnsteinUhlenbeck(T)`: smooth
-      Ornstein–Uhlenbeck traces, one per noise (the driver of a noise fitted with
-      `time_model="ou"`). Each particle then carries its traces beside its state, drawn from
-      their stationary law at the start and copied with it when resampled, and pCN moves the
-      standard normal numbers of the traces' exact steps.
+    - `driver`: `None` (default): Gaussian Brownian increments, as
+      `sj.BrownianMotion(truncate_k=None, levy_area=False)` (a driver that truncates its
+      increments or draws Lévy areas is refused: pCN keeps a Gaussian law);
+      `sj.OrnsteinUhlenbeck(T)`: smooth Ornstein–Uhlenbeck traces, one per noise (the
+      driver of a noise fitted with `time_model="ou"`). Each particle then carries its
+      traces beside its state, drawn from their stationary law at the start and copied with
+      it when resampled, and pCN moves the standard normal numbers of the traces' exact
+      steps (`AbstractPath.innovations`).
 
     **Returns:** a `FilterResult` (its `particles` and `mean` the system's states alone).
     """
@@ -161,8 +160,8 @@ def particle_filter(
             key=key,
             tempering=setup.tempering,
         )
-    if setup.path is not None:  # (the analyses' states, without the traces)
-        result = result._replace(particles=result.particles[0], mean=result.mean[0])
+    # (the analyses' states, without the driver's)
+    result = result._replace(particles=result.particles[0], mean=result.mean[0])
     return as_given(result, setup.sharding)
 
 
@@ -179,7 +178,7 @@ def particle_filter_to_store(
     method: Any = "auto",
     failures: Failures = Failures(),
     chunk_size: int | None = None,
-    driver: OrnsteinUhlenbeck | None = None,
+    driver: AbstractDriver | None = None,
 ):
     r"""`particle_filter`, written to a run store on disk as it goes: each observation's
     analysis is appended to the store with the filter's state (every particle's pCN window,
@@ -290,7 +289,7 @@ def particle_filter_to_store(
         )
         for cycle in filtering:
             k = cycle.state.k
-            analysis = cycle.analysis if setup.path is None else cycle.analysis[0]
+            analysis = cycle.analysis[0]
             record = {
                 "state": analysis[None],
                 "mean": jnp.mean(analysis, axis=0)[None],
@@ -312,8 +311,8 @@ def particle_filter_to_store(
 
 class _Setup(NamedTuple):
     """`particle_filter`'s checked inputs: the method, the particles, the steps between
-    observations `m` of `h`, the retry, the layout, the tempering, and the driver's path (`None`:
-    Brownian; an Ornstein–Uhlenbeck path: each particle carries its traces)."""
+    observations `m` of `h`, the retry, the layout, the tempering, and the driver's path at
+    steps `h` (a particle is its state and the path's state)."""
 
     method: Any
     x: Any
@@ -323,6 +322,7 @@ class _Setup(NamedTuple):
     chunk_size: Any
     sharding: Any
     tempering: Tempering
+    driver: AbstractDriver
     path: Any
 
     def forecast(self, system, auto):
@@ -334,30 +334,26 @@ class _Setup(NamedTuple):
         )
 
     def initial(self, key):
-        """`(key, particles)`: with an Ornstein–Uhlenbeck driver each particle's traces
-        drawn from their stationary law (standard normal) beside its state."""
-        if self.path is None:
-            return key, self.x
+        """`(key, particles)`: each particle its state and its driver's state, drawn (for a
+        driver that carries one: Ornstein–Uhlenbeck traces from their stationary law)."""
+        if not self.driver.carries_state:
+            return key, (self.x, self.path.initial_state(key))
         key, draw = jax.random.split(key)
-        n, s = self.x.shape[0], self.path.n_noises
-        return key, (self.x, jax.random.normal(draw, (n, s), self.x.real.dtype))
+        return key, (self.x, self.path.initial_state(draw, (self.x.shape[0],)))
 
     def observing(self, observations):
-        """What the filter observes of a particle (its state, without a driver's traces)."""
-        if self.path is None:
-            return observations
+        """What the filter observes of a particle (its state, without its driver's)."""
         return dataclasses.replace(observations, observe=_OnState(observations.observe))
 
     def increments(self, system):
-        """The shape of one particle's random numbers between observations: Brownian
-        increments `(m, s)`, or the traces' standard normal numbers `(m, 2, s)`."""
-        s = system.n_noises
-        return (self.m, s) if self.path is None else (self.m, 2, s)
+        """The shape of one particle's Gaussian numbers between observations (Brownian
+        increments `(m, s)`, the traces' standard normal numbers `(m, 2, s)`)."""
+        return self.path.innovations(self.m)[0]
 
     @property
     def increments_dt(self):
         """Their variance: the step, or 1 for standard normal numbers."""
-        return self.h if self.path is None else 1.0
+        return self.path.innovations(self.m)[1]
 
 
 def _setup(
@@ -430,18 +426,16 @@ def _setup(
             f"{name}: give chunk_size or sharding, not both (the chunks would run one after "
             "another across the devices)."
         )
-    path = None
-    if driver is not None:
-        if not getattr(driver, "carries_state", False):
-            raise TypeError(
-                f"{name}: driver must be None (Brownian increments) or sj.OrnsteinUhlenbeck(T), "
-                f"got {type(driver).__name__}."
-            )
-        try:
-            path = driver.path(h, system.n_noises, x.real.dtype)
-        except ValueError as err:
-            raise ValueError(f"{name}: {err}") from None
-    return _Setup(method, x, m, h, retry, chunk_size, sharding, tempering, path)
+    # (the filter's pCN needs Gaussian increments: untruncated, without areas)
+    driver = check_driver(
+        BrownianMotion(truncate_k=None, levy_area=False) if driver is None else driver
+    )
+    try:
+        path = driver.path(h, system.n_noises, x.real.dtype, levy_area=driver.levy_area is True)
+        path.innovations(m)
+    except ValueError as err:
+        raise ValueError(f"{name}: {err}") from None
+    return _Setup(method, x, m, h, retry, chunk_size, sharding, tempering, driver, path)
 
 
 def _carry(state, lag, observations):
