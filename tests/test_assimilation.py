@@ -1,4 +1,4 @@
-"""The particle filter's building blocks (`slps_jax._studies.assimilation`), each against an
+"""The particle filter's building blocks (`slps_jax._forecasting.assimilation`), each against an
 independent fact: the ESS's formula, the tempering rule's guarantee (ESS at or above the
 threshold at every stage, and the largest such step), systematic resampling's unbiasedness and
 its floor/ceil counts, and pCN's invariance of the increments' law (exact moments)."""
@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from slps_jax._studies import assimilation as da
+from slps_jax._forecasting import assimilation as da
 
 
 def test_effective_sample_size_is_the_formula():
@@ -501,7 +501,7 @@ def test_particle_filter_refuses_bad_calls_by_name_before_any_forecast(
         raise AssertionError("a forecast ran before the arguments were checked")
 
     args = (system, kw.pop("particles"), kw.pop("observations"))
-    with mock.patch("slps_jax._studies.particle_filter._forecast", boom):
+    with mock.patch("slps_jax._forecasting.particle_filter._forecast", boom):
         with pytest.raises(exc, match=f"^{caller}: .*{match}"):
             if caller == "particle_filter":
                 sj.particle_filter(*args, **kw)

@@ -1,2 +1,2 @@
-"""Studies built on the driver: strong and weak convergence (`convergence`), calibration
-(`calibrate`), data-driven transport noise (`transport_fit`) and forecast scores (`scores`)."""
+"""The paper's studies built on the driver: strong and weak convergence (`convergence`) and
+calibration of a noise to observed statistics (`calibrate`)."""

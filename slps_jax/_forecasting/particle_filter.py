@@ -53,8 +53,8 @@ def _forecast(method, system, particles, innovations, step, path, *, m, retry, c
 
     def one(particle, innovations):
         y, state = particle
-        state, noise = path.steps_from(state, innovations)
-        ys, _, result, _, _ = path_of_noise(method, system, y, noise, step, m, False, retry)
+        state, dWs = path.steps_from(state, innovations)
+        ys, _, result, _, _ = path_of_noise(method, system, y, dWs, step, m, False, retry)
         return Forecast((ys[-1], state), result == RESULTS.successful)
 
     if chunk_size is not None:
