@@ -8,7 +8,7 @@ The library in four layers:
   `proportional_noise`; or several noises with their own Hamiltonians: `salt_noise`,
   `random_inertia_noise`, a function), parameters as pytree leaves:
   `LiePoissonSystem` (derivatives by JAX) and its analytic special cases `RigidBody` and
-  `GeneralisedRigidBody` (so(n)).
+  `GeneralisedRigidBody` (so(n)), all final cases of `AbstractLiePoissonSystem`.
 - **Method**: a small immutable object with `step(system, y, dt, dW)` (`dW` the step's noise,
   a `BrownianStep`: increments and, when drawn, Lévy areas), the capabilities it `requires`,
   its `strong_orders` by kind of noise and whether it is `poisson`; implicit methods share
@@ -18,6 +18,8 @@ The library in four layers:
   failures, and refuses a method that the system cannot serve.
 - **Studies**: `strong_convergence`, `weak_convergence`, `calibrate`; the drift's flow
   `drift_flow` and, with one noise proportional to the drift, the `exact_solution`.
+- **Forecasting**: `fit_transport_noise`, `forecast_ensembles` and their scores,
+  `particle_filter` and `assimilate`.
 """
 
 # Public helper modules
@@ -47,6 +49,30 @@ from ._driver.stream import EnsembleStatistics as EnsembleStatistics
 from ._driver.stream import Statistics as Statistics
 from ._driver.stream import ensemble_statistics as ensemble_statistics
 
+# Studies
+from ._forecasting.assimilation import FilterResult as FilterResult
+from ._forecasting.assimilation import Forecast as Forecast
+from ._forecasting.assimilation import Observations as Observations
+from ._forecasting.assimilation import Tempering as Tempering
+from ._forecasting.assimilation import assimilate as assimilate
+from ._forecasting.particle_filter import particle_filter as particle_filter
+from ._forecasting.particle_filter import particle_filter_to_store as particle_filter_to_store
+from ._forecasting.scores import ForecastScores as ForecastScores
+from ._forecasting.scores import PairedComparison as PairedComparison
+from ._forecasting.scores import crps_ensemble as crps_ensemble
+from ._forecasting.scores import forecast_scores as forecast_scores
+from ._forecasting.scores import paired_comparison as paired_comparison
+from ._forecasting.transport_fit import TransportNoiseFit as TransportNoiseFit
+from ._forecasting.transport_fit import fit_transport_noise as fit_transport_noise
+from ._forecasting.verification import AmplitudeSearch as AmplitudeSearch
+from ._forecasting.verification import AmplitudeTuning as AmplitudeTuning
+from ._forecasting.verification import ModelErrorVariance as ModelErrorVariance
+from ._forecasting.verification import forecast_ensembles as forecast_ensembles
+from ._forecasting.verification import model_error_variance as model_error_variance
+from ._forecasting.verification import scaled_noise as scaled_noise
+from ._forecasting.verification import start_crps as start_crps
+from ._forecasting.verification import tune_amplitude as tune_amplitude
+
 # Methods
 from ._methods.base import AbstractMethod as AbstractMethod
 from ._methods.base import StepInfo as StepInfo
@@ -63,13 +89,6 @@ from ._methods.milstein import Milstein as Milstein
 from ._methods.strang import SaltSplitting as SaltSplitting
 from ._methods.strang import Strang as Strang
 from ._methods.strang import Strang4 as Strang4
-
-# Studies
-from ._studies.assimilation import FilterResult as FilterResult
-from ._studies.assimilation import Forecast as Forecast
-from ._studies.assimilation import Observations as Observations
-from ._studies.assimilation import Tempering as Tempering
-from ._studies.assimilation import assimilate as assimilate
 from ._studies.calibrate import CalibrationResult as CalibrationResult
 from ._studies.calibrate import ObservedStatistics as ObservedStatistics
 from ._studies.calibrate import Optimisation as Optimisation
@@ -80,23 +99,6 @@ from ._studies.convergence import Reference as Reference
 from ._studies.convergence import WeakConvergenceResult as WeakConvergenceResult
 from ._studies.convergence import strong_convergence as strong_convergence
 from ._studies.convergence import weak_convergence as weak_convergence
-from ._studies.particle_filter import particle_filter as particle_filter
-from ._studies.particle_filter import particle_filter_to_store as particle_filter_to_store
-from ._studies.scores import ForecastScores as ForecastScores
-from ._studies.scores import PairedComparison as PairedComparison
-from ._studies.scores import crps_ensemble as crps_ensemble
-from ._studies.scores import forecast_scores as forecast_scores
-from ._studies.scores import paired_comparison as paired_comparison
-from ._studies.transport_fit import TransportNoiseFit as TransportNoiseFit
-from ._studies.transport_fit import fit_transport_noise as fit_transport_noise
-from ._studies.verification import AmplitudeSearch as AmplitudeSearch
-from ._studies.verification import AmplitudeTuning as AmplitudeTuning
-from ._studies.verification import ModelErrorVariance as ModelErrorVariance
-from ._studies.verification import forecast_ensembles as forecast_ensembles
-from ._studies.verification import model_error_variance as model_error_variance
-from ._studies.verification import scaled_noise as scaled_noise
-from ._studies.verification import start_crps as start_crps
-from ._studies.verification import tune_amplitude as tune_amplitude
 from ._support.saving import load as load
 from ._support.saving import save as save
 
@@ -123,6 +125,7 @@ from ._systems.noise import salt_noise as salt_noise
 from ._systems.rigid_body import PAPER_Y0 as PAPER_Y0
 from ._systems.rigid_body import GeneralisedRigidBody as GeneralisedRigidBody
 from ._systems.rigid_body import RigidBody as RigidBody
+from ._systems.system import AbstractLiePoissonSystem as AbstractLiePoissonSystem
 from ._systems.system import LiePoissonSystem as LiePoissonSystem
 
 # The public names: everything above, and nothing else (tests/test_api.py checks it).
@@ -213,6 +216,7 @@ __all__ = [
     "PAPER_Y0",
     "GeneralisedRigidBody",
     "RigidBody",
+    "AbstractLiePoissonSystem",
     "LiePoissonSystem",
 ]
 
@@ -224,7 +228,7 @@ _LAYERS = (
     ("_systems",),
     ("_methods",),
     ("_driver",),
-    ("_studies",),
+    ("_studies", "_forecasting"),
     ("__init__",),
     ("_cli", "__main__"),  # the command line
 )

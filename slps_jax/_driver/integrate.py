@@ -291,16 +291,16 @@ def _checkpointed_loop(steps, n, carry):
     return jax.lax.fori_loop(0, n_chunks, jax.checkpoint(chunk, prevent_cse=False), carry)
 
 
-def _index(noise, i):
+def _index(dWs, i):
     """Step `i` of a block of steps' noises."""
-    return jax.tree_util.tree_map(lambda x: x[i], noise)
+    return jax.tree_util.tree_map(lambda x: x[i], dWs)
 
 
 @functools.partial(jax.jit, static_argnames=("method", "save_every", "want_stats", "retry"))
-def path_of_noise(method, system, y0, noise, dt, save_every, want_stats, retry=None):
-    """One sample's path for given noise, jitted: the driver's loop under `integrate`, and the
+def path_of_noise(method, system, y0, dWs, dt, save_every, want_stats, retry=None):
+    """One sample's path for given increments, jitted: the driver's loop under `integrate`, and the
     documented door to it for the other subpackages (the filter's forecasts, the
-    verification's reruns). `noise` is a `BrownianStep` with one row per step (areas or
+    verification's reruns). `dWs` is a `BrownianStep` with one row per step (areas or
     `None`); `save_every` divides the number of steps; `want_stats` adds the Newton
     statistics; `retry` is `check_retry`'s.
 
@@ -312,12 +312,12 @@ def path_of_noise(method, system, y0, noise, dt, save_every, want_stats, retry=N
         system,
         y0,
         dt,
-        _brownian.IndexedDraws(lambda n: _index(noise, n)),
-        noise.dW.shape[0] // save_every,
+        _brownian.IndexedDraws(lambda n: _index(dWs, n)),
+        dWs.dW.shape[0] // save_every,
         save_every,
         want_stats,
         retry,
-        like=(y0, noise),
+        like=(y0, dWs),
     )
 
 
@@ -427,8 +427,8 @@ def integrate(
     retry = failures.retry_substeps
     dtype = real_dtype(y0.dtype)
     dt = jnp.asarray(dt if dt_np is None else float(dt_np), dtype)
-    noise = _brownian.BrownianStep(dW.astype(dtype), None if area is None else area.astype(dtype))
-    ys, fail_step, result, _, _ = path_of_noise(method, system, y0, noise, dt, k, False, retry)
+    dWs = _brownian.BrownianStep(dW.astype(dtype), None if area is None else area.astype(dtype))
+    ys, fail_step, result, _, _ = path_of_noise(method, system, y0, dWs, dt, k, False, retry)
     if failures.throw:
         report("integrate", True, failures.retried, fail_step, result)
     if save_every is None:

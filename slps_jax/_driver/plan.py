@@ -28,7 +28,7 @@ from .._support.checks import (
     real_dtype,
 )
 from .._systems.capabilities import RIGID_BODY, SO3_VECTORS
-from .._systems.system import LiePoissonSystem, check_system
+from .._systems.system import AbstractLiePoissonSystem, check_system
 from .failures import Failures, check_failures
 from .sharding import check_sharding
 
@@ -181,7 +181,7 @@ class EnsemblePlan:
     sharding, and the Brownian path (`_brownian.BrownianPath`: the step, the truncation, the
     Lévy areas)."""
 
-    system: LiePoissonSystem
+    system: AbstractLiePoissonSystem
     method: AbstractMethod
     y0: jax.Array
     dt: float

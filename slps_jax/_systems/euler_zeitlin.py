@@ -2,19 +2,21 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .. import zeitlin
-from .._algebra import su
+from .._algebra import AbstractAlgebra, su
 from .._support.checks import concrete
 from . import budgets
 from .additive_forcing import AdditiveForcing
 from .linear_terms import LinearTerms, check_power
-from .noise import noise_or_c
-from .system import LiePoissonSystem, Tables
+from .noise import AbstractNoise, noise_or_c
+from .system import AbstractLiePoissonSystem, Tables
 
 
 def _euler_hamiltonian(w, params):
@@ -37,7 +39,7 @@ def _cast(tree, dtype):
     )
 
 
-class EulerZeitlin(LiePoissonSystem):
+class EulerZeitlin(AbstractLiePoissonSystem):
     r"""Zeitlin's model of the incompressible Euler equations on the unit sphere, stochastic:
 
     $dW = [P, W]/\hbar\,dt + \sum_r [W, X_r]\circ dB_r$ (`noise=salt_noise(X)`, transport
@@ -103,6 +105,10 @@ class EulerZeitlin(LiePoissonSystem):
     Luesink, arXiv:2408.16701, the stochastic version with transport noise.
     """
 
+    hamiltonian_fn: Any = eqx.field(static=True)
+    algebra: AbstractAlgebra = eqx.field(static=True)
+    params: Any
+    noise: AbstractNoise
     poisson: str = eqx.field(static=True)
     tables: Tables | None
     linear: LinearTerms | None
@@ -138,7 +144,10 @@ class EulerZeitlin(LiePoissonSystem):
         noise = noise_or_c(c, noise, None, [], algebra)
         if dtype is not None:  # (the family's leaves: c, or its matrices)
             noise = _cast(noise, dtype)
-        super().__init__(_euler_hamiltonian, None, noise=noise, algebra=algebra)
+        self.hamiltonian_fn = _euler_hamiltonian
+        self.algebra = algebra
+        self.params = None
+        self.noise = noise
         zeitlin._route(poisson)  # (refuses an unknown route)
         self.poisson = poisson
         self.gamma = zeitlin._check_gamma(gamma)

@@ -34,32 +34,32 @@ from .._algebra.so3 import (
 from .._brownian import as_step
 
 
-def local_field(system, x, dt, increments):
-    r"""$F(x) = [x, \nabla K(x)]$ of one step (`increments` its `BrownianStep`), in the local form."""
+def local_field(system, x, dt, dW):
+    r"""$F(x) = [x, \nabla K(x)]$ of one step (`dW` its `BrownianStep`), in the local form."""
     if system.algebra is SO3:
-        return cross(x, _step_gradient(system, x, dt, increments))
-    return system.algebra.bracket(x, system.step_gradient(x, dt, increments))
+        return cross(x, _step_gradient(system, x, dt, dW))
+    return system.algebra.bracket(x, system.step_gradient(x, dt, dW))
 
 
-def coordinate_field(system, u, dt, increments):
+def coordinate_field(system, u, dt, dW):
     """`local_field` on the local form's real coordinates (the unknowns of an implicit solve)."""
     alg = system.algebra
     x = alg.from_local_coordinates(u)
-    return alg.local_coordinates(local_field(system, x, dt, increments))
+    return alg.local_coordinates(local_field(system, x, dt, dW))
 
 
-def coordinate_field_jacobian(system, u, dt, increments):
+def coordinate_field_jacobian(system, u, dt, dW):
     """`(coordinate_field(u), its Jacobian)`: on so(3) in closed form, elsewhere by
     forward-mode autodiff."""
     if system.algebra is SO3:
-        k, hk, _, _ = step_fields(system, u, dt, increments, second=False)
+        k, hk, _, _ = step_fields(system, u, dt, dW, second=False)
         # d(u x k(u))/du = hat(u) grad^2 K - hat(k)
         return cross(u, k), madd(mm_any(hat(u), hk), mscale(-1.0, hat(k)))
-    f = lambda u: coordinate_field(system, u, dt, increments)
+    f = lambda u: coordinate_field(system, u, dt, dW)
     return f(u), jax.jacfwd(f)(u)
 
 
-def step_fields(system, v, dt, increments, second=True):
+def step_fields(system, v, dt, dW, second=True):
     r"""What scheme (42)'s in-map needs of a step (`sine_chart_in_map`), on so(3)'s
     components: $(\nabla K, \nabla^2 K, u, \partial u/\partial v)$ at `v`, with
     $u = \sum_r \Delta W_r \nabla H_r$ the increments' part of the noise (the areas'
@@ -71,16 +71,16 @@ def step_fields(system, v, dt, increments, second=True):
             "step_fields: the components of so(3)* (a system on sj.SO3); this system is on "
             f"{system.algebra}."
         )
-    increments = as_step(increments)
+    dW = as_step(dW)
     g, hess = _drift_hessian(system, v)
-    tau = system.noise.drift_time(increments.dW)  # (the noise's part proportional to the drift)
+    tau = system.noise.drift_time(dW.dW)  # (the noise's part proportional to the drift)
     time = dt if tau is None else dt + tau
     k, hk = scale(time, g), scale_any(time, hess)
-    u, ju = _noise_jacobian(system, v, increments.dW)  # (the family's own Hamiltonians)
+    u, ju = _noise_jacobian(system, v, dW.dW)  # (the family's own Hamiltonians)
     if u is not None:
         k, hk = add(k, u), add_any(hk, ju)
-    if system.has_area(increments):
-        ga, ha = _area_jacobian(system, v, increments.area)
+    if system.has_area(dW):
+        ga, ha = _area_jacobian(system, v, dW.area)
         k, hk = add(k, ga), add_any(hk, ha)
     if not second:
         return k, hk, None, None
@@ -90,13 +90,13 @@ def step_fields(system, v, dt, increments, second=True):
     return k, hk, u, ju
 
 
-def _step_gradient(system, v, dt, increments):
+def _step_gradient(system, v, dt, dW):
     r"""$\nabla K(v)$ on so(3)'s components; with `c=`, $K = \tau H_0$, $\tau = h + c\Delta W$."""
-    increments = as_step(increments)
-    g = scale(system._drift_time(dt, increments), _drift(system, v))
-    own = _noise(system, v, increments.dW)
+    dW = as_step(dW)
+    g = scale(system._drift_time(dt, dW), _drift(system, v))
+    own = _noise(system, v, dW.dW)
     g = g if own is None else add(g, own)
-    return add(g, _area(system, v, increments.area)) if system.has_area(increments) else g
+    return add(g, _area(system, v, dW.area)) if system.has_area(dW) else g
 
 
 def _drift(system, v):

@@ -3,22 +3,24 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._algebra import SO3, so
+from .._algebra import SO3, AbstractAlgebra, so
 from .._support.checks import concrete, float_dtype, real_array
-from .noise import noise_or_c
-from .system import LiePoissonSystem
+from .noise import AbstractNoise, noise_or_c
+from .system import AbstractLiePoissonSystem
 
 
 def _rigid_body_hamiltonian(y, inertia):
     return 0.5 * jnp.sum(y**2 / inertia, axis=-1)
 
 
-class RigidBody(LiePoissonSystem):
+class RigidBody(AbstractLiePoissonSystem):
     r"""The stochastic rigid body $dy = y \times I^{-1} y\,(dt + c \circ dW)$.
 
     In the paper's notation a stochastic Lie–Poisson system on so(3)* with structure matrix
@@ -45,6 +47,11 @@ class RigidBody(LiePoissonSystem):
     Raises `ValueError` naming the argument if a concrete value is invalid. Traced values
     (inside `jit` or `grad`) are not checked.
     """
+
+    hamiltonian_fn: Any = eqx.field(static=True)
+    algebra: AbstractAlgebra = eqx.field(static=True)
+    params: Any
+    noise: AbstractNoise
 
     def __init__(self, inertia, c=None, noise=None):
         inertia = real_array("inertia", inertia)
@@ -104,7 +111,7 @@ def _generalised_rigid_body_hamiltonian(y, j):
     return 0.25 * jnp.sum(y**2 / (j[..., :, None] + j[..., None, :]), axis=(-2, -1))
 
 
-class GeneralisedRigidBody(LiePoissonSystem):
+class GeneralisedRigidBody(AbstractLiePoissonSystem):
     r"""The n-dimensional (Manakov) rigid body on so(n)*, with noise:
     $dY = [Y, \Omega]\,(dt + c\circ dW)$, or with noises of its own
     ($dY = [Y, \Omega]\,dt + \sum_r [Y, \nabla H_r] \circ dW_r$).
@@ -120,6 +127,11 @@ class GeneralisedRigidBody(LiePoissonSystem):
     pytree leaf, like `c` and a noise family's parameters); `c` or `noise` as for
     `LiePoissonSystem` (its `params` are `j`).
     """
+
+    hamiltonian_fn: Any = eqx.field(static=True)
+    algebra: AbstractAlgebra = eqx.field(static=True)
+    params: Any
+    noise: AbstractNoise
 
     def __init__(self, j, c=None, noise=None):
         j = real_array("j", j)

@@ -37,79 +37,20 @@ def differentiable_leaves(system):
     return leaves, treedef, idx
 
 
-class LiePoissonSystem(eqx.Module):
-    r"""A stochastic Lie–Poisson system on so(3)* (or, with `algebra=`, so(n)* and su(N)*,
-    where $y \times \cdot$ reads $[Y, \cdot]$): a drift Hamiltonian $H_0$ you supply and
-    its noise, either one noise proportional to the drift,
+class AbstractLiePoissonSystem(eqx.Module):
+    r"""What every system of the library is: a stochastic Lie–Poisson system on the dual of
+    a Lie algebra, $dy = [y, \nabla H_0]\,dt + \sum_r [y, \nabla H_r]\circ dW_r$, with its
+    drift Hamiltonian `hamiltonian_fn(y, params)`, its `algebra`, the Hamiltonian's `params`
+    and its `noise` family; and everything the methods and the driver ask of it, written here
+    once. `LiePoissonSystem` (a Hamiltonian you supply), `RigidBody`,
+    `GeneralisedRigidBody` and `EulerZeitlin` are its final cases; a subclass may replace a
+    derivative by its closed form (`gradient`) and declare what it states in closed form
+    (`quadratic_drift`, `quadratic_hamiltonian`)."""
 
-    $dy = y \times \nabla H_0(y)\,(dt + c \circ dW)$ (`c=`), or $s$ noises with their own
-    Hamiltonians, $dy = y \times \nabla H_0(y)\,dt + \sum_{r=1}^s y \times \nabla H_r(y)
-    \circ dW_r$ (`noise=`; Stratonovich, independent Brownian motions).
-
-    Structure matrix $B(y) = \hat y$, Casimir $C(y) = \tfrac12|y|^2$ (kept by every
-    Lie–Poisson method whatever the Hamiltonians are). The rigid body is
-    $H_0(y) = \tfrac12 y^T I^{-1} y$; `RigidBody` is its fast analytic special case. The
-    derivatives of a Hamiltonian given as a function come from JAX.
-
-    A pytree: `params` (any pytree of arrays), `c` and the parameters of a noise family are
-    leaves, so `jax.grad` reaches them; the functions are static data. Pass the same function
-    object each time (not a fresh `lambda`), or every call compiles anew.
-
-    **Arguments:**
-
-    - `hamiltonian`: `hamiltonian(y, params) -> scalar`, for `y` of shape `(3,)`; smooth
-      (twice differentiable by JAX).
-    - `params`: a pytree of parameters passed to `hamiltonian` and to `noise` (default `None`).
-    - `c`: the amplitude of one noise proportional to the drift, $H_1 = cH_0$, a finite
-      scalar (default 0: no noise).
-    - `noise`: instead of `c`, the noise Hamiltonians: a function
-      `noise(y, params) -> shape (s,)` (derivatives by JAX), or a family with closed-form
-      derivatives, `salt_noise(chi)` ($H_r = \chi_r\cdot y$) or
-      `random_inertia_noise(sigma)` ($H_r = \tfrac12\sum_j\sigma_{rj}y_j^2$).
-
-    `system.n_noises` is $s$ (1 with `c`). The computation runs in the promoted floating dtype
-    of the parameters (`system.dtype`). Raises `ValueError` (`TypeError` for a non-callable
-    `hamiltonian` or `noise`) for invalid concrete values, before anything is compiled;
-    traced values are not checked.
-
-    **Reference:** Liu & Wang, *Lie–Poisson numerical method for a class of stochastic
-    Lie–Poisson systems*, system (1) with $B(y) = \hat y$.
-    """
-
-    hamiltonian_fn: Any = eqx.field(static=True)
-    algebra: AbstractAlgebra = eqx.field(static=True)
-    params: Any
-    noise: AbstractNoise  # the noise family (`c=`: `ProportionalNoise`)
-
-    def __init__(
-        self, hamiltonian, params=None, c=None, noise=None, algebra: AbstractAlgebra = SO3
-    ):
-        if not callable(hamiltonian):
-            raise TypeError(
-                f"hamiltonian must be callable as hamiltonian(y, params), got "
-                f"{type(hamiltonian).__name__}."
-            )
-        if not isinstance(algebra, AbstractAlgebra):
-            raise TypeError(
-                f"algebra must be a Lie algebra of slps_jax (SO3, so(n), su(N)), got {algebra!r}."
-            )
-        params = jax.tree_util.tree_map(jnp.asarray, params)
-        leaves = [
-            x for x in jax.tree_util.tree_leaves(params) if jnp.issubdtype(x.dtype, jnp.inexact)
-        ]
-        self.hamiltonian_fn = hamiltonian
-        self.params = params
-        self.algebra = algebra
-        self.noise = noise_or_c(c, noise, params, leaves, algebra)
-
-    def __repr__(self):
-        name = getattr(self.hamiltonian_fn, "__name__", repr(self.hamiltonian_fn))
-        return (
-            f"LiePoissonSystem(hamiltonian={name}, params={self.params!r}, "
-            + self._noise_repr()
-            + ("" if self.algebra is SO3 else f", algebra={self.algebra!r}")
-            + ")"
-        )
+    hamiltonian_fn: eqx.AbstractVar[Any]
+    algebra: eqx.AbstractVar[AbstractAlgebra]
+    params: eqx.AbstractVar[Any]
+    noise: eqx.AbstractVar[AbstractNoise]  # the noise family (`c=`: `ProportionalNoise`)
 
     # What the system is.
 
@@ -206,16 +147,16 @@ class LiePoissonSystem(eqx.Module):
         y = jnp.asarray(y)
         return self.algebra.bracket(y, self.gradient(y))
 
-    # One sample's step. `increments` is the step's noise, a `BrownianStep` (increments `dW`,
+    # One sample's step. `dW` is the step's noise, a `BrownianStep` (increments `dW`,
     # and Lévy areas `area` or `None`; an array of increments is accepted for a step without
     # areas; the system's `noise` is its family of Hamiltonians). The step's Hamiltonian is
     #   K = h H_0 + sum_r dW_r H_r + G_A,  G_A(y) = 1/2 sum_{q,r} A_qr <y, [grad H_q, grad H_r]>,
     # G_A the Hamiltonian of the area term sum_{q<r} A_qr [f_q, f_r] of the strong-order-1
     # expansion (`docs/levy-area.md`).
 
-    def noise_gradient(self, y, increments):
+    def noise_gradient(self, y, dW):
         r"""$u(y) = \sum_r \Delta W_r \nabla H_r(y)$ for one state `y` (no area term)."""
-        dW = as_step(increments).dW
+        dW = as_step(dW).dW
         tau = self.noise.drift_time(dW)
         own = self.noise.gradient(y, dW, self.params, self.algebra)
         if tau is None:
@@ -234,44 +175,44 @@ class LiePoissonSystem(eqx.Module):
         r"""$\nabla G_A(y)$ (`area_hamiltonian`) for one state `y`."""
         return self.noise.area_gradient(y, area, self.params, self.algebra)
 
-    def has_area(self, increments):
-        """Whether the step `increments` brings Lévy areas that enter the step (noises of the
+    def has_area(self, dW):
+        """Whether the step `dW` brings Lévy areas that enter the step (noises of the
         system's own: with one noise `c=` there is no area)."""
-        return increments.area is not None and self.noise.takes_areas
+        return dW.area is not None and self.noise.takes_areas
 
-    def step_hamiltonian(self, y, dt, increments):
+    def step_hamiltonian(self, y, dt, dW):
         r"""$K(y) = hH_0(y) + \sum_r \Delta W_r H_r(y)$ (plus $G_A(y)$ with areas) for one
         state `y`."""
-        increments = as_step(increments)
-        k = self._drift_time(dt, increments) * self.hamiltonian(y)
+        dW = as_step(dW)
+        k = self._drift_time(dt, dW) * self.hamiltonian(y)
         own = self.noise.values(y, self.params)
-        k = k if own is None else k + jnp.dot(increments.dW, own)
-        return k + self.area_hamiltonian(y, increments.area) if self.has_area(increments) else k
+        k = k if own is None else k + jnp.dot(dW.dW, own)
+        return k + self.area_hamiltonian(y, dW.area) if self.has_area(dW) else k
 
-    def step_gradient(self, y, dt, increments):
+    def step_gradient(self, y, dt, dW):
         r"""$\nabla K(y)$ for one state `y`."""
-        increments = as_step(increments)
-        g = self._drift_time(dt, increments) * self.gradient(y)
-        own = self.noise.gradient(y, increments.dW, self.params, self.algebra)
+        dW = as_step(dW)
+        g = self._drift_time(dt, dW) * self.gradient(y)
+        own = self.noise.gradient(y, dW.dW, self.params, self.algebra)
         g = g if own is None else g + own
-        return g + self.area_gradient(y, increments.area) if self.has_area(increments) else g
+        return g + self.area_gradient(y, dW.area) if self.has_area(dW) else g
 
-    def _drift_time(self, dt, increments):
+    def _drift_time(self, dt, dW):
         r"""The time $h + \tau(\Delta W)$ over which the step moves with the drift's field
         ($h$ where the noise has no part proportional to the drift)."""
-        tau = self.noise.drift_time(increments.dW)
+        tau = self.noise.drift_time(dW.dW)
         return dt if tau is None else dt + tau
 
-    def step_gradient_of(self, y, dt, increments):
+    def step_gradient_of(self, y, dt, dW):
         r"""$x \mapsto \nabla K(x)$ for one step (`step_gradient`), for the iterations of an
         implicit step near the state `y`: the noise's part computed once where it does not
         depend on the state (a linear family: $\sum_r \Delta W_r \nabla H_r$ and the area
         term, $O(s)$ matrix products on so(n), su(N)), not at every evaluation."""
-        increments = as_step(increments)
+        dW = as_step(dW)
         if not self.noise.linear:
-            return lambda x: self.step_gradient(x, dt, increments)
-        u = self.noise_gradient(y, increments)
-        u = u + self.area_gradient(y, increments.area) if self.has_area(increments) else u
+            return lambda x: self.step_gradient(x, dt, dW)
+        u = self.noise_gradient(y, dW)
+        u = u + self.area_gradient(y, dW.area) if self.has_area(dW) else u
         return lambda x: dt * self.gradient(x) + u
 
     # The step in the form a method's loop carries (`fields`): what the methods call, so
@@ -293,8 +234,83 @@ class LiePoissonSystem(eqx.Module):
 
 
 def check_system(system):
-    if not isinstance(system, LiePoissonSystem):
+    if not isinstance(system, AbstractLiePoissonSystem):
         raise TypeError(
             f"system must be a RigidBody or a LiePoissonSystem, got {type(system).__name__}: "
             f"build one with slps_jax.RigidBody(inertia, c)."
+        )
+
+
+class LiePoissonSystem(AbstractLiePoissonSystem):
+    r"""A stochastic Lie–Poisson system on so(3)* (or, with `algebra=`, so(n)* and su(N)*,
+    where $y \times \cdot$ reads $[Y, \cdot]$): a drift Hamiltonian $H_0$ you supply and
+    its noise, either one noise proportional to the drift,
+
+    $dy = y \times \nabla H_0(y)\,(dt + c \circ dW)$ (`c=`), or $s$ noises with their own
+    Hamiltonians, $dy = y \times \nabla H_0(y)\,dt + \sum_{r=1}^s y \times \nabla H_r(y)
+    \circ dW_r$ (`noise=`; Stratonovich, independent Brownian motions).
+
+    Structure matrix $B(y) = \hat y$, Casimir $C(y) = \tfrac12|y|^2$ (kept by every
+    Lie–Poisson method whatever the Hamiltonians are). The rigid body is
+    $H_0(y) = \tfrac12 y^T I^{-1} y$; `RigidBody` is its fast analytic special case. The
+    derivatives of a Hamiltonian given as a function come from JAX.
+
+    A pytree: `params` (any pytree of arrays), `c` and the parameters of a noise family are
+    leaves, so `jax.grad` reaches them; the functions are static data. Pass the same function
+    object each time (not a fresh `lambda`), or every call compiles anew.
+
+    **Arguments:**
+
+    - `hamiltonian`: `hamiltonian(y, params) -> scalar`, for `y` of shape `(3,)`; smooth
+      (twice differentiable by JAX).
+    - `params`: a pytree of parameters passed to `hamiltonian` and to `noise` (default `None`).
+    - `c`: the amplitude of one noise proportional to the drift, $H_1 = cH_0$, a finite
+      scalar (default 0: no noise).
+    - `noise`: instead of `c`, the noise Hamiltonians: a function
+      `noise(y, params) -> shape (s,)` (derivatives by JAX), or a family with closed-form
+      derivatives, `salt_noise(chi)` ($H_r = \chi_r\cdot y$) or
+      `random_inertia_noise(sigma)` ($H_r = \tfrac12\sum_j\sigma_{rj}y_j^2$).
+
+    `system.n_noises` is $s$ (1 with `c`). The computation runs in the promoted floating dtype
+    of the parameters (`system.dtype`). Raises `ValueError` (`TypeError` for a non-callable
+    `hamiltonian` or `noise`) for invalid concrete values, before anything is compiled;
+    traced values are not checked.
+
+    **Reference:** Liu & Wang, *Lie–Poisson numerical method for a class of stochastic
+    Lie–Poisson systems*, system (1) with $B(y) = \hat y$.
+    """
+
+    hamiltonian_fn: Any = eqx.field(static=True)
+    algebra: AbstractAlgebra = eqx.field(static=True)
+    params: Any
+    noise: AbstractNoise  # the noise family (`c=`: `ProportionalNoise`)
+
+    def __init__(
+        self, hamiltonian, params=None, c=None, noise=None, algebra: AbstractAlgebra = SO3
+    ):
+        if not callable(hamiltonian):
+            raise TypeError(
+                f"hamiltonian must be callable as hamiltonian(y, params), got "
+                f"{type(hamiltonian).__name__}."
+            )
+        if not isinstance(algebra, AbstractAlgebra):
+            raise TypeError(
+                f"algebra must be a Lie algebra of slps_jax (SO3, so(n), su(N)), got {algebra!r}."
+            )
+        params = jax.tree_util.tree_map(jnp.asarray, params)
+        leaves = [
+            x for x in jax.tree_util.tree_leaves(params) if jnp.issubdtype(x.dtype, jnp.inexact)
+        ]
+        self.hamiltonian_fn = hamiltonian
+        self.params = params
+        self.algebra = algebra
+        self.noise = noise_or_c(c, noise, params, leaves, algebra)
+
+    def __repr__(self):
+        name = getattr(self.hamiltonian_fn, "__name__", repr(self.hamiltonian_fn))
+        return (
+            f"LiePoissonSystem(hamiltonian={name}, params={self.params!r}, "
+            + self._noise_repr()
+            + ("" if self.algebra is SO3 else f", algebra={self.algebra!r}")
+            + ")"
         )
