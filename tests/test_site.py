@@ -130,7 +130,7 @@ _HOUSE_STYLE_EXEMPT = {
     ),
     # interfaces to subclass: their docstrings list what a subclass writes
     **dict.fromkeys(
-        ("AbstractAlgebra", "AbstractMethod", "AbstractNoise"),
+        ("AbstractAlgebra", "AbstractLiePoissonSystem", "AbstractMethod", "AbstractNoise"),
         "an abstract interface: its docstring lists what a subclass writes",
     ),
 }
