@@ -1,5 +1,7 @@
-"""Helpers shared by the benchmark scripts: arguments (`parser`), timing, machine description,
-output files.
+"""The benchmark scripts' harness: arguments (`parser`), timing (`compile_timed`, `time_call`,
+`Stopwatch`), the machine (`machine_info`), and the output folder (`Output`: its JSON, CSV and
+Markdown files, each saying where and when it was measured). A script holds only what it
+measures.
 
 Timing follows diffrax's benchmarks: compile once (timed on its own, ahead of time with
 `jax.jit(f).lower(*args).compile()`), run once to warm up, then time repeated calls that end
@@ -152,3 +154,57 @@ def markdown_table(rows, columns, formats=None):
             cells.append(format(val, fmt) if fmt and val is not None and val == val else str(val))
         body += "| " + " | ".join(cells) + " |\n"
     return head + body
+
+
+class Stopwatch:
+    """Wall time of a block: `with Stopwatch() as sw: ...` then `sw.seconds` (the caller
+    blocks on what it times, `jax.block_until_ready`)."""
+
+    def __enter__(self):
+        self.start = time.perf_counter()
+        self.seconds = None
+        return self
+
+    def __exit__(self, *exc):
+        self.seconds = time.perf_counter() - self.start
+        return False
+
+
+class Output:
+    """A script's results: its folder (`--out`, made here), the machine they are measured on
+    (`machine_info`, taken once: `info`, `device`), and its files, named by `name` without the
+    suffix. Every JSON file holds the machine (`machine`); every Markdown file starts with
+    where and when (`measured_on`)."""
+
+    def __init__(self, folder):
+        os.makedirs(folder, exist_ok=True)
+        self.folder = folder
+        self.info = machine_info()
+
+    @property
+    def device(self):
+        return device_name(self.info)
+
+    def measured_on(self):
+        """Where and when: `Measured on <device> (<n> cores), jax <version>, <date>` (no full
+        stop)."""
+        i = self.info
+        return (
+            f"Measured on {self.device} ({i['cpu_count']} cores), jax {i['jax']}, {i['date'][:10]}"
+        )
+
+    def path(self, filename):
+        return os.path.join(self.folder, filename)
+
+    def json(self, name, obj):
+        """`name.json`: the dict `obj`, with the machine under `machine` unless it has one."""
+        write_json(self.path(f"{name}.json"), {"machine": self.info, **obj})
+
+    def csv(self, name, rows):
+        write_csv(self.path(f"{name}.csv"), rows)
+
+    def markdown(self, name, text, note="."):
+        """`name.md`: `measured_on()` and `note` (its end: "." or "; size ...."), a blank line,
+        then `text`."""
+        with open(self.path(f"{name}.md"), "w") as fh:
+            fh.write(f"{self.measured_on()}{note}\n\n{text}")

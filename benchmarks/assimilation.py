@@ -26,7 +26,6 @@ observation errors' (`--no-model-error`: the observation errors alone).
 Writes `assimilation.json` and `assimilation.md` into `--out`.
 """
 
-import os
 import time
 
 import _common
@@ -254,8 +253,7 @@ def main(argv=None):
         help="a perfect-model twin: the truth one more run of the model, not the fine run",
     )
     args = p.parse_args(argv)
-    os.makedirs(args.out, exist_ok=True)
-    info = _common.machine_info()
+    results = _common.Output(args.out)
     sizes = dict(SMALL if args.fast else FULL)
     if args.no_model_error:
         sizes["model_error"] = False
@@ -269,12 +267,8 @@ def main(argv=None):
     )
     for k, v in row.items():
         print(f"{k}: {v}", flush=True)
-    _common.write_json(os.path.join(args.out, "assimilation.json"), dict(machine=info, rows=[row]))
-    with open(os.path.join(args.out, "assimilation.md"), "w") as fh:
-        fh.write(
-            f"Measured on {_common.device_name(info)}, jax {info['jax']}, {info['date'][:10]}.\n\n"
-        )
-        fh.write("\n".join(f"- {k}: {v}" for k, v in row.items()) + "\n")
+    results.json("assimilation", dict(rows=[row]))
+    results.markdown("assimilation", "\n".join(f"- {k}: {v}" for k, v in row.items()) + "\n")
 
 
 if __name__ == "__main__":

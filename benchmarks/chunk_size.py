@@ -11,10 +11,8 @@ has converged, and large batches fall out of cache, so smaller chunks can be fas
 
 from __future__ import annotations
 
-import json
 import os
 import sys
-import time
 import warnings
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
@@ -22,7 +20,7 @@ import _common  # noqa: E402
 
 
 def main(argv=None):
-    parser = _common.parser(__doc__, "2000 samples, chunks of 500, 2000", out=None)
+    parser = _common.parser(__doc__, "2000 samples, chunks of 500, 2000")
     parser.add_argument("--samples", type=int, default=10**5)
     parser.add_argument("--chunks", default="1000,10000,100000")
     args = parser.parse_args(argv)
@@ -31,8 +29,6 @@ def main(argv=None):
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    from _common import DEFAULT_OUT, machine_info
-
     import slps_jax as sj
 
     system, y0 = sj.RigidBody.paper(), jax.numpy.asarray(sj.PAPER_Y0)
@@ -43,8 +39,7 @@ def main(argv=None):
     )
     for chunk in (int(c) for c in args.chunks.split(",")):
         for _ in range(2):
-            start = time.perf_counter()
-            with warnings.catch_warnings():
+            with _common.Stopwatch() as sw, warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)
                 sj.ensemble_statistics(
                     system,
@@ -56,14 +51,11 @@ def main(argv=None):
                     method=sj.LiePoisson(),
                     chunks=sj.Chunks(chunk, progress=False),
                 )
-            seconds = time.perf_counter() - start
+            seconds = sw.seconds
         us = 1e6 * seconds / (args.samples * 32)
         rows.append({"chunk_size": chunk, "seconds": seconds, "us_per_sample_step": us})
         print(f"| {chunk} | {seconds:.2f} | {us:.2f} |", flush=True)
-    out_dir = args.out or DEFAULT_OUT
-    os.makedirs(out_dir, exist_ok=True)
-    with open(os.path.join(out_dir, "chunk_size.json"), "w") as fh:
-        json.dump({"machine": machine_info(), "samples": args.samples, "rows": rows}, fh, indent=1)
+    _common.Output(args.out).json("chunk_size", {"samples": args.samples, "rows": rows})
     return rows
 
 

@@ -313,7 +313,7 @@ def main(argv=None):
     import jax
 
     jax.config.update("jax_enable_x64", True)  # as in the measured processes
-    from _common import DEFAULT_OUT, machine_info
+    from _common import DEFAULT_OUT
 
     if args.ab or args.ab_retry:
         return ab(args)
@@ -344,14 +344,8 @@ def main(argv=None):
             f"{r['total_s']:.2f} | {ratio} | {r['stablehlo_lines']} | "
             f"{r['run_ns_per_sample_step']:.0f} |"
         )
-    out_dir = args.out or DEFAULT_OUT
-    os.makedirs(out_dir, exist_ok=True)
-    with open(os.path.join(out_dir, "compile_time.json"), "w") as fh:
-        json.dump(
-            {"machine": machine_info(), "samples": args.samples, "steps": args.steps, "rows": rows},
-            fh,
-            indent=1,
-        )
+    results = _common.Output(args.out or DEFAULT_OUT)
+    results.json("compile_time", {"samples": args.samples, "steps": args.steps, "rows": rows})
 
 
 if __name__ == "__main__":

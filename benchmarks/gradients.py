@@ -72,7 +72,7 @@ def main(argv=None):
             )
         }
     )
-    os.makedirs(args.out, exist_ok=True)
+    results = _common.Output(args.out)
     n_samples, n_steps, dt = (50, 32, 2.0**-5) if args.fast else (500, 128, 2.0**-7)
     params = jnp.asarray(np.r_[np.asarray(sj.RigidBody.paper().inertia), 0.2])
 
@@ -135,11 +135,11 @@ def main(argv=None):
         ref = mem[0]["temp_bytes"] * math.sqrt(n / mem[0]["n_steps"])
         print(f"| {n} | {temp / 2**20:.2f} | {temp / ref:.2f} |")
 
-    _common.write_csv(os.path.join(args.out, "gradients.csv"), rows)
-    _common.write_csv(os.path.join(args.out, "gradients_memory.csv"), mem)
-    _common.write_json(
-        os.path.join(args.out, "gradients.json"),
-        {"machine": _common.machine_info(), "timing": rows, "memory": mem},
+    results.csv("gradients", rows)
+    results.csv("gradients_memory", mem)
+    results.json(
+        "gradients",
+        {"timing": rows, "memory": mem},
     )
     print(f"\nwrote {args.out}/gradients.{{csv,json}}, gradients_memory.csv")
 

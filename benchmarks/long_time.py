@@ -220,7 +220,7 @@ def main(argv=None):
     while n_steps % saves:
         saves -= 1
     save_every = n_steps // saves
-    os.makedirs(args.out, exist_ok=True)
+    results = _common.Output(args.out)
     system, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
     key = jax.random.key(args.seed)
     setting = (
@@ -291,9 +291,9 @@ def main(argv=None):
             }
         summary[name] = entry
 
-    _common.write_csv(os.path.join(args.out, "long_time.csv"), rows)
-    _common.write_json(
-        os.path.join(args.out, "long_time.json"),
+    results.csv("long_time", rows)
+    results.json(
+        "long_time",
         {
             "settings": {
                 "t1": t1,
@@ -305,7 +305,6 @@ def main(argv=None):
                 "c": 0.2,
             },
             "methods": summary,
-            "machine": _common.machine_info(),
         },
     )
     plot(rows, summary, os.path.join(args.out, "long_time.png"), t1)

@@ -119,11 +119,10 @@ def main(argv=None):
                 "max_diff_to_kernel": float(np.max(np.abs(ys - cases[plain][4]))),
             }
         )
-    info = _common.machine_info()
+    results = _common.Output(args.out)
     head = (
-        f"Newton loops on {_common.device_name(info)} ({info['cpu_count']} cores), jax "
-        f"{info['jax']}, {info['date']}: `simulate` of the paper's body, {n_samples} samples x "
-        f"{round(t1 / kw['dt'])} steps of h = 2^-9, float64, {rounds} alternated rounds.\n\n"
+        f"`simulate` of the paper's body, {n_samples} samples x {round(t1 / kw['dt'])} steps of "
+        f"h = 2^-9, float64, {rounds} alternated rounds."
     )
     table = _common.markdown_table(
         rows,
@@ -138,14 +137,9 @@ def main(argv=None):
             "max_diff_to_kernel": ".1e",
         },
     )
-    print(head + table)
-    if args.out:
-        os.makedirs(args.out, exist_ok=True)
-        _common.write_json(
-            os.path.join(args.out, "newton_fusion.json"), {"machine": info, "rows": rows}
-        )
-        with open(os.path.join(args.out, "newton_fusion.md"), "w") as fh:
-            fh.write(head + table)
+    print(f"{results.measured_on()}: {head}\n\n{table}")
+    results.json("newton_fusion", {"rows": rows})
+    results.markdown("newton_fusion", table, f": {head}")
 
 
 if __name__ == "__main__":

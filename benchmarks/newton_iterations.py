@@ -46,7 +46,7 @@ def step_infos(system, method, ys, dW, dt):
 def main(argv=None):
     parser = _common.parser(__doc__, "100 samples, h = 2^-5 ... 2^-7")
     args = parser.parse_args(argv)
-    os.makedirs(args.out, exist_ok=True)
+    results = _common.Output(args.out)
 
     system, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
     method = sj.LiePoisson()
@@ -57,7 +57,6 @@ def main(argv=None):
     rows, summary = (
         [],
         {
-            "machine": _common.machine_info(),
             "n_samples": n_samples,
             "usual_updates": USUAL,
             "tol": tol,
@@ -114,8 +113,8 @@ def main(argv=None):
             f"{entry['max_residual']:.1e} |"
         )
 
-    _common.write_csv(os.path.join(args.out, "newton_iterations.csv"), rows)
-    _common.write_json(os.path.join(args.out, "newton_iterations.json"), summary)
+    results.csv("newton_iterations", rows)
+    results.json("newton_iterations", summary)
     plt = _common.pyplot()
     fig, ax = plt.subplots(figsize=(6.4, 4))
     width = 0.8 / len(levels)

@@ -48,8 +48,7 @@ def run(path, size):
 def main(argv=None):
     p = _common.parser(__doc__, "01_paper at the small size")
     args = p.parse_args(argv)
-    os.makedirs(args.out, exist_ok=True)
-    info = _common.machine_info()
+    results = _common.Output(args.out)
     paths = sorted((ROOT / "notebooks").glob("*.ipynb"))
     paths, size = (paths[:1], "small") if args.fast else (paths, "full")
     rows = []
@@ -65,16 +64,13 @@ def main(argv=None):
             )
         )
         print(f"{path.stem}: {total:.0f} s, slowest cell {at}: {slowest:.0f} s", flush=True)
-        _common.write_json(os.path.join(args.out, "notebooks.json"), dict(machine=info, rows=rows))
-        with open(os.path.join(args.out, "notebooks.md"), "w") as fh:
-            fh.write(
-                f"Measured on {_common.device_name(info)}, jax {info['jax']}, "
-                f"{info['date'][:10]}; {size} size, a fresh kernel each, no cache.\n\n"
-            )
-            cols = ["notebook", "total_s", "slowest_cell_s", "slowest_cell"]
-            fh.write(
-                _common.markdown_table(rows, cols, {"total_s": ".0f", "slowest_cell_s": ".0f"})
-            )
+        results.json("notebooks", dict(rows=rows))
+        cols = ["notebook", "total_s", "slowest_cell_s", "slowest_cell"]
+        results.markdown(
+            "notebooks",
+            _common.markdown_table(rows, cols, {"total_s": ".0f", "slowest_cell_s": ".0f"}),
+            f"; {size} size, a fresh kernel each, no cache.",
+        )
 
 
 if __name__ == "__main__":

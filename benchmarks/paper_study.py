@@ -169,12 +169,11 @@ def main(argv=None):
 
     cases = args.cases.split(",") if args.cases else (["LiePoisson"] if args.fast else list(CASES))
     repeats = args.repeats or (1 if args.fast else 3)
-    os.makedirs(args.out, exist_ok=True)
-    info = _common.machine_info()
+    results = _common.Output(args.out)
+    info = results.info
     print(
         f"paper study: strong_convergence, {n_samples} samples, h = 2^-{kmin} ... 2^-{kmax}, "
-        f"fresh process per run; {info['cpu_model']} ({info['cpu_count']} cores), "
-        f"jax {info['jax']}"
+        f"fresh process per run; {results.measured_on()}"
     )
     summary, last, rows = {}, {}, []
     for case in cases:
@@ -223,9 +222,9 @@ def main(argv=None):
                         "order_stderr": s["order_stderr"][name],
                     }
                 )
-    _common.write_csv(os.path.join(args.out, "paper_study.csv"), rows)
-    _common.write_json(
-        os.path.join(args.out, "paper_study.json"),
+    results.csv("paper_study", rows)
+    results.json(
+        "paper_study",
         {
             "machine": info,
             "n_samples": n_samples,

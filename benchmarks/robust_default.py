@@ -13,11 +13,8 @@ time of each run (compilation included, one per step size and setting).
 
 from __future__ import annotations
 
-import csv
-import json
 import os
 import sys
-import time
 import warnings
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
@@ -30,8 +27,7 @@ def run(n_samples, chunk_size, dt, retry):
     import slps_jax as sj
 
     system, y0 = sj.RigidBody.paper(), jax.numpy.asarray(sj.PAPER_Y0)
-    start = time.perf_counter()
-    with warnings.catch_warnings():
+    with _common.Stopwatch() as sw, warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # the failures are the measurement
         st = sj.ensemble_statistics(
             system,
@@ -44,11 +40,11 @@ def run(n_samples, chunk_size, dt, retry):
             failures=sj.Failures(retry_substeps=retry),
             chunks=sj.Chunks(chunk_size, progress=False),
         )
-    return st.n_failed, time.perf_counter() - start
+    return st.n_failed, sw.seconds
 
 
 def main(argv=None):
-    parser = _common.parser(__doc__, "4000 samples, h = 2^-4", out=None)
+    parser = _common.parser(__doc__, "4000 samples, h = 2^-4")
     parser.add_argument("--samples", type=int, default=10**6)
     parser.add_argument("--chunk", type=int, default=1000)
     parser.add_argument("--levels", default="4,5,6", help="k of the step sizes 2^-k")
@@ -58,8 +54,6 @@ def main(argv=None):
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    from _common import DEFAULT_OUT, machine_info
-
     rows = []
     print(f"{args.samples} samples, chunks of {args.chunk}\n")
     print("| h | failed, no retry | failed, default | s, no retry | s, default | default / none |")
@@ -82,14 +76,9 @@ def main(argv=None):
             f"{s_def / s_none:.2f} |",
             flush=True,
         )
-    out_dir = args.out or DEFAULT_OUT
-    os.makedirs(out_dir, exist_ok=True)
-    with open(os.path.join(out_dir, "robust_default.json"), "w") as fh:
-        json.dump({"machine": machine_info(), "samples": args.samples, "rows": rows}, fh, indent=1)
-    with open(os.path.join(out_dir, "robust_default.csv"), "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    results = _common.Output(args.out)
+    results.json("robust_default", {"samples": args.samples, "rows": rows})
+    results.csv("robust_default", rows)
     return rows
 
 

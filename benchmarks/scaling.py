@@ -347,11 +347,11 @@ def main(argv=None):
         samples_sweep, fixed_steps = [10**2, 10**3, 10**4, 10**5], 128
         steps_sweep, fixed_samples = [2**k for k in range(6, 13)], 1000
         mem_steps, rss_steps = [2**k for k in range(6, 13)], [2**6, 2**8, 2**10, 2**12]
-    os.makedirs(args.out, exist_ok=True)
-    info = _common.machine_info()
+    results = _common.Output(args.out)
+    info = results.info
     print(
-        f"scaling of simulate (final state only), h = 2^-7: {info['cpu_model']} "
-        f"({info['cpu_count']} cores), jax {info['jax']}; skipping calls predicted "
+        f"scaling of simulate (final state only), h = 2^-7: {results.measured_on()}; "
+        "skipping calls predicted "
         f"> {args.max_call_s:g} s"
     )
 
@@ -470,10 +470,10 @@ def main(argv=None):
         }
     control = verdict.pop(CONTROL)
 
-    _common.write_csv(os.path.join(args.out, "scaling.csv"), time_rows)
-    _common.write_csv(os.path.join(args.out, "scaling_memory.csv"), mem_rows)
-    _common.write_json(
-        os.path.join(args.out, "scaling.json"),
+    results.csv("scaling", time_rows)
+    results.csv("scaling_memory", mem_rows)
+    results.json(
+        "scaling",
         {
             "machine": info,
             "h": DT,

@@ -339,15 +339,14 @@ def so4_study(fast):
 
 def main(argv=None):
     args = parse(argv)
-    os.makedirs(args.out, exist_ok=True)
-    info = _common.machine_info()
+    results = _common.Output(args.out)
+    info = results.info
     fast = args.fast
     if args.area_costs_only:
         costs = area_costs(fast)
         md = (
-            f"Drawing the Lévy areas (`_brownian.draw`, jitted, per sample-step) against the "
-            f"increments alone. {info['cpu_model']}, jax {info['jax']}, "
-            f"{info['date'][:10]}.\n\n"
+            "Drawing the Lévy areas (`_brownian.draw`, jitted, per sample-step) against the "
+            "increments alone.\n\n"
             + _common.markdown_table(
                 costs,
                 ["s", "h", "terms", "normals_per_step", "ns_increments", "ns_with_areas", "ratio"],
@@ -355,12 +354,8 @@ def main(argv=None):
             )
         )
         print("\n" + md)
-        with open(os.path.join(args.out, "several_noises_area_costs.md"), "w") as fh:
-            fh.write(md)
-        _common.write_json(
-            os.path.join(args.out, "several_noises_area_costs.json"),
-            dict(machine=info, area_costs=costs),
-        )
+        results.markdown("several_noises_area_costs", md)
+        results.json("several_noises_area_costs", dict(area_costs=costs))
         return
     n_samples = 32 if fast else 500
     ks = range(4, 6) if fast else range(4, 9)
@@ -370,8 +365,7 @@ def main(argv=None):
     print(
         f"# several noises: SALT rigid body, {n_samples} samples, h = 2^-{min(ks)}..2^-"
         f"{max(ks)}, reference Midpoint with areas at 2^-{int(math.log2(n_fine))}\n"
-        f"# {info['cpu_model']}, {info['cpu_count']} cores, jax {info['jax']}, "
-        f"diffrax {info['diffrax']}, {info['date']}",
+        f"# {results.measured_on()}, diffrax {info['diffrax']}",
         flush=True,
     )
 
@@ -446,7 +440,7 @@ def main(argv=None):
                     f"{name} at h = 2^-{k}: {failed} samples failed; their "
                     "frozen states are not data. Use smaller steps."
                 )
-    _common.write_csv(os.path.join(args.out, "several_noises.csv"), rows)
+    results.csv("several_noises", rows)
 
     # Strong orders; per sample-step cost at the finest h; run time at the target error.
     summary = []
@@ -593,9 +587,7 @@ def main(argv=None):
         f"error {ref_error:.1e}). Every method runs on precomputed increments (and areas) "
         f"of the same paths. Per sample-step cost at h = 2^-{max(ks)}; run time at RMS "
         f"error {TARGET:g} interpolated on each method's work-precision line (* "
-        f"extrapolated from the smallest step along the fitted order). "
-        f"{info['cpu_model']}, jax {info['jax']}, diffrax {info['diffrax']}, "
-        f"{info['date'][:10]}.\n\n"
+        f"extrapolated from the smallest step along the fitted order).\n\n"
     )
     for row in summary:
         row["time_at_target"] = f"{row['time_at_target_s']:.3g}" + (
@@ -672,12 +664,10 @@ def main(argv=None):
         ).replace("| nan ", "| — ")
     )
     print("\n" + md)
-    with open(os.path.join(args.out, "several_noises.md"), "w") as fh:
-        fh.write(md)
-    _common.write_json(
-        os.path.join(args.out, "several_noises.json"),
+    results.markdown("several_noises", md, f", diffrax {info['diffrax']}.")
+    results.json(
+        "several_noises",
         dict(
-            machine=info,
             reference_error=ref_error,
             rows=rows,
             summary=summary,

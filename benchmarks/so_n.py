@@ -344,11 +344,10 @@ def main(argv=None):
         "h = 2^-3, 2^-4; 200 steps",
     )
     args = p.parse_args(argv)
-    os.makedirs(args.out, exist_ok=True)
-    info = _common.machine_info()
+    results = _common.Output(args.out)
+    info = results.info
     print(
-        f"# so(n): {info['cpu_model']}, {info['cpu_count']} cores, jax {info['jax']}, "
-        f"diffrax {info['diffrax']}, {info['date']}",
+        f"# so(n): {results.measured_on()}, diffrax {info['diffrax']}",
         flush=True,
     )
     fast = args.fast
@@ -363,9 +362,9 @@ def main(argv=None):
     wp_rows, orders = work_precision(range(3, 5) if fast else range(3, 8), 8 if fast else 200)
     cas_rows = casimirs(200 if fast else 10_000, 2 if fast else 8)
     stress_rows = stress(fast)
-    _common.write_csv(os.path.join(args.out, "so_n.csv"), cost_rows)
-    _common.write_json(
-        os.path.join(args.out, "so_n.json"),
+    results.csv("so_n", cost_rows)
+    results.json(
+        "so_n",
         dict(
             machine=info,
             cost=cost_rows,
@@ -375,51 +374,32 @@ def main(argv=None):
             stress=stress_rows,
         ),
     )
-    with open(os.path.join(args.out, "so_n.md"), "w") as fh:
-        fh.write(
-            f"Measured on {info['cpu_model']} ({info['cpu_count']} cores), jax "
-            f"{info['jax']}, diffrax {info['diffrax']}, {info['date'][:10]}.\n\n"
-        )
-        fh.write(
-            _common.markdown_table(
-                cost_rows,
-                [
-                    "n",
-                    "method",
-                    "ns_per_sample_step",
-                    "vs_diffrax_heun",
-                    "compile_s",
-                    "newton_updates",
-                ],
-                {
-                    "ns_per_sample_step": ".0f",
-                    "vs_diffrax_heun": ".2f",
-                    "compile_s": ".2f",
-                    "newton_updates": ".2f",
-                },
-            )
-        )
-        fh.write(
-            "\nStrong orders at n = 4 (h = 2^-3..2^-7): "
-            + ", ".join(f"{k} {v:.2f}" for k, v in sorted(orders.items()))
-            + "\n\n"
-        )
-        fh.write(
-            _common.markdown_table(
-                cas_rows,
-                ["method", "steps", "tr_y2", "tr_y4", "tr_y6"],
-                {"tr_y2": ".1e", "tr_y4": ".1e", "tr_y6": ".1e"},
-            )
-        )
-        fh.write(
-            "\nStress (200 samples, T = 1): failed samples without / with retry_substeps=4\n\n"
-        )
-        fh.write(
-            _common.markdown_table(
-                stress_rows,
-                ["n", "noise", "norm", "h", "method", "failed", "failed_retry4", "nonfinite"],
-            )
-        )
+    cost_table = _common.markdown_table(
+        cost_rows,
+        ["n", "method", "ns_per_sample_step", "vs_diffrax_heun", "compile_s", "newton_updates"],
+        {
+            "ns_per_sample_step": ".0f",
+            "vs_diffrax_heun": ".2f",
+            "compile_s": ".2f",
+            "newton_updates": ".2f",
+        },
+    )
+    orders_line = ", ".join(f"{k} {v:.2f}" for k, v in sorted(orders.items()))
+    casimir_table = _common.markdown_table(
+        cas_rows,
+        ["method", "steps", "tr_y2", "tr_y4", "tr_y6"],
+        {"tr_y2": ".1e", "tr_y4": ".1e", "tr_y6": ".1e"},
+    )
+    stress_table = _common.markdown_table(
+        stress_rows, ["n", "noise", "norm", "h", "method", "failed", "failed_retry4", "nonfinite"]
+    )
+    results.markdown(
+        "so_n",
+        f"{cost_table}\nStrong orders at n = 4 (h = 2^-3..2^-7): {orders_line}\n\n"
+        f"{casimir_table}\nStress (200 samples, T = 1): failed samples without / with "
+        f"retry_substeps=4\n\n{stress_table}",
+        f", diffrax {info['diffrax']}.",
+    )
     figure(os.path.join(args.out, "so_n.png"), cost_rows, wp_rows)
 
 

@@ -89,12 +89,11 @@ def main(argv=None):
     launcher = scaling.Launcher()  # while this process is still small
     chunk = 10**3 if args.fast else 10**5
     sizes = [chunk, 2 * chunk, 10 * chunk]
-    os.makedirs(args.out, exist_ok=True)
-    info = _common.machine_info()
+    results = _common.Output(args.out)
+    info = results.info
     print(
         f"streamed ensemble_statistics, LiePoisson, h = 2^-5, T = 1, chunk_size {chunk}: "
-        f"{info['cpu_model']} ({info['cpu_count']} cores, {info['backend']}), "
-        f"jax {info['jax']}"
+        f"{results.measured_on()}, {info['backend']}"
     )
     rows = []
     for n in sizes:
@@ -133,12 +132,12 @@ def main(argv=None):
         f"{rows[-1]['n_chunks']} chunks: {growth:+.1f} MB (from 1 chunk: "
         f"{rows[-1]['ru_maxrss_mb'] - rows[0]['ru_maxrss_mb']:+.1f} MB)"
     )
-    _common.write_csv(
-        os.path.join(args.out, "streaming.csv"),
+    results.csv(
+        "streaming",
         [{k: v for k, v in r.items() if not k.endswith("_final")} for r in rows],
     )
-    _common.write_json(
-        os.path.join(args.out, "streaming.json"),
+    results.json(
+        "streaming",
         {
             "machine": info,
             "dt": DT,

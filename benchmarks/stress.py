@@ -433,7 +433,7 @@ FORMATS = {
 def main(argv=None):
     args = parse(argv)
     methods = args.methods.split(",") if args.methods else list(METHODS)
-    os.makedirs(args.out, exist_ok=True)
+    results = _common.Output(args.out)
     rows = []
     start = time.perf_counter()
     for sweep, label, change in cells(args.fast):
@@ -465,15 +465,14 @@ def main(argv=None):
             )
     total = time.perf_counter() - start
     summary = {
-        "machine": _common.machine_info(),
         "fast": args.fast,
         "wall_s": total,
         "base": {k: v for k, v in BASE.items()},
         "nonfinite_total": sum(r["nonfinite_unflagged"] + r["nonfinite_flagged"] for r in rows),
         "rows": rows,
     }
-    _common.write_csv(os.path.join(args.out, "stress.csv"), rows)
-    _common.write_json(os.path.join(args.out, "stress.json"), summary)
+    results.csv("stress", rows)
+    results.json("stress", summary)
     noise_rows = []
     for sweep, label, change in noise_cells(args.fast):
         settings = dict(NOISE_BASE, **change)
@@ -496,8 +495,8 @@ def main(argv=None):
         r["nonfinite_unflagged"] + r["nonfinite_flagged"] for r in noise_rows
     )
     summary["noise_rows"] = noise_rows
-    _common.write_csv(os.path.join(args.out, "stress_noises.csv"), noise_rows)
-    _common.write_json(os.path.join(args.out, "stress.json"), summary)
+    results.csv("stress_noises", noise_rows)
+    results.json("stress", summary)
     table = _common.markdown_table([dict(r, cell=md(r["cell"])) for r in rows], COLUMNS, FORMATS)
     failures, invariants = compact_tables(rows, methods)
     noise_table = _common.markdown_table(
@@ -513,18 +512,18 @@ def main(argv=None):
         ],
         {"casimir_drift": ".1e"},
     )
-    with open(os.path.join(args.out, "stress.md"), "w") as fh:
-        fh.write(
-            "### Failed samples, Newton work, non-finite values\n\n"
-            + failures
-            + "\n### Largest relative Casimir drift / Hamiltonian error at T "
-            "(successful samples)\n\n"
-            + invariants
-            + "\n### Every run\n\n"
-            + table
-            + "\n### Several noises: failures with their reasons, Casimir drift\n\n"
-            + noise_table
-        )
+    results.markdown(
+        "stress",
+        "### Failed samples, Newton work, non-finite values\n\n"
+        + failures
+        + "\n### Largest relative Casimir drift / Hamiltonian error at T "
+        "(successful samples)\n\n"
+        + invariants
+        + "\n### Every run\n\n"
+        + table
+        + "\n### Several noises: failures with their reasons, Casimir drift\n\n"
+        + noise_table,
+    )
     print(f"\nNaN/Inf entries in any returned state: {summary['nonfinite_total']}")
     print(f"stress matrix: {len(rows) + len(noise_rows)} runs in {total:.0f} s")
     return 0

@@ -147,8 +147,8 @@ def main(argv=None):
             f"unknown methods {unknown}: choose among "
             f"{', '.join(SIMULATED + (SCAN_HEUN, DIFFRAX_HEUN))}"
         )
-    os.makedirs(args.out, exist_ok=True)
-    info = _common.machine_info()
+    results = _common.Output(args.out)
+    info = results.info
     info["device"] = device_name(info["cpu_model"])
     print(
         f"throughput, {N_STEPS} steps of h = 2^-6, float64, on {info['device']} "
@@ -206,9 +206,9 @@ def main(argv=None):
             )
     for row in rows:
         row.setdefault("finite", None)
-    _common.write_csv(os.path.join(args.out, "throughput.csv"), rows)
-    _common.write_json(
-        os.path.join(args.out, "throughput.json"),
+    results.csv("throughput", rows)
+    results.json(
+        "throughput",
         {"machine": info, "h": H, "n_steps": N_STEPS, "rows": rows},
     )
     table = _common.markdown_table(
@@ -216,11 +216,11 @@ def main(argv=None):
         ["method", "n_samples", "time_median_s", "compile_est_s", "sample_steps_per_s", "status"],
         {"time_median_s": ".4f", "compile_est_s": ".1f", "sample_steps_per_s": ".3e"},
     )
-    with open(os.path.join(args.out, "throughput.md"), "w") as fh:
-        fh.write(
-            f"Throughput on {info['device']}, jax {info['jax']}, {info['date']}; "
-            f"{N_STEPS} steps of h = 2^-6, float64, final state only.\n\n" + table
-        )
+    results.markdown(
+        "throughput",
+        table,
+        f" ({info['device']}); {N_STEPS} steps of h = 2^-6, float64, final state only.",
+    )
     print(table)
     return 0
 

@@ -98,16 +98,14 @@ def main(argv=None):
     p.add_argument("--sizes", default="32:8,64:16", help="M:N pairs, comma-separated")
     p.add_argument("--windows", type=int, default=WINDOWS, help="windows of 50 snapshots")
     args = p.parse_args(argv)
-    os.makedirs(args.out, exist_ok=True)
-    info = _common.machine_info()
-    device = _common.device_name(info)
+    results = _common.Output(args.out)
     sizes = [tuple(int(k) for k in pair.split(":")) for pair in args.sizes.split(",")]
     rows = []
     for M, N in [(12, 6)] if args.fast else sizes:
         extra = dict(windows=4, window=10, members=4) if args.fast else dict(windows=args.windows)
         rows.append(case(M, N, **extra))
         print(rows[-1], flush=True)
-    _common.write_json(os.path.join(args.out, "transport_fit.json"), dict(machine=info, rows=rows))
+    results.json("transport_fit", dict(rows=rows))
     cols = [
         "M",
         "N",
@@ -117,9 +115,9 @@ def main(argv=None):
         "ensemble_ms_per_member_step",
         "ensemble_first_call_s",
     ]
-    with open(os.path.join(args.out, "transport_fit.md"), "w") as fh:
-        fh.write(f"Measured on {device}, jax {info['jax']}, {info['date'][:10]}.\n\n")
-        fh.write(_common.markdown_table(rows, cols, {k: ".3g" for k in cols[2:]}))
+    results.markdown(
+        "transport_fit", _common.markdown_table(rows, cols, {k: ".3g" for k in cols[2:]})
+    )
 
 
 if __name__ == "__main__":

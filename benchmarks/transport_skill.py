@@ -67,18 +67,14 @@ def main(argv=None):
     p = _common.parser(__doc__, "a smoke run: M = 12, N = 6, one seed")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="fine runs")
     args = p.parse_args(argv)
-    os.makedirs(args.out, exist_ok=True)
-    info = _common.machine_info()
+    results = _common.Output(args.out)
     size = dict(ddn.SMALL if args.fast else ddn.FULL)
     rows = []
     for seed in args.seeds[:1] if args.fast else args.seeds:
         rows.append(row(ddn.experiment(**size, seed=seed)))
         print(rows[-1], flush=True)
-    _common.write_json(
-        os.path.join(args.out, "transport_skill.json"), dict(machine=info, size=size, rows=rows)
-    )
+    results.json("transport_skill", dict(size=size, rows=rows))
     fmt = lambda v: f"{v[0]:+.1f} % [{v[1]:+.1f}, {v[2]:+.1f}]"
-    head = f"Measured on {_common.device_name(info)}, jax {info['jax']}, {info['date'][:10]}; size {size}."
     white = [
         'White noise (`time_model="white"`), degrees 2..N-1 unless stated; CRPS differences, '
         "paired bootstrap 90 % CI over the starts:",
@@ -109,9 +105,7 @@ def main(argv=None):
             f"| {fmt(r['ou_vs_white'])} | {', '.join(f'{x:.2f}' for x in r['spread_rmse_ou'])} "
             f"| {r['spread_rmse_ou_range'][0]:.2f}, {r['spread_rmse_ou_range'][1]:.2f} |"
         )
-    lines = [head, "", *white, "", *red]
-    with open(os.path.join(args.out, "transport_skill.md"), "w") as fh:
-        fh.write("\n".join(lines) + "\n")
+    results.markdown("transport_skill", "\n".join([*white, "", *red]) + "\n", f"; size {size}.")
 
 
 if __name__ == "__main__":

@@ -462,7 +462,7 @@ def main(argv=None):
         if skipped:
             print(f"diffrax not available or disabled: skipping {skipped}")
         names = [n for n in names if n not in DIFFRAX]
-    os.makedirs(args.out, exist_ok=True)
+    results = _common.Output(args.out)
 
     system, y0 = sj.RigidBody.paper(), jnp.asarray(sj.PAPER_Y0)
     ks = list(range(kmin, kmax + 1))
@@ -479,11 +479,10 @@ def main(argv=None):
         "vbt_keys": jax.random.split(jax.random.key(args.seed + 1), n_samples),
     }
     refs = references(system, y0, data, h_fine, with_diffrax)
-    info = _common.machine_info()
+    info = results.info
     print(
         f"work-precision: {n_samples} samples, h = 2^-{kmin} ... 2^-{kmax}, "
-        f"{info['cpu_model']} ({info['cpu_count']} cores), jax {info['jax']}, "
-        f"diffrax {info['diffrax']}"
+        f"{results.measured_on()}, diffrax {info['diffrax']}"
     )
 
     rows, finals, compiled = [], {}, {}
@@ -577,10 +576,10 @@ def main(argv=None):
         heun_check = float(jnp.max(jnp.abs(ya - yb)))
 
     table, best, best_integrator = fastest(rows)
-    _common.write_csv(os.path.join(args.out, "work_precision.csv"), rows)
-    _common.write_csv(os.path.join(args.out, "per_step_cost.csv"), cost_rows)
-    _common.write_json(
-        os.path.join(args.out, "work_precision.json"),
+    results.csv("work_precision", rows)
+    results.csv("per_step_cost", cost_rows)
+    results.json(
+        "work_precision",
         {
             "machine": info,
             "n_samples": n_samples,

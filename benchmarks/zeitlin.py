@@ -765,20 +765,17 @@ def figure(path, rows):
     plt.close(fig)
 
 
-def _writer(out, name, info, caption, cols, formats, csv=False):
+def _writer(results, name, caption, cols, formats, csv=False):
     """`write(rows)` for one part of the run, called after every row so that a run cut short
     keeps what it measured: `name.json` (with the machine), `name.md` (where and when,
     `caption`, the table of `cols` with `formats`) and, with `csv`, `name.csv`."""
-    device = _common.device_name(info)
 
     def write(rows):
         if csv:
-            _common.write_csv(os.path.join(out, f"{name}.csv"), rows)
-        _common.write_json(os.path.join(out, f"{name}.json"), dict(machine=info, rows=rows))
-        with open(os.path.join(out, f"{name}.md"), "w") as fh:
-            fh.write(f"Measured on {device}, jax {info['jax']}, {info['date'][:10]}{caption}\n\n")
-            table = [{k: r.get(k) for k in cols} for r in rows]
-            fh.write(_common.markdown_table(table, cols, formats))
+            results.csv(name, rows)
+        results.json(name, dict(rows=rows))
+        table = [{k: r.get(k) for k in cols} for r in rows]
+        results.markdown(name, _common.markdown_table(table, cols, formats), caption)
 
     return write
 
@@ -833,20 +830,18 @@ def main(argv=None):
         help="with --economy: a ';'-separated subset of its options (default: all)",
     )
     args = p.parse_args(argv)
-    os.makedirs(args.out, exist_ok=True)
-    info = _common.machine_info()
+    results = _common.Output(args.out)
+    info = results.info
     info["quflow"] = None if qf is None else getattr(qf, "__version__", "?")
     print(
-        f"# Euler-Zeitlin: {info['cpu_model']}, {info['cpu_count']} cores, jax {info['jax']}, "
-        f"quflow {info['quflow']}, {info['date']}",
+        f"# Euler-Zeitlin: {results.measured_on()}, quflow {info['quflow']}",
         flush=True,
     )
     if args.final_update:
         cols = ["N", "h", "samples", "update", "us_per_sample_step", "updates", "casimir_drift"]
         write = _writer(
-            args.out,
+            results,
             "zeitlin_final_update",
-            info,
             "; EulerZeitlin(N, c=0.1) through simulate, an ensemble, from the smooth state.",
             cols,
             {"h": ".4g", "us_per_sample_step": ".3g", "updates": ".3g", "casimir_drift": ".1e"},
@@ -855,9 +850,8 @@ def main(argv=None):
         return
     if args.breakdown:
         write_breakdown = _writer(
-            args.out,
+            results,
             "zeitlin_breakdown",
-            info,
             ".",
             ["case", "dtype", "ms", "compile_s"],
             {"ms": ".4g", "compile_s": ".1f"},
@@ -882,9 +876,8 @@ def main(argv=None):
             "compile_s",
         ]
         write_economy = _writer(
-            args.out,
+            results,
             "zeitlin_economy",
-            info,
             f", quflow {info['quflow']}; one state, 32 steps of h = 0.64/N s.",
             cols,
             {k: ".3g" for k in cols[3:]},
@@ -895,9 +888,7 @@ def main(argv=None):
                 store_row = store_cost(
                     *((8, 64, 8, 2) if args.fast else (128, 256, 8, 2)), args.out
                 )
-                _common.write_json(
-                    os.path.join(args.out, "zeitlin_store.json"), dict(machine=info, row=store_row)
-                )
+                results.json("zeitlin_store", dict(row=store_row))
             economy(
                 ns,
                 (jnp.complex128, jnp.complex64) if args.gpu else (jnp.complex128,),
@@ -937,9 +928,8 @@ def main(argv=None):
             "areas_vs_step",
         ]
         write = _writer(
-            args.out,
+            results,
             "zeitlin_scale",
-            info,
             "; one state, ms; an ensemble, ms per member-step.",
             cols,
             {k: ".3g" for k in cols[2:]},
@@ -961,51 +951,46 @@ def main(argv=None):
     checked = check_quflow() if args.check_quflow else None
     rows = cost((8,) if args.fast else (16, 32, 64, 128, 256))
     cons = conservation(8 if args.fast else 32, 200 if args.fast else 10_000)
-    _common.write_csv(os.path.join(args.out, "zeitlin.csv"), rows)
-    _common.write_json(
-        os.path.join(args.out, "zeitlin.json"),
-        dict(machine=info, h=H, cost=rows, conservation=cons, quflow_check=checked),
+    results.csv("zeitlin", rows)
+    results.json(
+        "zeitlin",
+        dict(h=H, cost=rows, conservation=cons, quflow_check=checked),
     )
-    with open(os.path.join(args.out, "zeitlin.md"), "w") as fh:
-        fh.write(
-            f"Measured on {info['cpu_model']} ({info['cpu_count']} cores), jax "
-            f"{info['jax']}, quflow {info['quflow']}, {info['date'][:10]}; h = {H} s.\n\n"
-        )
-        fh.write(
-            _common.markdown_table(
-                rows,
-                [
-                    "N",
-                    "method",
-                    "samples",
-                    "ms_per_sample_step",
-                    "vs_quflow",
-                    "compile_s",
-                    "iterations",
-                    "retried_steps",
-                    "tol",
-                    "maxit_reached",
-                    "diff_vs_quflow",
-                ],
-                {
-                    "ms_per_sample_step": ".3f",
-                    "vs_quflow": ".2f",
-                    "compile_s": ".2f",
-                    "iterations": ".1f",
-                    "tol": ".1e",
-                    "maxit_reached": ".2f",
-                    "diff_vs_quflow": ".1e",
-                },
-            )
-        )
-        fh.write("\nRelative drift over the path\n\n")
-        fh.write(
-            _common.markdown_table(
-                cons,
-                ["method", "dtype", "N", "steps", "tr_w2", "tr_w3", "tr_w4", "energy"],
-                {k: ".1e" for k in ("tr_w2", "tr_w3", "tr_w4", "energy")},
-            )
-        )
+    cost_table = _common.markdown_table(
+        rows,
+        [
+            "N",
+            "method",
+            "samples",
+            "ms_per_sample_step",
+            "vs_quflow",
+            "compile_s",
+            "iterations",
+            "retried_steps",
+            "tol",
+            "maxit_reached",
+            "diff_vs_quflow",
+        ],
+        {
+            "ms_per_sample_step": ".3f",
+            "vs_quflow": ".2f",
+            "compile_s": ".2f",
+            "iterations": ".1f",
+            "tol": ".1e",
+            "maxit_reached": ".2f",
+            "diff_vs_quflow": ".1e",
+        },
+    )
+    drift_table = _common.markdown_table(
+        cons,
+        ["method", "dtype", "N", "steps", "tr_w2", "tr_w3", "tr_w4", "energy"],
+        {k: ".1e" for k in ("tr_w2", "tr_w3", "tr_w4", "energy")},
+    )
+    results.markdown(
+        "zeitlin",
+        f"{cost_table}\nRelative drift over the path\n\n{drift_table}",
+        f", quflow {info['quflow']}; h = {H} s.",
+    )
     figure(os.path.join(args.out, "zeitlin.png"), rows)
 
 

@@ -285,45 +285,35 @@ def main(argv=None):
         "--transport", action="store_true", help="only transport noise end to end (N = 128)"
     )
     args = p.parse_args(argv)
-    info = _common.machine_info()
+    results = _common.Output(args.out)
     if args.transport:
         rows = transport(N=16 if args.fast else 128)
-        _common.write_json(
-            os.path.join(args.out, "zeitlin_transport.json"), dict(machine=info, rows=rows)
+        results.json("zeitlin_transport", dict(rows=rows))
+        formats = {"ms_per_step": ".3g", "vs_deterministic": ".3g", "updates": ".3g"}
+        results.markdown(
+            "zeitlin_transport",
+            _common.markdown_table(rows, list(rows[0]), formats),
+            "; one state, complex128, h = 0.64/N s, 32 steps.",
         )
-        with open(os.path.join(args.out, "zeitlin_transport.md"), "w") as fh:
-            fh.write(
-                f"Measured on {_common.device_name(info)}, jax {info['jax']}, "
-                f"{info['date'][:10]}; one state, complex128, h = 0.64/N s, 32 steps.\n\n"
-            )
-            fh.write(
-                _common.markdown_table(
-                    rows,
-                    list(rows[0]),
-                    {"ms_per_step": ".3g", "vs_deterministic": ".3g", "updates": ".3g"},
-                )
-            )
         return
     ns = (16, 32) if args.fast else (128, 256)
-    out = dict(machine=info, cost=cost(ns), rough=rough(N=16 if args.fast else 64))
+    out = dict(cost=cost(ns), rough=rough(N=16 if args.fast else 64))
     if qf is not None and not args.fast:
         out["qg"] = qg()
         out["agreement"] = agreement()
-    os.makedirs(args.out, exist_ok=True)
-    _common.write_json(os.path.join(args.out, "zeitlin_forced.json"), out)
-    device = _common.device_name(info)
-    with open(os.path.join(args.out, "zeitlin_forced.md"), "w") as fh:
-        fh.write(
-            f"Measured on {device}, jax {info['jax']}, {info['date'][:10]}; one state, "
-            f"complex128, h = 0.64/N s; nu = {NU:g}, p = {P}, alpha = {ALPHA:g}, a forcing "
-            "on degrees 8-10.\n"
-        )
-        for key in ("cost", "rough", "qg", "agreement"):
-            if key in out:
-                cols = list(out[key][0])
-                formats = {c: ".3g" for c in cols if c not in ("N", "steps", "step", "warned")}
-                fh.write("\n\n" + _common.markdown_table(out[key], cols, formats))
-        fh.write("\n")
+    results.json("zeitlin_forced", out)
+    tables = []
+    for key in ("cost", "rough", "qg", "agreement"):
+        if key in out:
+            cols = list(out[key][0])
+            formats = {c: ".3g" for c in cols if c not in ("N", "steps", "step", "warned")}
+            tables.append(_common.markdown_table(out[key], cols, formats))
+    results.markdown(
+        "zeitlin_forced",
+        "\n\n".join(tables) + "\n",
+        f"; one state, complex128, h = 0.64/N s; nu = {NU:g}, p = {P}, alpha = {ALPHA:g}, a "
+        "forcing on degrees 8-10.",
+    )
 
 
 if __name__ == "__main__":

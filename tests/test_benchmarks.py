@@ -59,6 +59,32 @@ def run_script(name, out, *extra):
             os.environ["PYTHONPATH"] = saved_pythonpath
 
 
+def test_the_harness_writes_each_file_with_its_machine(tmp_path):
+    """`_common.Output`: the folder is made; a JSON file holds the machine beside the fields
+    given (one given keeps its own); a Markdown file starts with where and when, the note
+    ending its sentence; CSV rows come back as written."""
+    sys.path.insert(0, str(BENCH))
+    try:
+        import _common
+    finally:
+        sys.path.remove(str(BENCH))
+    results = _common.Output(str(tmp_path / "new"))
+    results.json("a", {"rows": [1, 2]})
+    results.json("b", {"machine": "given"})
+    results.csv("a", [{"x": 1, "y": "z"}])
+    results.markdown("a", "| x |\n", "; size 3.")
+    a = json.loads((tmp_path / "new" / "a.json").read_text())
+    assert a["rows"] == [1, 2] and a["machine"]["jax"] and a["machine"]["cpu_count"] >= 1
+    assert json.loads((tmp_path / "new" / "b.json").read_text())["machine"] == "given"
+    assert read_csv(tmp_path / "new" / "a.csv") == [{"x": "1", "y": "z"}]
+    md = (tmp_path / "new" / "a.md").read_text()
+    head = f"Measured on {results.device} ({a['machine']['cpu_count']} cores), jax "
+    assert md.startswith(head) and md.endswith("; size 3.\n\n| x |\n"), md
+    with _common.Stopwatch() as sw:
+        pass
+    assert 0 <= sw.seconds < 1
+
+
 def read_csv(path):
     with open(path, newline="") as fh:
         return list(csv.DictReader(fh))
