@@ -14,6 +14,11 @@ within one unit of the expected number's last printed digit (`2.02` matches 2.02
 and the test still fails when a result moves. The blocks run at the sizes shown: a reader
 copies them as they are.
 
+Two blocks reproduce a documented study at its documented size (a strong-convergence study
+with its reference, a fine run with its fit and forecast), a minute of the suite between
+them: they are full-size checks, run by the second tier (`-m full`, `.ci/run` after the
+README's command), as `FULL_SIZE` lists.
+
 Also checked: the README has at most `MAX_LINES` lines, and no history ("was 4.97 s"): the
 regex `was \\d` finds nothing (measurements and their history belong in benchmarks/README.md).
 """
@@ -84,17 +89,27 @@ def matches(printed, expected):
 
 BLOCKS = _blocks()
 
+FULL_SIZE = {
+    ("docs/levy-area.md", 0): "strong_convergence of 100 samples to a 2^-12 reference",
+    ("docs/data-driven-noise.md", 0): "a 44-second su(32) run, its fit and a 32-member forecast",
+}
+
+
+def _case(page, index, code, expected):
+    marks = [pytest.mark.full] if (page, index) in FULL_SIZE else []
+    return pytest.param(page, index, code, expected, marks=marks, id=_id(page, index, code))
+
 
 def test_pages_have_python_blocks():
     readme = [b for b in BLOCKS if b[0] == "README.md"]
     assert readme and len(BLOCKS) >= 10, f"found {len(readme)} README and {len(BLOCKS)} blocks"
 
 
-@pytest.mark.parametrize(
-    "page,index,code,expected",
-    BLOCKS,
-    ids=[_id(page, index, code) for page, index, code, _ in BLOCKS],
-)
+def test_the_full_size_blocks_are_there():
+    assert set(FULL_SIZE) <= {(page, index) for page, index, _, _ in BLOCKS}
+
+
+@pytest.mark.parametrize("page,index,code,expected", [_case(*b) for b in BLOCKS])
 def test_block_prints_what_the_text_says(page, index, code, expected):
     assert expected is not None, (
         f"{page}, python block {index}: follow it with a ```text block of what it prints"
