@@ -155,8 +155,8 @@ def particle_filter(
             setup.forecast(system, auto),
             x,
             setup.observing(observations),
-            increments_shape=setup.increments(system),
-            dt=setup.increments_dt,
+            increments_shape=setup.innovations[0],
+            dt=setup.innovations[1],
             key=key,
             tempering=setup.tempering,
         )
@@ -231,7 +231,7 @@ def particle_filter_to_store(
         "particle_filter_to_store",
     )
     n, ys, real = x.shape[0], run.ys, run.real
-    increments = setup.increments(system)
+    increments = setup.innovations[0]
     leaves = jax.tree_util.tree_leaves(x0)
     snapshots = {
         "state": (x.shape, x.dtype),
@@ -280,7 +280,7 @@ def particle_filter_to_store(
         state = _start(run, key)
         if writer.checkpoint is not None:
             state = _restore(writer.checkpoint, key, ys, m, x0)
-        filtering = run.cycles(state, increments_shape=increments, dt=setup.increments_dt)
+        filtering = run.cycles(state, increments_shape=increments, dt=setup.innovations[1])
         bar = progress_bar(
             ys.shape[0] - state.k,
             "particle_filter_to_store",
@@ -324,6 +324,7 @@ class _Setup(NamedTuple):
     tempering: Tempering
     driver: AbstractDriver
     path: Any
+    innovations: tuple  # (shape, variance) of a particle's Gaussian numbers per interval
 
     def forecast(self, system, auto):
         """The forecast of a batch of particles to the next observation (jitted, shared)."""
@@ -344,16 +345,6 @@ class _Setup(NamedTuple):
     def observing(self, observations):
         """What the filter observes of a particle (its state, without its driver's)."""
         return dataclasses.replace(observations, observe=_OnState(observations.observe))
-
-    def increments(self, system):
-        """The shape of one particle's Gaussian numbers between observations (Brownian
-        increments `(m, s)`, the traces' standard normal numbers `(m, 2, s)`)."""
-        return self.path.innovations(self.m)[0]
-
-    @property
-    def increments_dt(self):
-        """Their variance: the step, or 1 for standard normal numbers."""
-        return self.path.innovations(self.m)[1]
 
 
 def _setup(
@@ -432,10 +423,12 @@ def _setup(
     )
     try:
         path = driver.path(h, system.n_noises, x.real.dtype, levy_area=driver.levy_area is True)
-        path.innovations(m)
+        innovations = path.innovations(m)
     except ValueError as err:
         raise ValueError(f"{name}: {err}") from None
-    return _Setup(method, x, m, h, retry, chunk_size, sharding, tempering, driver, path)
+    return _Setup(
+        method, x, m, h, retry, chunk_size, sharding, tempering, driver, path, innovations
+    )
 
 
 def _carry(state, lag, observations):
