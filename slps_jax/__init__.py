@@ -55,6 +55,8 @@ from ._forecasting.assimilation import Forecast as Forecast
 from ._forecasting.assimilation import Observations as Observations
 from ._forecasting.assimilation import Tempering as Tempering
 from ._forecasting.assimilation import assimilate as assimilate
+from ._forecasting.closure import ClosureFit as ClosureFit
+from ._forecasting.closure import fit_closure as fit_closure
 from ._forecasting.particle_filter import particle_filter as particle_filter
 from ._forecasting.particle_filter import particle_filter_to_store as particle_filter_to_store
 from ._forecasting.scores import ForecastScores as ForecastScores
@@ -125,6 +127,7 @@ from ._systems.noise import salt_noise as salt_noise
 from ._systems.rigid_body import PAPER_Y0 as PAPER_Y0
 from ._systems.rigid_body import GeneralisedRigidBody as GeneralisedRigidBody
 from ._systems.rigid_body import RigidBody as RigidBody
+from ._systems.stream_operator import Stream as Stream
 from ._systems.system import AbstractLiePoissonSystem as AbstractLiePoissonSystem
 from ._systems.system import LiePoissonSystem as LiePoissonSystem
 
@@ -187,6 +190,8 @@ __all__ = [
     "forecast_scores",
     "paired_comparison",
     "TransportNoiseFit",
+    "ClosureFit",
+    "fit_closure",
     "fit_transport_noise",
     "AmplitudeSearch",
     "AmplitudeTuning",
@@ -213,6 +218,7 @@ __all__ = [
     "proportional_noise",
     "random_inertia_noise",
     "salt_noise",
+    "Stream",
     "PAPER_Y0",
     "GeneralisedRigidBody",
     "RigidBody",

@@ -448,6 +448,21 @@ def _folded_tables(N, dtype=jnp.float64):
     return jnp.asarray(E, dtype), jnp.asarray(Od, dtype)
 
 
+def _folded_degrees(N):
+    """The degree of each coefficient of `_to_skew_eigenbasis`, `(2, H, P)` (0 for padding)."""
+    return np.stack(_folded_eigenbasis(N)[2:4])
+
+
+def _by_degree_map(W, values, tables):
+    r"""$\sum_\ell v_\ell W_\ell$, $W_\ell$ the degree-$\ell$ part of the skew-Hermitian `W`
+    (`values` `(..., N)`, one per degree $0 \dots N - 1$, real): a function of $\Delta_N$, in
+    its folded eigenbasis (`tables = _folded_tables(N)`), over leading axes of `W`."""
+    N = W.shape[-1]
+    y = _to_skew_eigenbasis(W, tables)
+    v = jnp.asarray(values)[..., _folded_degrees(N)]
+    return _from_skew_eigenbasis(y * v.astype(y.real.dtype), tables, N).astype(W.dtype)
+
+
 def _real_einsum(spec, table, x):
     """`einsum(spec, table, x)` for a real table and a complex `x`, as two real products
     (each a batched matrix-vector product that reads the table once)."""

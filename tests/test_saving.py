@@ -52,10 +52,13 @@ def test_systems_and_noise_families_round_trip_bit_for_bit(tmp_path):
             alpha=0.1,
             forcing=forcing,
             omega=0.5,
-            gamma=0.2,
+            stream=sj.Stream(gamma=0.2),
             additive=sj.AdditiveForcing((2, 3), 0.1),
         ),
         sj.EulerZeitlin(N, c=0.3, dtype=jnp.complex64),
+        sj.EulerZeitlin(
+            N, alpha=rng.uniform(0, 1, N), stream=sj.Stream(gain=rng.normal(size=N) / 10)
+        ),
         sj.RigidBody.paper(),
         sj.GeneralisedRigidBody(
             rng.uniform(1, 2, 4),

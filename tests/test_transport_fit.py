@@ -7,6 +7,7 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -173,3 +174,32 @@ def test_the_fitted_diffusivity_does_not_depend_on_the_window():
     for final in (white, red):
         assert np.max(np.abs(np.asarray(system.algebra.casimirs(final)) - c0) / scale) < 1e-12
         assert np.max(np.abs(np.asarray(final) - np.asarray(w0))) > 1e-2  # (the noise moved them)
+
+
+def test_the_transport_solve_in_the_eigenbasis_is_the_dense_least_squares():
+    """`transport_split` (one eigen-decomposition of W per sample, O(N^3)) against the
+    dense Tikhonov solve in the lm coefficients (the matrix of xi -> [xi, W] on the
+    quantised harmonics, an SVD by NumPy): the same transport, the same off-orbit rest
+    (the residual of the least-squares solve), and `_spectra`'s Tikhonov terms."""
+    from slps_jax._forecasting import transport_fit as tf
+
+    N = 6
+    rng = np.random.default_rng(7)
+    w = np.asarray(z.shr2mat(np.r_[0.0, rng.normal(size=(N * N - 1))], N))
+    r = rng.normal(size=N * N - 1)
+    basis = np.asarray(z.shr2mat(np.eye(N * N)[1:], N))
+    a = np.asarray(z.mat2shr(basis @ w - w @ basis))[:, 1:].T  # column j: [T_j, w]
+    u, sv, vt = np.linalg.svd(a)
+    keep = sv**2 > 1e-10 * sv[0] ** 2
+    assert np.sum(~keep) == N - 1  # (the kernel: the powers of w, traceless)
+    for alpha in (0.0, 0.3):
+        ut_r = u[:, keep].T @ r
+        want = vt[keep].T @ (sv[keep] * ut_r / (sv[keep] ** 2 + alpha))
+        xi, off = tf.transport_split(jnp.asarray(w)[None], jnp.asarray(r)[None], alpha)
+        np.testing.assert_allclose(np.asarray(xi)[0], want, atol=1e-11)
+        rest = r - u[:, keep] @ ut_r
+        np.testing.assert_allclose(np.asarray(off)[0], rest, atol=1e-11)
+        lam, c = (np.asarray(x) for x in tf._spectra(jnp.asarray(w)[None], jnp.asarray(r)[None]))
+        reduction, norm = tf._tikhonov_terms(lam, c, alpha)
+        assert reduction == pytest.approx(r @ r - np.sum((a @ want - r) ** 2), rel=1e-10)
+        assert norm == pytest.approx(want @ want, rel=1e-10)

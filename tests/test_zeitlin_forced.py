@@ -119,7 +119,7 @@ def test_with_no_new_term_the_step_is_the_inviscid_one_bit_for_bit():
     w = _rough(N)
     method = sj.IsospectralMidpoint()
     plain = sj.EulerZeitlin(N)
-    off = sj.EulerZeitlin(N, nu=0.0, p=3, alpha=0, forcing=None, omega=None, gamma=0)
+    off = sj.EulerZeitlin(N, nu=0.0, p=3, alpha=0, forcing=None, omega=None, stream=None)
     assert off.linear is None and off.omega is None and off.tables is None
     y0, _ = method.step(plain, w, h, jnp.zeros(1))
     y1, _ = system_step(method, off, w, h, jnp.zeros(1))
@@ -178,7 +178,7 @@ def test_quasi_geostrophic_stream_solves_its_equation(gamma):
     dense = dense - np.trace(dense) / N * np.eye(N)
     np.testing.assert_allclose(P, dense, atol=1e-12 * np.max(np.abs(dense)))
     # the model conserves its energy -1/2 <W, P> and its Casimirs along a run
-    system = sj.EulerZeitlin(N, gamma=gamma)
+    system = sj.EulerZeitlin(N, stream=sj.Stream(gamma=gamma))
     y = sj.integrate(system, jnp.asarray(w), jnp.zeros((20, 1)), 0.01, save_every=20)
     e0, e1 = float(system.energy(w)), float(system.energy(y[-1]))
     assert abs(e1 - e0) < 1e-4 * abs(e0)  # (the midpoint rule: O(h^2) energy error)
@@ -215,12 +215,23 @@ def test_bad_input_refused_by_name_before_any_work():
         (dict(forcing=np.zeros((N + 1, N + 1), complex)), "forcing must be an element"),
         (dict(forcing=np.ones((N, N))), "skew-Hermitian"),
         (dict(forcing=good + 1j * np.eye(N)), "traceless"),
-        (dict(gamma=-0.5), "gamma must be"),
-        (dict(gamma=1.0, poisson="eigenbasis"), "gamma > 0"),
+        (dict(stream=sj.Stream(gamma=1.0), poisson="eigenbasis"), "gamma > 0"),
+        (dict(stream=sj.Stream(gain=np.zeros(N + 1))), "gain has"),
+        (dict(alpha=np.ones(N - 1)), "one real number per degree"),
+        (dict(alpha=-np.ones(N)), "finite and >= 0"),
         (dict(omega=float("inf")), "omega must be"),
     ]:
         with pytest.raises(ValueError, match=match):
             sj.EulerZeitlin(N, **kwargs)
+    for kwargs, match in [
+        (dict(gamma=-0.5), "gamma must be"),
+        (dict(gain=np.ones((2, N))), "gain must be one real number per degree"),
+        (dict(gain=np.full(N, np.nan)), "gain must be finite"),
+    ]:
+        with pytest.raises(ValueError, match=match):
+            sj.Stream(**kwargs)
+    with pytest.raises(TypeError, match="stream must be a Stream"):
+        sj.EulerZeitlin(N, stream=0.5)
     for band, amplitude, match in [
         ((0, 2), 1.0, "band must be"),
         ((2, N), 1.0, "band"),
@@ -467,3 +478,75 @@ def test_step_size_gradient_through_a_retried_step_after_a_joined_one():
     e = 1e-6
     fd = (loss(0.05 + e) - loss(0.05 - e)) / (2 * e)
     assert abs(float(grad) - float(fd)) <= 1e-6 * abs(float(fd)), (grad, fd)
+
+
+def test_a_stream_gain_is_a_modified_hamiltonian_with_the_exact_wave():
+    """`Stream(gain=g)`: the stream against its coefficients (`mat2shr`, not the eigenbasis),
+    the Hamiltonian's gradient against finite differences, and the two-degree wave
+    `a T_10 + W_l`, which turns exactly at the rate `a (s_1 - s_l)`, `s_l = -1/(l(l+1)) + g_l`:
+    the step's error falls at order 2 and every Casimir and the modified energy are kept."""
+    N, ell, a = 12, 4, 0.25
+    rng = np.random.default_rng(5)
+    g = rng.normal(size=N) * 0.05
+    system = sj.EulerZeitlin(N, stream=sj.Stream(gain=g))
+    w = _rough(N, seed=3)
+    el = np.repeat(np.arange(N), 2 * np.arange(N) + 1)
+    s = np.where(el > 0, -1.0 / np.maximum(el * (el + 1.0), 1) + g[el], 0.0)
+    want = z.shr2mat(s * np.asarray(z.mat2shr(w)), N)
+    assert np.max(np.abs(system.stream(w) - want)) < 1e-13 * np.max(np.abs(want))
+    # the gradient of H0 = N E / (2 hbar), E = -<W, P>/2, by central differences
+    v = _rough(N, seed=4)
+    eps = 1e-6
+    fd = (system.hamiltonian(w + eps * v) - system.hamiltonian(w - eps * v)) / (2 * eps)
+    pairing = 0.5 * np.real(np.trace(np.conj(system.gradient(w)).T @ v))
+    assert abs(fd - pairing) < 1e-7 * abs(pairing)
+    # the wave
+    T10 = np.asarray(z.shr2mat(np.eye(4)[2], N))
+    w_ell = np.asarray(_degree(N, ell, seed=2))
+    w0 = a * T10 + w_ell
+    s1, sl = -0.5 + g[1], -1.0 / (ell * (ell + 1)) + g[ell]
+    d = np.diag(T10)
+    n = 32
+
+    def exact(t):
+        return a * T10 + np.exp((d[:, None] - d[None, :]) * a * (s1 - sl) * t / z.hbar(N)) * w_ell
+
+    errors = []
+    for h in (2.0**-7, 2.0**-8, 2.0**-9):
+        y = sj.integrate(system, jnp.asarray(w0), jnp.zeros((n, 1)), h)
+        errors.append(np.max(np.abs(y - exact(n * h))) / (n * h))
+    orders = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
+    assert np.all(np.abs(orders - 2) < 0.1), errors
+    # a rough state: the Casimirs to round-off, the modified energy (not Euler's) to the
+    # method's order 2
+    drift = []
+    for h in (2.0**-7, 2.0**-8):
+        y = sj.integrate(system, w, jnp.zeros((n, 1)), h)
+        c0, c1 = (np.asarray(system.algebra.casimirs(x))[:4] for x in (w, y))
+        assert np.max(np.abs(c1 - c0) / np.abs(c0)) < 1e-12
+        drift.append(abs(float(system.energy(y) - system.energy(w))))
+    assert drift[0] / drift[1] > 3.5, drift  # (an oscillating error: at least order 2)
+    assert abs(system.energy(w) - z.energy(w)) > 1e-3 * abs(z.energy(w))
+
+
+def test_a_damping_per_degree_decays_each_degree_at_its_rate_and_closes_its_budget():
+    N, h = 10, 0.05
+    rng = np.random.default_rng(6)
+    alpha = rng.uniform(0, 2, N)
+    system = sj.EulerZeitlin(N, alpha=alpha, nu=1e-3)
+    w = _rough(N, seed=5)
+    el = np.repeat(np.arange(N), 2 * np.arange(N) + 1)
+    rate = 1e-3 * np.where(el > 0, el * (el + 1.0) - 2.0, 0.0) + alpha[el]
+    want = z.shr2mat(np.exp(-h * rate) * np.asarray(z.mat2shr(w)), N)
+    assert np.max(np.abs(system.linear_flow(w, h) - want)) < 1e-13 * np.max(np.abs(want))
+    # the budget's damping rates against the coefficients' sums
+    om = np.asarray(z.mat2shr(w))
+    b = system.budget(w)
+    np.testing.assert_allclose(b["enstrophy_damping"], np.sum(alpha[el] * om**2), rtol=1e-12)
+    energy = np.sum(np.where(el > 0, alpha[el] * om**2 / np.maximum(el * (el + 1.0), 1), 0))
+    np.testing.assert_allclose(b["energy_damping"], energy, rtol=1e-12)
+    # and a constant alpha given per degree is the scalar alpha
+    same = sj.EulerZeitlin(N, alpha=np.full(N, 0.3))
+    np.testing.assert_allclose(
+        same.linear_flow(w, h), sj.EulerZeitlin(N, alpha=0.3).linear_flow(w, h), atol=1e-15
+    )

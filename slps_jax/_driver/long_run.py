@@ -210,7 +210,7 @@ def _diagnostics(system, diagnostics) -> dict[str, Any]:
         "casimirs": functools.partial(_casimirs, order=min(CASIMIR_ORDER, alg.shape[-1]))
     }
     if isinstance(system, EulerZeitlin):
-        out["energy"] = system.energy if system.gamma else zeitlin.energy
+        out["energy"] = zeitlin.energy if system.euler_stream else system.energy
         out["enstrophy"] = zeitlin.enstrophy
         if system.N <= SPECTRA_MAX_N:
             out["energy_spectrum"] = zeitlin.energy_spectrum

@@ -99,47 +99,73 @@ def _integral_time(traces, spacing):
     return np.asarray(out)
 
 
-@functools.cache
-def _harmonics(N):
-    r"""`(N^2 - 1, N, N)`: the quantised harmonics $T_{\ell m}$ of degrees $\ell \ge 1$."""
-    return zeitlin.shr2mat(jnp.eye(N * N)[1:], N)
+def _in_eigenbasis(w, r):
+    r"""For one sample: the gaps $\mu_j - \mu_i$ of the eigenvalues of $iW$ (`(N, N)`), the
+    tendency with coefficients `r` ($\ell \ge 1$) in $W$'s eigenbasis, and that basis $U$.
+    In it $\xi \mapsto [\xi, W]$ multiplies the entry $(i, j)$ by $\lambda_j - \lambda_i =
+    -i(\mu_j - \mu_i)$ ($W$ is normal): the map is diagonal, its kernel the matrices that
+    commute with $W$, its singular values the gaps."""
+    N = w.shape[-1]
+    R = zeitlin.shr2mat(jnp.concatenate([jnp.zeros_like(r[:1]), r]), N).astype(w.dtype)
+    mu, U = jnp.linalg.eigh(1j * w)
+    return mu[None, :] - mu[:, None], jnp.conj(U).T @ R @ U, U
 
 
-def _normal_equations(w, r, basis):
-    r"""For one sample, the eigen-decomposition $(\lambda, V)$ of $A^{\mathsf T}A$ and $c =
-    V^{\mathsf T}A^{\mathsf T}r$, $A$ the matrix of $\xi \mapsto [\xi, \bar W]$ in the
-    $\ell m$ coefficients ($\ell \ge 1$, orthonormal in $L^2$)."""
-    a = zeitlin.mat2shr(basis @ w - w @ basis)[:, 1:].T  # column j: [T_j, w]
-    lam, v = jnp.linalg.eigh(a.T @ a)
-    return lam, v, v.T @ (a.T @ r)
-
-
-@jax.jit
-def _spectra(wbar, r, basis):
-    """`(lambda, c)` of each sample (`_normal_equations`), for the L-curve."""
-    lam, _, c = jax.vmap(_normal_equations, in_axes=(0, 0, None))(wbar, r, basis)
-    return lam, c
+def _kept(lam):
+    r"""The squared singular values of $\xi \mapsto [\xi, \bar W]$ off its kernel (the
+    functions of $\bar W$), over the last axis."""
+    return lam > 1e-10 * jnp.max(lam, axis=-1, keepdims=True)
 
 
 @jax.jit
-def _transport_solution(wbar, r, basis, alpha):
-    r"""`(xi, lambda, c)`: each sample's Tikhonov solution $\xi = V(\Lambda + \alpha)^{-1}c$
-    (zero on the kernel of $A$), with its `_normal_equations` spectra."""
-    lam, v, c = jax.vmap(_normal_equations, in_axes=(0, 0, None))(wbar, r, basis)
-    keep = _kept(lam)
-    coef = jnp.where(keep, c / jnp.where(keep, lam + alpha, 1.0), 0.0)
-    return jnp.einsum("kij,kj->ki", v, coef), lam, c
+def _spectra(wbar, r):
+    r"""`(lambda, c)` of each sample, `(k, N^2)`: the squared singular values of
+    $\xi \mapsto [\xi, \bar W]$ in the $\ell m$ coefficients (orthonormal in $L^2$), one per
+    real dimension (the entry $(i, j)$, $i < j$, for a pair's real part, $(j, i)$ for its
+    imaginary part; 0 on the diagonal), and $c = V^{\mathsf T}A^{\mathsf T}r$, each
+    singular value times `r`'s coordinate on its direction (for the L-curve and the
+    Tikhonov terms)."""
+
+    def one(w, rr):
+        gap, rt, _ = _in_eigenbasis(w, rr)
+        N = w.shape[-1]
+        upper = jnp.triu(jnp.ones((N, N), bool), 1)
+        part = jnp.where(upper, jnp.real(rt), jnp.imag(rt).T)
+        return (gap**2).ravel(), (jnp.abs(gap) * jnp.sqrt(2.0 / N) * part).ravel()
+
+    return jax.vmap(one)(wbar, r)
 
 
-@functools.partial(jax.jit, static_argnames="N")
-def _missed_tendency(w, N):
-    r"""`(W̄, R)`: the snapshots `w` `(k, M, M)` truncated to su(N), and the tendency the
-    coarse system misses, $R = \mathrm{truncate}(F_M(W)) - F_N(\bar W)$, in coefficients
-    $\ell \ge 1$."""
-    fine, coarse = EulerZeitlin(w.shape[-1]), EulerZeitlin(N)
-    wbar = zeitlin.truncate(w, N)
-    fine_tendency = zeitlin.truncate(jax.vmap(fine.vector_field)(w), N)
-    return wbar, zeitlin.mat2shr(fine_tendency - jax.vmap(coarse.vector_field)(wbar))[:, 1:]
+@jax.jit
+def transport_split(wbar, r, alpha):
+    r"""For each sample, in coefficients $\ell \ge 1$: the Tikhonov transport
+    $\xi_\alpha = \arg\min|[\xi, \bar W] - r|^2 + \alpha|\xi|^2$ (zero on the kernel),
+    and the part of `r` that no transport produces (its projection on the matrices that
+    commute with $\bar W$). $O(N^3)$ per sample: one Hermitian eigen-decomposition of
+    $\bar W$."""
+
+    def one(w, rr):
+        gap, rt, U = _in_eigenbasis(w, rr)
+        lam = gap**2
+        keep = _kept(lam.ravel()).reshape(lam.shape)
+        d = -1j * gap  # (lambda_j - lambda_i)
+        xi = jnp.where(keep, jnp.conj(d) * rt / jnp.where(keep, lam + alpha, 1.0), 0.0)
+        off = jnp.where(keep, 0.0, rt)
+        back = lambda x: jnp.real(zeitlin.mat2shr(U @ x @ jnp.conj(U).T))[1:]
+        return back(xi), back(off)
+
+    return jax.vmap(one)(wbar, r)
+
+
+@jax.jit
+def missed_tendency(w, fine, coarse):
+    r"""`(W̄, R)`: the snapshots `w` `(k, M, M)` of the system `fine` truncated to the
+    `coarse` one's su(N), and the tendency the coarse system misses,
+    $R = \mathrm{truncate}(F_M(W)) - F_N(\bar W)$, in coefficients $\ell \ge 1$ ($F$ each
+    system's deterministic tendency, `EulerZeitlin.tendency`)."""
+    wbar = zeitlin.truncate(w, coarse.N)
+    fine_tendency = zeitlin.truncate(jax.vmap(fine.tendency)(w), coarse.N)
+    return wbar, zeitlin.mat2shr(fine_tendency - jax.vmap(coarse.tendency)(wbar))[:, 1:]
 
 
 @functools.partial(jax.jit, static_argnames="N")
@@ -154,7 +180,7 @@ def _known_samples(psi, w0, w1, scale, N):
     return zeitlin.mat2shr(scale * zeitlin.truncate(psi, N) - drift)[:, 1:]
 
 
-def _in_chunks(f, *arrays):
+def in_chunks(f, *arrays):
     """`f` over the leading axis of `arrays`, `_CHUNK` samples a call (the last one padded
     with copies of the last sample): one compiled program for every length."""
     n = arrays[0].shape[0]
@@ -166,15 +192,10 @@ def _in_chunks(f, *arrays):
     return jax.tree_util.tree_map(lambda *xs: np.concatenate(xs), *outs)
 
 
-def _kept(lam):
-    r"""The eigenvalues of $A^{\mathsf T}A$ off its kernel (the functions of $\bar W$)."""
-    return lam > 1e-10 * lam[..., -1:]
-
-
 def _tikhonov_terms(lam, c, alpha):
     """`(residual, norm)`: the summed squared residual reduction and solution norm of the
     Tikhonov solutions at `alpha` (`residual` is what is subtracted from |r|^2)."""
-    keep = _kept(lam)
+    keep = np.asarray(_kept(lam))
     d = np.where(keep, lam + alpha, 1.0)
     c2 = np.where(keep, c * c, 0.0)
     reduction = np.sum(c2 * (2.0 / d - np.where(keep, lam, 0.0) / d**2))
@@ -186,7 +207,7 @@ def _l_curve(lam, c, r2):
     curvature of $(\log\|A\xi_\alpha - r\|^2, \log\|\xi_\alpha\|^2)$, pooled over the
     samples, on a grid of 61 values over twelve decades below and above the typical
     $\|A\|^2$."""
-    ref = float(np.median(lam[:, -1]))
+    ref = float(np.median(np.max(lam, axis=-1)))
     alphas = ref * np.logspace(-10, 2, 61)
     terms = np.array([_tikhonov_terms(lam, c, a) for a in alphas])
     residual = np.maximum(r2 - terms[:, 0], 1e-300 * r2)
@@ -197,22 +218,44 @@ def _l_curve(lam, c, r2):
     return float(alphas[1 + int(np.argmax(curvature[1:-1]))])
 
 
+def tikhonov_parameter(wbar, r, regularization):
+    r"""The Tikhonov $\alpha$ of the transport solve for tendencies `r` at states `wbar`:
+    `regularization` itself, or for `"l-curve"` the corner of the L-curve (chosen on at
+    most 512 samples spread over the data)."""
+    if regularization != "l-curve":
+        return float(regularization)
+    pick = np.unique(np.linspace(0, len(r) - 1, min(len(r), 512)).astype(int))
+    lam, c = in_chunks(_spectra, wbar[pick], r[pick])
+    return _l_curve(lam, c, float(np.sum(r[pick] ** 2)))
+
+
 def _missed_transport(states, N, regularization):
     r"""`(xi, alpha, unexplained)`: for each snapshot, the su(N) transport stream
     $\xi_n$ (coefficients $\ell \ge 1$) with $[\xi_n, \bar W_n] \approx R_n$, the tendency
     the coarse system misses, by Tikhonov-regularised least squares."""
-    wbar, r = _in_chunks(lambda w: _missed_tendency(w, N), jnp.asarray(states))
-    basis = _harmonics(N)
+    fine, coarse = EulerZeitlin(states.shape[-1]), EulerZeitlin(N)
+    wbar, r = in_chunks(lambda w: missed_tendency(w, fine, coarse), jnp.asarray(states))
     r2 = float(np.sum(r * r))
-    if regularization == "l-curve":  # (chosen on at most 512 samples spread over the data)
-        pick = np.unique(np.linspace(0, len(r) - 1, min(len(r), 512)).astype(int))
-        lam, c = _in_chunks(lambda w, rr: _spectra(w, rr, basis), wbar[pick], r[pick])
-        alpha = _l_curve(lam, c, float(np.sum(r[pick] ** 2)))
-    else:
-        alpha = float(regularization)
-    xi, lam, c = _in_chunks(lambda w, rr: _transport_solution(w, rr, basis, alpha), wbar, r)
-    floor = float(np.sum(r * r) - _tikhonov_terms(lam, c, 0.0)[0])  # no transport does better
+    alpha = tikhonov_parameter(wbar, r, regularization)
+    xi, off = in_chunks(lambda w, rr: transport_split(w, rr, alpha), wbar, r)
+    floor = float(np.sum(off * off))  # (no transport does better)
     return xi, alpha, (floor / r2 if r2 > 0 else 0.0)
+
+
+def check_regularization(caller, regularization):
+    """Refuse a Tikhonov choice other than `"l-curve"` or a finite number >= 0."""
+    ok = (
+        regularization == "l-curve"
+        if isinstance(regularization, str)
+        else not isinstance(regularization, bool)
+        and np.ndim(regularization) == 0
+        and bool(np.isfinite(regularization))
+        and regularization >= 0
+    )
+    if not ok:
+        raise ValueError(
+            f"{caller}: regularization must be 'l-curve' or a number >= 0, got {regularization!r}."
+        )
 
 
 def fit_transport_noise(
@@ -289,19 +332,7 @@ def fit_transport_noise(
         raise ValueError(
             f"fit_transport_noise: time_model must be one of {TIME_MODELS}, got {time_model!r}."
         )
-    if isinstance(regularization, str):
-        if regularization != "l-curve":
-            raise ValueError(
-                f"fit_transport_noise: regularization must be 'l-curve' or a number >= 0, got "
-                f"{regularization!r}."
-            )
-    elif isinstance(regularization, bool) or not (
-        np.ndim(regularization) == 0 and np.isfinite(regularization) and regularization >= 0
-    ):
-        raise ValueError(
-            f"fit_transport_noise: regularization must be 'l-curve' or a number >= 0, got "
-            f"{regularization!r}."
-        )
+    check_regularization("fit_transport_noise", regularization)
     if N > M:
         raise ValueError(f"fit_transport_noise: N = {N} must not exceed the data's M = {M}.")
     if N == M and streams is None:
@@ -329,6 +360,25 @@ def fit_transport_noise(
         xi, alpha, unexplained = _missed_transport(states, N, regularization)
     else:
         xi, alpha, unexplained = _known_transport(states, streams, N), None, None
+    return eof_noise(
+        xi,
+        window=window,
+        dt=dt,
+        variance=variance,
+        n_modes=n_modes,
+        time_model=time_model,
+        regularization=alpha,
+        unexplained=unexplained,
+    )
+
+
+def eof_noise(xi, *, window, dt, variance, n_modes, time_model, regularization, unexplained):
+    r"""The `TransportNoiseFit` of transport samples `xi` `(S, N^2 - 1)` (coefficients
+    $\ell \ge 1$, a stream per second, spaced `dt`): averaged over windows of `window`,
+    their anomalies' EOFs (an SVD), each kept trace's standard deviation and integral time,
+    and the noise they make (`fit_transport_noise`; checked arguments)."""
+    K = xi.shape[0] // window
+    N = math.isqrt(xi.shape[1] + 1)
     xi = xi[: K * window].reshape(K, window, -1).mean(axis=1)
     anomalies = xi - xi.mean(axis=0)
     u, s, vt = np.linalg.svd(anomalies, full_matrices=False)
@@ -365,7 +415,7 @@ def fit_transport_noise(
         traces=traces,
         window_time=spacing,
         time_model=time_model,
-        regularization=alpha,
+        regularization=regularization,
         unexplained=unexplained,
     )
 
@@ -384,7 +434,7 @@ def _known_transport(states, streams, N):
     if psi.shape[-1] < N or not np.all(np.isfinite(psi)):
         raise ValueError("fit_transport_noise: streams must be finite, of size M' >= N.")
     scale = zeitlin.hbar(psi.shape[-1]) / zeitlin.hbar(N)
-    return _in_chunks(
+    return in_chunks(
         lambda p, w0, w1: _known_samples(p, w0, w1, scale, N),
         jnp.asarray(psi),
         jnp.asarray(states[:-1]),

@@ -72,8 +72,13 @@ def budget(system, w, forcing=None):
         nu, alpha = linear.nu.astype(real), linear.alpha.astype(real)
         out["enstrophy_dissipation"] = nu * zeitlin.inner(w, viscous)
         out["energy_dissipation"] = -nu * zeitlin.inner(p, viscous)
-        out["enstrophy_damping"] = alpha * zeitlin.inner(w, w)
-        out["energy_damping"] = -alpha * zeitlin.inner(p, w)
+        if alpha.ndim:  # (one rate per degree: the damped part of w)
+            damped = zeitlin._by_degree_map(w, alpha, linear.basis.arrays)
+            out["enstrophy_damping"] = zeitlin.inner(w, damped)
+            out["energy_damping"] = -zeitlin.inner(p, damped)
+        else:
+            out["enstrophy_damping"] = alpha * zeitlin.inner(w, w)
+            out["energy_damping"] = -alpha * zeitlin.inner(p, w)
         if forcing is not None:
             f = jnp.asarray(forcing).astype(w.dtype)
             out["enstrophy_injection"] = zeitlin.inner(w, f)
@@ -89,15 +94,15 @@ def budget(system, w, forcing=None):
 def additive_energy_rate(system, dtype):
     r"""$\varepsilon_E = -\tfrac12\sum_k\sigma_k^2\langle T_k, P(T_k)\rangle$, the mean rate at
     which the additive forcing adds energy ($\tfrac12\sum\sigma_\ell^2(2\ell+1)/(\ell(\ell+1))$
-    for Euler; with `gamma`, through the quasi-geostrophic stream of each forced harmonic)."""
+    for Euler's stream; with another `Stream`, through the stream of each forced harmonic)."""
     additive = system.additive
-    if not system.gamma:
+    if system.euler_stream:
         return additive.energy_injection().astype(dtype)
     l1, l2 = additive.band
     N = system.N
     eye = np.eye((l2 + 1) ** 2)[l1 * l1 :]
     T = zeitlin.shr2mat(eye, N)  # (K, N, N): the forced harmonics
-    pairs = zeitlin.inner(T, zeitlin.solve_poisson(T, gamma=system.gamma))
+    pairs = zeitlin.inner(T, system.stream(T))
     return (-0.5 * jnp.sum(additive._per_harmonic() ** 2 * pairs)).astype(dtype)
 
 

@@ -16,6 +16,7 @@ from . import budgets
 from .additive_forcing import AdditiveForcing
 from .linear_terms import LinearTerms, check_power
 from .noise import AbstractNoise, noise_or_c
+from .stream_operator import Stream
 from .system import AbstractLiePoissonSystem, Tables
 
 
@@ -74,7 +75,8 @@ class EulerZeitlin(AbstractLiePoissonSystem):
       viscosity, `p` a positive integer (1: Navier–Stokes on the sphere, which spares the
       rigid rotations $\ell = 1$; above: hyperviscosity), `alpha >= 0` the linear (Ekman)
       damping, `forcing` a constant element $F$ of su(N) (`(N, N)`, traceless and
-      skew-Hermitian). quflow's viscosity `solve_viscdamp(h, W, nu, alpha)` is
+      skew-Hermitian). `alpha` may also be one rate per degree $\ell = 0 \dots N - 1$
+      (`(N,)`): a degree-dependent damping. quflow's viscosity `solve_viscdamp(h, W, nu, alpha)` is
       $\nu\Delta W$, which damps $\ell = 1$ too: ours with `p=1` and `alpha + 2 nu` is
       the same model.
     - `omega`: the sphere's rotation rate $\Omega$ (radians per second, default `None`: not
@@ -86,10 +88,12 @@ class EulerZeitlin(AbstractLiePoissonSystem):
       `AdditiveForcing(band, amplitude)` (default `None`). Its Brownian motions are the
       system's last `additive.n_noises` noises, after the transport noises (`n_noises`
       counts both). No Lévy areas with it.
-    - `gamma`: the global quasi-geostrophic model's $\gamma \ge 0$, a Python number
-      (default 0: Euler). The stream solves
+    - `stream`: how the stream of a vorticity is found, a `Stream` (default `None`:
+      Euler's, $\Delta_N^{-1}W$). `Stream(gamma=...)`: the global quasi-geostrophic model,
       $\Delta_NP + \tfrac\gamma2(Z^2P + PZ^2) = W$, as quflow's `solve_globalqg`
-      (`zeitlin.solve_poisson`); routes `"sweep"` and `"scan"`.
+      (`zeitlin.solve_poisson`; routes `"sweep"` and `"scan"`); `Stream(gain=g)`: a
+      degree-diagonal change $\sum_\ell g_\ell W_\ell$ of the stream (a modified
+      Hamiltonian, as `fit_closure` fits). Every Casimir is kept either way.
 
     With linear terms, every method's step is the Strang splitting
     $L_{h/2}\circ\Phi_h\circ L_{h/2}$: $L$ the exact flow of the linear terms
@@ -114,7 +118,7 @@ class EulerZeitlin(AbstractLiePoissonSystem):
     linear: LinearTerms | None
     omega: jax.Array | None
     additive: AdditiveForcing | None
-    gamma: float = eqx.field(static=True)
+    stream_operator: Stream
     shift: jax.Array | None  # (the bracket's view: `bracket_view`)
 
     def __init__(
@@ -127,10 +131,10 @@ class EulerZeitlin(AbstractLiePoissonSystem):
         poisson="auto",
         nu=0.0,
         p=1,
-        alpha=0.0,
+        alpha: float | Any = 0.0,
         forcing=None,
         omega=None,
-        gamma=0.0,
+        stream=None,
         additive=None,
     ):
         if isinstance(N, (bool, np.bool_)) or not isinstance(N, (int, np.integer)) or N < 2:
@@ -150,9 +154,14 @@ class EulerZeitlin(AbstractLiePoissonSystem):
         self.noise = noise
         zeitlin._route(poisson)  # (refuses an unknown route)
         self.poisson = poisson
-        self.gamma = zeitlin._check_gamma(gamma)
-        if self.gamma and poisson == "eigenbasis":
-            raise ValueError("EulerZeitlin: gamma > 0 takes poisson='auto', 'sweep' or 'scan'.")
+        if stream is None:
+            stream = Stream()
+        elif not isinstance(stream, Stream):
+            raise TypeError(
+                f"EulerZeitlin: stream must be a Stream(gamma, gain), got {type(stream).__name__}."
+            )
+        stream.check(int(N), poisson)
+        self.stream_operator = stream
         complex_ = jnp.result_type(1j if dtype is None else dtype)
         if LinearTerms.present(nu, alpha, forcing):
             self.linear = LinearTerms(int(N), jnp.finfo(complex_).dtype, nu, p, alpha, forcing)
@@ -176,8 +185,8 @@ class EulerZeitlin(AbstractLiePoissonSystem):
             additive.check(int(N))
         self.additive = additive
         if dtype is not None:  # (the new terms' leaves too)
-            self.linear, self.omega, self.additive = _cast(
-                (self.linear, self.omega, self.additive), dtype
+            self.linear, self.omega, self.additive, self.stream_operator = _cast(
+                (self.linear, self.omega, self.additive, self.stream_operator), dtype
             )
         self.shift = None
         self.tables = (
@@ -186,18 +195,32 @@ class EulerZeitlin(AbstractLiePoissonSystem):
             else None
         )
 
+    @property
+    def gamma(self):
+        r"""The quasi-geostrophic $\gamma$ of the stream (0: Euler; `Stream`)."""
+        return self.stream_operator.gamma
+
+    @property
+    def euler_stream(self):
+        r"""Whether the stream is Euler's, $\Delta_N^{-1}W$ (no `Stream` gamma or gain)."""
+        return self.stream_operator.euler
+
     def _solve_poisson(self, w):
         if self.gamma:
-            return zeitlin.solve_poisson(w, route=self.poisson, gamma=self.gamma)
-        tables = None if self.tables is None else self.tables.arrays
-        return zeitlin.solve_poisson(w, route=self.poisson, eigenbasis=tables)
+            p = zeitlin.solve_poisson(w, route=self.poisson, gamma=self.gamma)
+        else:
+            tables = None if self.tables is None else self.tables.arrays
+            p = zeitlin.solve_poisson(w, route=self.poisson, eigenbasis=tables)
+        if self.stream_operator.gain is not None:
+            p = p + self.stream_operator.correction(w)
+        return p
 
     def _relative(self, w):
         """The relative vorticity of a state of this view (`bracket_view`)."""
         return w if self.shift is None else w - self.shift.astype(w.dtype)
 
     def _h(self, y):
-        if not self.gamma and self.shift is None:
+        if self.euler_stream and self.shift is None:
             return super()._h(y)
         return self.N * self.energy(y) / (2.0 * self.hbar)
 
@@ -216,6 +239,15 @@ class EulerZeitlin(AbstractLiePoissonSystem):
         if f is None:
             return self, None
         return eqx.tree_at(lambda s: s.shift, self, f, is_leaf=lambda x: x is None), f
+
+    def tendency(self, w):
+        r"""The deterministic tendency $[P, W + f]/\hbar - \nu(-\Delta_N - 2)^pW - \alpha W
+        + F$ of the state `w` (the drift without any noise: bracket, rotation and linear
+        terms), over leading axes."""
+        view, f = self.bracket_view()
+        q = w if f is None else w + f.astype(w.dtype)
+        out = self.algebra.bracket(q, view.gradient(q))
+        return out if self.linear is None else out + self.linear.tendency(w)
 
     def linear_flow(self, w, tau):
         """The exact flow of the linear terms for the time `tau` (`LinearTerms.flow`)."""
@@ -242,8 +274,8 @@ class EulerZeitlin(AbstractLiePoissonSystem):
         omega = None if self.omega is None else concrete(self.omega)
         if self.omega is not None:
             parts.append(f"omega={self.omega!r}" if omega is None else f"omega={float(omega):g}")
-        if self.gamma:
-            parts.append(f"gamma={self.gamma:g}")
+        if not self.euler_stream:
+            parts.append(repr(self.stream_operator))
         if self.additive is not None:
             parts.append(f"additive={self.additive!r}")
         return f"EulerZeitlin({self.N}, {', '.join(parts)})"
@@ -274,7 +306,7 @@ class EulerZeitlin(AbstractLiePoissonSystem):
     def energy(self, w):
         r"""quflow's energy $-\tfrac12\langle W, P\rangle_{L^2}$, over leading axes (with
         `gamma`, $P$ the quasi-geostrophic stream)."""
-        if not self.gamma and self.shift is None:
+        if self.euler_stream and self.shift is None:
             return zeitlin.energy(w)
         return -0.5 * zeitlin.inner(self._relative(w), self.stream(w))
 

@@ -4,7 +4,8 @@ $\dot W = -\nu(-\Delta_N - 2)^pW - \alpha W + F$: viscosity ($p = 1$, Navier–S
 sphere, which spares the rigid rotations $\ell = 1$) or hyperviscosity ($p > 1$), linear
 (Ekman) damping and a constant forcing $F \in \mathfrak{su}(N)$. Every term is diagonal in
 the quantised harmonics, so the flow for a time $\tau$ is exact: a degree-$\ell$ component
-is multiplied by $e^{-\tau\lambda_\ell}$, $\lambda_\ell = \nu(\ell(\ell+1) - 2)^p + \alpha$,
+is multiplied by $e^{-\tau\lambda_\ell}$, $\lambda_\ell = \nu(\ell(\ell+1) - 2)^p + \alpha_\ell$
+($\alpha$ one number, or one per degree: a degree-dependent damping, as a fitted closure's),
 and the forcing enters by variation of constants, $\tau\varphi(\tau\lambda_\ell)F_\ell$ with
 $\varphi(z) = (1 - e^{-z})/z$. Computed in the eigenbasis of $\Delta_N$ on each diagonal
 (`zeitlin.poisson_eigenbasis`): two batched products.
@@ -35,6 +36,23 @@ def _nonnegative(name, x):
         if not (math.isfinite(float(value)) and float(value) >= 0):
             raise ValueError(f"EulerZeitlin: {name} must be a finite number >= 0, got {x!r}.")
     return jnp.asarray(x, float)
+
+
+def _damping(alpha, N):
+    r"""The linear damping: a number $\ge 0$, or one per degree $\ell = 0 \dots N - 1$
+    (`(N,)`, each $\ge 0$; the trace's, $\ell = 0$, unused), as a real array."""
+    if isinstance(alpha, (bool, np.bool_, str)) or alpha is None or np.ndim(alpha) == 0:
+        return _nonnegative("alpha", alpha)
+    a = jnp.asarray(alpha)
+    value = concrete(a)
+    if a.shape != (N,) or (value is not None and not np.isrealobj(value)):
+        raise ValueError(
+            f"EulerZeitlin: alpha must be a number or one real number per degree "
+            f"0 ... {N - 1} (shape ({N},)), got shape {a.shape}."
+        )
+    if value is not None and not np.all(np.isfinite(value) & (value >= 0)):
+        raise ValueError("EulerZeitlin: alpha's values must be finite and >= 0.")
+    return a.astype(float)
 
 
 def check_power(p):
@@ -87,7 +105,7 @@ class LinearTerms(eqx.Module):
     def __init__(self, N, real_dtype, nu=0.0, p=1, alpha=0.0, forcing=None):
         check_power(p)
         self.nu = _nonnegative("nu", nu)
-        self.alpha = _nonnegative("alpha", alpha)
+        self.alpha = _damping(alpha, N)
         self.p = int(p)
         self.N = int(N)
         tables = zeitlin._folded_tables(N, real_dtype)
@@ -111,15 +129,19 @@ class LinearTerms(eqx.Module):
     def present(nu, alpha, forcing):
         """Whether any term is on (a traced `nu` or `alpha` counts as on)."""
         values = [concrete(jnp.asarray(x)) for x in (nu, alpha)]
-        return forcing is not None or any(v is None or float(v) != 0.0 for v in values)
+        return forcing is not None or any(v is None or np.any(v != 0.0) for v in values)
 
     def rates(self, N, dtype):
         r"""$\lambda_\ell = \nu(\ell(\ell+1) - 2)^p + \alpha$ at each coefficient of the
         folded eigenbasis (`zeitlin._folded_eigenbasis`), `(2, N // 2 + 1, N // 2 + 1)`; the
         trace ($\ell = 0$, zero in su(N)) and the padding get $\alpha$."""
-        ell = np.stack(zeitlin._folded_eigenbasis(N)[2:4])
+        ell = zeitlin._folded_degrees(N)
         viscous = np.where(ell > 0, (ell * (ell + 1.0) - 2.0) ** self.p, 0.0)
-        return self.nu.astype(dtype) * jnp.asarray(viscous, dtype) + self.alpha.astype(dtype)
+        return self.nu.astype(dtype) * jnp.asarray(viscous, dtype) + self.damping(dtype)[ell]
+
+    def damping(self, dtype):
+        r"""The linear damping rate of each degree $\ell = 0 \dots N - 1$, `(N,)`."""
+        return jnp.broadcast_to(self.alpha.astype(dtype), (self.N,))
 
     def flow(self, w, tau):
         r"""The exact flow of $\dot W = -\Lambda W + F$ for the time `tau` (a scalar, possibly
@@ -136,6 +158,15 @@ class LinearTerms(eqx.Module):
             y = y + tau * phi * self.forcing_coefficients.astype(y.dtype)
         return zeitlin._from_skew_eigenbasis(y, tables, N).astype(w.dtype)
 
+    def tendency(self, w):
+        r"""$-\Lambda W + F$: the linear terms' rate of change at `w` (over leading axes)."""
+        tables = self.basis.arrays
+        real = jnp.finfo(w.dtype).dtype
+        y = -zeitlin._to_skew_eigenbasis(w, tables) * self.rates(w.shape[-1], real)
+        if self.forcing_coefficients is not None:
+            y = y + self.forcing_coefficients.astype(y.dtype)
+        return zeitlin._from_skew_eigenbasis(y, tables, w.shape[-1]).astype(w.dtype)
+
     def __repr__(self):
         parts = []
         for name in ("nu", "alpha"):
@@ -143,6 +174,8 @@ class LinearTerms(eqx.Module):
             value = concrete(leaf)
             if value is None:
                 parts.append(f"{name}={leaf!r}")
+            elif np.ndim(value):
+                parts.append(f"{name}=<one per degree>")
             elif float(value) != 0.0:
                 parts.append(f"{name}={float(value):g}")
         if self.p != 1:
