@@ -343,3 +343,22 @@ def test_transport_skill(tmp_path):
         assert r[k][1] <= r[k][0] <= r[k][2], (k, r[k])
     assert r["factor_calibrated"] > 0 and r["casimir_drift"] < 1e-12
     assert "| 0 |" in (tmp_path / "transport_skill.md").read_text()
+
+
+@pytest.mark.full  # (40 s of compiling four forecast systems and two searches: second tier)
+def test_closure(tmp_path):
+    """`closure.py --fast` (M = 16, N = 4, one seed): the shares (each at most 1, the closure
+    no worse than nothing on its training data), tuned factors, CIs that contain their
+    estimates, spread/RMSE at every lead, and the fit's time."""
+    run_script("closure.py", tmp_path)
+    out = json.loads((tmp_path / "closure.json").read_text())
+    (r,) = out["rows"]
+    assert (r["M"], r["N"], r["seed"]) == (16, 4, 0)
+    assert 0 <= r["shares"]["training"]["closure"] <= 1
+    assert all(v <= 1 for v in r["shares"]["held_out"].values())
+    for c in r["comparisons"].values():
+        assert c["ci"][0] <= c["relative"] <= c["ci"][1], c
+    assert all(f > 0 for f in r["factors"].values())
+    assert all(len(v) == len(r["lead_times"]) for v in r["spread_rmse"].values())
+    assert out["cost"][0]["seconds"] > 0
+    assert "| 16 → 4 | 0 |" in (tmp_path / "closure.md").read_text()

@@ -8,6 +8,7 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -133,14 +134,16 @@ def test_shares_add_up_and_held_out_data_use_the_fitted_parts(run):
     assert all(np.isfinite(v) for v in held.values()) and held["closure"] < 1
     assert fit.transport.modes.shape == (3, N, N)
     assert np.all(fit.damping >= 0) and fit.damping[0] == 0 and fit.gain[0] == 0
-    assert np.all(fit.additive_std[1:] > 0) and np.all(fit.additive_time[1:] >= 0.025)
+    # (no additive noise on l = 1: both systems keep the angular momentum, R has none)
+    assert fit.additive_std[1] == 0
+    assert np.all(fit.additive_std[2:] > 0) and np.all(fit.additive_time[2:] >= 0.025)
     # the closed system: the coarse one's terms, the fitted parts added
     system = fit.system
-    assert system.n_noises == 3 + (N * N - 1)
+    assert system.additive.band == (2, N - 1) and system.n_noises == 3 + (N * N - 4)
     np.testing.assert_allclose(system.linear.damping(jnp.float64), 0.1 + fit.damping, rtol=1e-12)
     own = np.zeros(N)
     own[2:4] = 0.5
-    want = np.sqrt(own**2 + 2 * fit.additive_std**2 * fit.additive_time)[1:]
+    want = np.sqrt(own**2 + 2 * fit.additive_std**2 * fit.additive_time)[2:]
     np.testing.assert_allclose(system.additive.amplitude, want, rtol=1e-12)
 
 
@@ -221,3 +224,63 @@ def test_bad_input_is_refused_before_any_work(run):
     ]:
         with pytest.raises(ValueError, match=match):
             sj.fit_closure(data, **ok)
+
+
+def test_scaled_closure_and_a_tuning_that_scales_both_noises(run):
+    kw = run["kw"]
+    fit = sj.fit_closure(
+        run["states"],
+        dt=0.05,
+        fine=sj.EulerZeitlin(M, **kw),
+        coarse=sj.EulerZeitlin(N, **kw),
+        n_modes=2,
+    )
+    same = fit.scaled(1.0)
+    for a, b in zip(jax.tree_util.tree_leaves(same), jax.tree_util.tree_leaves(fit.system)):
+        np.testing.assert_array_equal(a, b)
+    half = fit.scaled(0.5)
+    np.testing.assert_allclose(half.noise.chi, 0.5 * np.asarray(fit.system.noise.chi), rtol=1e-15)
+    own = np.zeros(N)
+    own[2:4] = 0.5
+    fitted = 2 * fit.additive_std**2 * fit.additive_time
+    np.testing.assert_allclose(
+        half.additive.amplitude, np.sqrt(own**2 + 0.25 * fitted)[2:], rtol=1e-12
+    )
+    # a search's `scale`: the default's own scaling given explicitly tunes the same
+    starts = np.asarray(z.truncate(run["states"][[0, 40]], N))
+    truth = np.asarray(z.truncate(run["states"][[2, 4, 42, 44]], N)).reshape(2, 2, N, N)
+    common = dict(
+        observe=lambda w: z.mat2shr(w)[..., 4:],
+        lead=20,
+        dt=0.01,
+        every=10,
+        members=3,
+        key=jax.random.key(5),
+    )
+    factors = (0.5, 1.0, 2.0)
+    system = fit.system
+    default = sj.tune_amplitude(
+        system, starts, truth, search=sj.AmplitudeSearch(factors, refine=False), **common
+    )
+    explicit = sj.tune_amplitude(
+        system,
+        starts,
+        truth,
+        **common,
+        search=sj.AmplitudeSearch(
+            factors,
+            refine=False,
+            scale=lambda s, f: eqx.tree_at(lambda s: s.noise, s, sj.scaled_noise(s.noise, f)),
+        ),
+    )
+    np.testing.assert_array_equal(default.crps, explicit.crps)
+    both = sj.tune_amplitude(
+        system,
+        starts,
+        truth,
+        **common,
+        search=sj.AmplitudeSearch(factors, refine=False, scale=lambda s, f: fit.scaled(f)),
+    )
+    assert both.factor in factors and not np.array_equal(both.crps, default.crps)
+    with pytest.raises(TypeError, match="scale must be a function"):
+        sj.AmplitudeSearch(scale=0.5)

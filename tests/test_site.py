@@ -124,6 +124,7 @@ _HOUSE_STYLE_EXEMPT = {
             "StoredRun",
             "StrongOrders",
             "TransportNoiseFit",
+            "ClosureFit",
             "WeakConvergenceResult",
         ),
         "a result container: its docstring lists its fields",

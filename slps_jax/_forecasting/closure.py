@@ -35,6 +35,7 @@ from .transport_fit import (
     tikhonov_parameter,
     transport_split,
 )
+from .verification import scaled_noise
 
 PARTS = ("hamiltonian", "damping", "transport", "additive")
 """The parts of a closure (`fit_closure`'s `parts=`)."""
@@ -113,6 +114,7 @@ class ClosureFit:
       coarse system with the fitted gain added to its stream (`Stream(gain=)`), the fitted
       damping to its `alpha`, the transport noise as its `noise`, and the additive noise
       in its `additive` (added in variance to the coarse system's own).
+    - `scaled(factor)`: the closed system with both fitted noises times `factor`.
     - `driver`: the driver that runs `system`: `BrownianMotion()` (`time_model="white"`) or
       `OrnsteinUhlenbeck(T)`, one correlation time per noise (`"ou"`).
     - `gain`, `damping`: `(N,)`, per degree ($\ell = 0$ unused: 0), the stream's change
@@ -131,7 +133,8 @@ class ClosureFit:
       transport produces. Shares of the noises say what they represent, not what they
       predict (their means, a bias, are not in the noise). `explained(states)` gives them
       all on held-out snapshots.
-    - `parts`: the parts fitted; `regularization`: the transport solve's Tikhonov $\alpha$;
+    - `parts`: the parts fitted; `time_model`: the noises' (`"white"` or `"ou"`);
+      `regularization`: the transport solve's Tikhonov $\alpha$;
       `fine`, `coarse`: the systems the fit compared.
     """
 
@@ -144,9 +147,27 @@ class ClosureFit:
     additive_time: np.ndarray
     shares: dict
     parts: tuple
+    time_model: str
     regularization: float
     fine: EulerZeitlin
     coarse: EulerZeitlin
+
+    def scaled(self, factor):
+        r"""The closed system with both fitted noises' amplitudes times `factor` (the
+        transport noise's matrices, and the fitted additive noise's $\sigma_\ell$, the
+        coarse system's own forcing kept): for tuning one factor,
+        `AmplitudeSearch(scale=lambda s, f: fit.scaled(f))`."""
+        return _closed_system(
+            self.coarse,
+            self.gain,
+            self.damping,
+            self.transport,
+            self.additive_std,
+            self.additive_time,
+            self.parts,
+            self.time_model,
+            factor,
+        )[0]
 
     def explained(self, states):
         r"""`shares` on other snapshots `states` `(S, M, M)` of the fine system (held-out
@@ -292,7 +313,8 @@ def fit_closure(
        `fit_transport_noise`, one sample per snapshot);
     3. **additive noise** (`"additive"`): the part of what is left that no transport of
        $\bar W_n$ can produce (it changes the Casimirs), isotropic within each degree (each
-       degree's mean variance and integral time), on every degree $1 \dots N - 1$.
+       degree's mean variance and integral time), on every degree the missed tendency moves
+       (not $\ell = 1$ on a sphere at rest, whose angular momentum both systems keep).
 
     The means of the noises' samples (a bias) are left out.
 
@@ -377,6 +399,10 @@ def fit_closure(
             unexplained=float(np.sum(off**2) / max(np.sum(rest**2), 1e-300)),
         )
     std, time = _additive(off, dt, N) if "additive" in parts else (np.zeros(N), np.zeros(N))
+    missed = _per_degree(np.mean(r * r, axis=0), N)  # (no noise on a degree R never moves,
+    # as l = 1 on a sphere at rest: both systems keep its angular momentum)
+    lacking = missed <= 1e-20 * np.max(missed)
+    std, time = np.where(lacking, 0.0, std), np.where(lacking, 0.0, time)
     gain, damping = np.r_[0.0, coefficients[: N - 1]], np.r_[0.0, coefficients[N - 1 :]]
     system, driver = _closed_system(coarse, gain, damping, transport, std, time, parts, time_model)
     return ClosureFit(
@@ -389,13 +415,14 @@ def fit_closure(
         additive_time=time,
         shares=_shares(transport, parts, wbar, r, closure, off),
         parts=parts,
+        time_model=time_model,
         regularization=alpha,
         fine=fine,
         coarse=coarse,
     )
 
 
-def _closed_system(coarse, gain, damping, transport, std, time, parts, time_model):
+def _closed_system(coarse, gain, damping, transport, std, time, parts, time_model, factor=1.0):
     """The coarse system with the fitted parts added, and the driver that runs it."""
     N = coarse.N
     real = jnp.float64 if jnp.asarray(1.0).dtype == jnp.float64 else jnp.float32
@@ -408,18 +435,22 @@ def _closed_system(coarse, gain, damping, transport, std, time, parts, time_mode
     alpha = 0.0 if linear is None else np.asarray(linear.damping(real))
     if "damping" in parts:
         alpha = alpha + damping
-    noise = transport.noise if transport is not None else coarse.noise
+    noise = coarse.noise if transport is None else scaled_noise(transport.noise, factor)
     additive = coarse.additive
     times = [] if transport is None or time_model == "white" else list(transport.correlation_time)
     if "additive" in parts:
-        sigma = std * (np.sqrt(2.0 * time) if time_model == "white" else 1.0)
+        sigma = factor * std * (np.sqrt(2.0 * time) if time_model == "white" else 1.0)
         if additive is not None:  # (independent forcings add in variance)
             l1, l2 = additive.band
             own_sigma = np.zeros(N)
             own_sigma[l1 : l2 + 1] = np.asarray(additive.amplitude)
             sigma = np.sqrt(sigma**2 + own_sigma**2)
-        additive = AdditiveForcing((1, N - 1), sigma[1:])
-        times += list(np.repeat(time[1:], 2 * np.arange(1, N) + 1))
+        forced = np.flatnonzero(sigma[1:] > 0) + 1
+        if forced.size:  # (from the first degree that has any)
+            l1 = int(forced[0])
+            additive = AdditiveForcing((l1, N - 1), sigma[l1:])
+            period = np.where(time > 0, time, 1.0)[l1:]  # (1 s where sigma is 0: unused)
+            times += list(np.repeat(period, 2 * np.arange(l1, N) + 1))
     system = EulerZeitlin(
         N,
         noise=noise,

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from collections.abc import Callable
 from typing import NamedTuple
 
 import equinox as eqx
@@ -34,10 +35,15 @@ class AmplitudeSearch:
       least value twice in a row, or a member fails (then larger factors are not tried).
     - `refine`: then also try the geometric midpoints between the best factor and its
       neighbours (default `True`: a grid twice as fine near the optimum).
+    - `scale`: how a factor acts on the system, `scale(system, factor) -> system` with the
+      same structure (default `None`: its noise family times the factor, `scaled_noise`);
+      for example `lambda s, f: fit.scaled(f)` for a `ClosureFit`, whose transport and
+      additive noises are scaled together.
     """
 
     factors: tuple = FACTORS
     refine: bool = True
+    scale: Callable | None = None
 
     def __post_init__(self):
         factors = np.asarray(self.factors, dtype=float)
@@ -52,6 +58,11 @@ class AmplitudeSearch:
         object.__setattr__(self, "factors", tuple(float(f) for f in np.sort(factors)))
         if not isinstance(self.refine, (bool, np.bool_)):
             raise TypeError(f"AmplitudeSearch: refine must be True or False, got {self.refine!r}.")
+        if self.scale is not None and not callable(self.scale):
+            raise TypeError(
+                f"AmplitudeSearch: scale must be a function (system, factor) -> system, got "
+                f"{self.scale!r}."
+            )
 
 
 def scaled_noise(noise, factor):
@@ -262,8 +273,8 @@ def tune_amplitude(
 
     **Arguments:**
 
-    - `system`: the system forecast, whose noise family is scaled, for example
-      `EulerZeitlin(N, noise=fit_transport_noise(...).noise)`.
+    - `system`: the system forecast, whose noise family is scaled (or as `search.scale`
+      says), for example `EulerZeitlin(N, noise=fit_transport_noise(...).noise)`.
     - `starts`: `(n_starts, *state_shape)`, the initial states, as for `forecast_ensembles`.
     - `truth`: `(n_starts, lead // every, *state_shape)`, the truth at the lead times.
     - `observe`: states `(..., *state_shape)` to observables `(..., k)`, chosen before
@@ -278,19 +289,22 @@ def tune_amplitude(
     with its mean CRPS (`inf` where a member failed). Raises `RuntimeError` if every
     factor's forecasts had failed members.
     """
+    check_option("tune_amplitude", "search", search, AmplitudeSearch)
     amplitudes = jax.tree_util.tree_leaves(getattr(system, "noise", None))
-    if not any(np.any(np.asarray(a) != 0) for a in amplitudes):
+    if search.scale is None and not any(np.any(np.asarray(a) != 0) for a in amplitudes):
         raise ValueError(
             f"tune_amplitude: the system has no noise amplitudes to scale (none, or all "
             f"zero): {system!r}."
         )
-    check_option("tune_amplitude", "search", search, AmplitudeSearch)
     factors, refine = np.asarray(search.factors), search.refine
+    scale = search.scale or (
+        lambda s, f: eqx.tree_at(lambda s: s.noise, s, scaled_noise(s.noise, f))
+    )
 
     def score(f):
         try:
             ens = forecast_ensembles(
-                eqx.tree_at(lambda s: s.noise, system, scaled_noise(system.noise, f)),
+                scale(system, f),
                 starts,
                 lead=lead,
                 dt=dt,
