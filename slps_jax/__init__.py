@@ -18,7 +18,7 @@ The library in four layers:
   failures, and refuses a method that the system cannot serve.
 - **Studies**: `strong_convergence`, `weak_convergence`, `calibrate`; the drift's flow
   `drift_flow` and, with one noise proportional to the drift, the `exact_solution`.
-- **Forecasting**: `fit_transport_noise`, `forecast_ensembles` and their scores,
+- **Forecasting**: `fit_transport_noise`, `fit_closure`, `forecast_ensembles` and their scores,
   `particle_filter` and `assimilate`.
 """
 

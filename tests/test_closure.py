@@ -166,6 +166,16 @@ def test_the_closed_system_runs_keeps_its_casimirs_and_saves(run, tmp_path):
         assert isinstance(
             fit.driver, sj.OrnsteinUhlenbeck if time_model == "ou" else sj.BrownianMotion
         )
+        if time_model == "ou":  # (unit traces: X_r = -scale sigma_r e_r) the noise's mean
+            # square tendency at the data's states is the part of R its modes represent
+            wbar = np.asarray(z.truncate(states, N))
+            chi = np.asarray(fit.system.noise.chi)
+            t = chi[None] @ wbar[:, None] - wbar[:, None] @ chi[None]
+            noise_ms = np.sum(np.asarray(z.inner(t, t))) / len(states)
+            _, r = closure.missed_tendency(jnp.asarray(states), fine, sj.EulerZeitlin(N))
+            represented = fit.shares["transport"] * float(np.sum(np.asarray(r) ** 2))
+            assert noise_ms == pytest.approx(represented / len(states), rel=1e-9)
+            assert 0 < fit.transport_scale < 1
         w0 = jnp.asarray(z.truncate(states[0], N))
         sol = sj.simulate(
             fit.system,

@@ -105,6 +105,13 @@ def _modes_reduction(wbar, rest, modes):
     return jax.vmap(one)(wbar, rest)
 
 
+@jax.jit
+def _mode_tendencies(wbar, modes):
+    r"""`(k, r)`: $|[e_r, \bar W_n]|^2$ ($L^2$) of each mode at each snapshot."""
+    t = modes[None].astype(wbar.dtype) @ wbar[:, None] - wbar[:, None] @ modes[None]
+    return zeitlin.inner(t, t)
+
+
 @dataclasses.dataclass(frozen=True)
 class ClosureFit:
     r"""What `fit_closure` found.
@@ -119,7 +126,14 @@ class ClosureFit:
       `OrnsteinUhlenbeck(T)`, one correlation time per noise (`"ou"`).
     - `gain`, `damping`: `(N,)`, per degree ($\ell = 0$ unused: 0), the stream's change
       $g_\ell$ and the damping rate $d_\ell \ge 0$ (per second).
-    - `transport`: the transport noise's `TransportNoiseFit` (`None` without that part).
+    - `transport`: the transport noise's `TransportNoiseFit` (`None` without that part):
+      the EOFs of the rest's transports, and their traces' statistics.
+    - `transport_scale`: the factor on those traces' amplitudes in `system`: it makes the
+      noise's mean-square tendency at the data's states, $\sum_r\sigma_r^2\langle|[e_r,
+      \bar W_n]|^2\rangle$, the part of the rest the modes represent (`shares`'s
+      `"transport"` times $|R|^2$). The EOFs of the transports overstate it ($\mathrm{ad}_
+      {\bar W}$ is ill-conditioned, and a mode acts on every state, not the one it was
+      solved at): by 3.9 in mean square on su(32) → su(8) (`docs/data-driven-noise.md`).
     - `additive_std`, `additive_time`: `(N,)`, per degree, the standard deviation of each
       harmonic's off-orbit tendency (per second) and its integral time (s): the additive
       noise's intensity is $2\sigma_\ell^2T_\ell$ (white), or $\sigma_\ell$ with
@@ -143,6 +157,7 @@ class ClosureFit:
     gain: np.ndarray
     damping: np.ndarray
     transport: TransportNoiseFit | None
+    transport_scale: float
     additive_std: np.ndarray
     additive_time: np.ndarray
     shares: dict
@@ -162,6 +177,7 @@ class ClosureFit:
             self.gain,
             self.damping,
             self.transport,
+            self.transport_scale,
             self.additive_std,
             self.additive_time,
             self.parts,
@@ -398,13 +414,24 @@ def fit_closure(
             regularization=alpha,
             unexplained=float(np.sum(off**2) / max(np.sum(rest**2), 1e-300)),
         )
+    shares = _shares(transport, parts, wbar, r, closure, off)
+    scale = 1.0
+    if transport is not None:  # (the traces' variances made to give, at the data's states,
+        # the tendency the modes represent: the EOFs of xi overstate it, ad W being
+        # ill-conditioned)
+        modes = jnp.asarray(transport.modes)
+        per_mode = np.mean(in_chunks(lambda w: _mode_tendencies(w, modes), wbar), axis=0)
+        represented = shares["transport"] * float(np.sum(r * r)) / S
+        scale = float(np.sqrt(represented / np.sum(transport.std**2 * per_mode)))
     std, time = _additive(off, dt, N) if "additive" in parts else (np.zeros(N), np.zeros(N))
     missed = _per_degree(np.mean(r * r, axis=0), N)  # (no noise on a degree R never moves,
     # as l = 1 on a sphere at rest: both systems keep its angular momentum)
     lacking = missed <= 1e-20 * np.max(missed)
     std, time = np.where(lacking, 0.0, std), np.where(lacking, 0.0, time)
     gain, damping = np.r_[0.0, coefficients[: N - 1]], np.r_[0.0, coefficients[N - 1 :]]
-    system, driver = _closed_system(coarse, gain, damping, transport, std, time, parts, time_model)
+    system, driver = _closed_system(
+        coarse, gain, damping, transport, scale, std, time, parts, time_model
+    )
     return ClosureFit(
         system=system,
         driver=driver,
@@ -413,7 +440,8 @@ def fit_closure(
         transport=transport,
         additive_std=std,
         additive_time=time,
-        shares=_shares(transport, parts, wbar, r, closure, off),
+        shares=shares,
+        transport_scale=scale,
         parts=parts,
         time_model=time_model,
         regularization=alpha,
@@ -422,7 +450,9 @@ def fit_closure(
     )
 
 
-def _closed_system(coarse, gain, damping, transport, std, time, parts, time_model, factor=1.0):
+def _closed_system(
+    coarse, gain, damping, transport, transport_scale, std, time, parts, time_model, factor=1.0
+):
     """The coarse system with the fitted parts added, and the driver that runs it."""
     N = coarse.N
     real = jnp.float64 if jnp.asarray(1.0).dtype == jnp.float64 else jnp.float32
@@ -435,7 +465,11 @@ def _closed_system(coarse, gain, damping, transport, std, time, parts, time_mode
     alpha = 0.0 if linear is None else np.asarray(linear.damping(real))
     if "damping" in parts:
         alpha = alpha + damping
-    noise = coarse.noise if transport is None else scaled_noise(transport.noise, factor)
+    noise = (
+        coarse.noise
+        if transport is None
+        else scaled_noise(transport.noise, transport_scale * factor)
+    )
     additive = coarse.additive
     times = [] if transport is None or time_model == "white" else list(transport.correlation_time)
     if "additive" in parts:
