@@ -150,6 +150,7 @@ def case(M, seed, size):
     systems = {
         "closure": (fit.scaled(tuning["closure"].factor), fit.driver),
         "closure, untuned": (fit.system, fit.driver),
+        "closure, no noise": (fit.scaled(0.0), fit.driver),
         "isotropic": (_with_factor(baseline, tuning["isotropic"].factor), None),
         "no closure": (coarse, None),
     }
@@ -178,6 +179,7 @@ def case(M, seed, size):
         ("closure", "isotropic"),
         ("closure, untuned", "isotropic"),
         ("closure", "no closure"),
+        ("closure, no noise", "no closure"),
         ("isotropic", "no closure"),
     ]
     comparisons = {}
@@ -235,9 +237,8 @@ def summary(rows, cost):
     text += "bootstrap 90 % CI), tuned factors, spread/RMSE (least and largest over the leads):\n\n"
     text += (
         "| M → N | seed | closure vs isotropic | untuned closure vs isotropic | closure vs no "
-        "closure | factor closure / isotropic | spread/RMSE closure | spread/RMSE isotropic |\n"
-        + "|---" * 8
-        + "|\n"
+        "closure | closure without its noises vs no closure | factor closure / isotropic | "
+        "spread/RMSE closure | spread/RMSE isotropic |\n" + "|---" * 9 + "|\n"
     )
     for r in rows:
         c, f, q = r["comparisons"], r["factors"], r["spread_rmse"]
@@ -245,6 +246,7 @@ def summary(rows, cost):
         text += (
             f"| {r['M']} → {r['N']} | {r['seed']} | {ci(c['closure vs isotropic'])} | "
             f"{ci(c['closure, untuned vs isotropic'])} | {ci(c['closure vs no closure'])} | "
+            f"{ci(c['closure, no noise vs no closure'])} | "
             f"{f['closure']:.2f} / {f['isotropic']:.2f} | {span(q['closure'])} | "
             f"{span(q['isotropic'])} |\n"
         )
