@@ -92,7 +92,7 @@ BLOCKS = _blocks()
 FULL_SIZE = {
     ("docs/levy-area.md", 0): "strong_convergence of 100 samples to a 2^-12 reference",
     ("docs/data-driven-noise.md", 0): "a 44-second su(32) run, its fit and a 32-member forecast",
-    ("docs/data-driven-noise.md", 1): "a forced-dissipative su(32) run of 165 s and its closure",
+    ("docs/data-driven-noise.md", 1): "a forced-dissipative su(32) run of 50 s and its closure",
 }
 
 
