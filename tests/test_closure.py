@@ -214,6 +214,7 @@ def test_bad_input_is_refused_before_any_work(run):
         (dict(variance=1.5), ValueError, "variance"),
         (dict(n_modes=400), ValueError, "n_modes"),
         (dict(regularization="gcv"), ValueError, "regularization"),
+        (dict(time_model="ou", parts=("hamiltonian",)), ValueError, "needs the 'transport'"),
         (
             dict(
                 time_model="ou", coarse=sj.EulerZeitlin(N, additive=sj.AdditiveForcing((1, 2), 1.0))

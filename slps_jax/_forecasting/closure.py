@@ -152,8 +152,6 @@ class ClosureFit:
       `fine`, `coarse`: the systems the fit compared.
     """
 
-    system: EulerZeitlin
-    driver: object
     gain: np.ndarray
     damping: np.ndarray
     transport: TransportNoiseFit | None
@@ -167,11 +165,24 @@ class ClosureFit:
     fine: EulerZeitlin
     coarse: EulerZeitlin
 
+    @property
+    def system(self):
+        """The closed coarse model (an `EulerZeitlin`), the fitted amplitudes as they are."""
+        return self._closed(1.0)[0]
+
+    @property
+    def driver(self):
+        """The driver that runs `system`."""
+        return self._closed(1.0)[1]
+
     def scaled(self, factor):
         r"""The closed system with both fitted noises' amplitudes times `factor` (the
         transport noise's matrices, and the fitted additive noise's $\sigma_\ell$, the
         coarse system's own forcing kept): for tuning one factor,
         `AmplitudeSearch(scale=lambda s, f: fit.scaled(f))`."""
+        return self._closed(factor)[0]
+
+    def _closed(self, factor):
         return _closed_system(
             self.coarse,
             self.gain,
@@ -183,7 +194,7 @@ class ClosureFit:
             self.parts,
             self.time_model,
             factor,
-        )[0]
+        )
 
     def explained(self, states):
         r"""`shares` on other snapshots `states` `(S, M, M)` of the fine system (held-out
@@ -390,6 +401,11 @@ def fit_closure(
     elif isinstance(variance, bool) or not (np.ndim(variance) == 0 and 0 < variance <= 1):
         raise ValueError(f"fit_closure: variance must be in (0, 1], got {variance!r}.")
     check_regularization("fit_closure", regularization)
+    if time_model == "ou" and "transport" not in parts:
+        raise ValueError(
+            "fit_closure: time_model='ou' drives the fitted noises by OU traces; it needs the "
+            "'transport' part (the coarse system's own noise has no correlation time)."
+        )
     if time_model == "ou" and "additive" in parts and coarse.additive is not None:
         raise ValueError(
             "fit_closure: time_model='ou' with an additive part: the coarse system's own "
@@ -429,12 +445,7 @@ def fit_closure(
     lacking = missed <= 1e-20 * np.max(missed)
     std, time = np.where(lacking, 0.0, std), np.where(lacking, 0.0, time)
     gain, damping = np.r_[0.0, coefficients[: N - 1]], np.r_[0.0, coefficients[N - 1 :]]
-    system, driver = _closed_system(
-        coarse, gain, damping, transport, scale, std, time, parts, time_model
-    )
-    return ClosureFit(
-        system=system,
-        driver=driver,
+    fit = ClosureFit(
         gain=gain,
         damping=damping,
         transport=transport,
@@ -448,6 +459,8 @@ def fit_closure(
         fine=fine,
         coarse=coarse,
     )
+    fit._closed(1.0)  # (the closed system is built, and checked, here)
+    return fit
 
 
 def _closed_system(
