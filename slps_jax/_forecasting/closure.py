@@ -18,7 +18,7 @@ import scipy.optimize
 
 from .. import zeitlin
 from .._brownian import BrownianMotion, OrnsteinUhlenbeck
-from .._support.checks import check_count, check_positive
+from .._support.checks import check_positive
 from .._systems.additive_forcing import AdditiveForcing
 from .._systems.euler_zeitlin import EulerZeitlin
 from .._systems.stream_operator import Stream
@@ -28,6 +28,7 @@ from .transport_fit import (
     TransportNoiseFit,
     _in_eigenbasis,
     _integral_time,
+    check_eof_options,
     check_regularization,
     eof_noise,
     in_chunks,
@@ -201,7 +202,8 @@ class ClosureFit:
         data), with the fitted coefficients and modes (nothing refitted)."""
         states = _checked_states(states, self.fine.N, "ClosureFit.explained")
         coefficients = np.concatenate([self.gain[1:], self.damping[1:]])
-        wbar, r, closure = _tendencies(states, self.fine, self.coarse, coefficients)
+        wbar, r = _missed(states, self.fine, self.coarse)
+        closure = _closure_tendency(wbar, self.coarse, coefficients)
         rest = r - closure.sum(axis=1)
         _, off = in_chunks(lambda w, x: transport_split(w, x, self.regularization), wbar, rest)
         return _shares(self.transport, self.parts, wbar, r, closure, off)
@@ -220,12 +222,15 @@ def _checked_states(states, M, caller):
     return states
 
 
-def _tendencies(states, fine, coarse, coefficients):
-    """`(wbar, R, closure)`: each snapshot's coarse state, missed tendency and the
-    closure's two parts (`(S, 2, N^2 - 1)`)."""
-    wbar, r = in_chunks(lambda w: missed_tendency(w, fine, coarse), jnp.asarray(states))
+def _missed(states, fine, coarse):
+    """`(wbar, R)`: each snapshot's coarse state and missed tendency (`missed_tendency`)."""
+    return in_chunks(lambda w: missed_tendency(w, fine, coarse), jnp.asarray(states))
+
+
+def _closure_tendency(wbar, coarse, coefficients):
+    """The closure's two parts at each snapshot, `(S, 2, N^2 - 1)` (`_closure_parts`)."""
     c = jnp.asarray(coefficients)
-    return wbar, r, in_chunks(lambda w: _closure_parts(w, coarse, c), wbar)
+    return in_chunks(lambda w: _closure_parts(w, coarse, c), wbar)
 
 
 def _shares(transport, parts, wbar, r, closure, off):
@@ -249,22 +254,24 @@ def _shares(transport, parts, wbar, r, closure, off):
     return out
 
 
-def _closure_coefficients(states, fine, coarse, parts):
+def _closure_coefficients(wbar, r, coarse, parts):
     """The gain and damping coefficients `(2(N - 1),)` by least squares over every
-    snapshot (the damping's bounded below by 0; a part not fitted is 0)."""
+    snapshot's coarse state `wbar` and missed tendency `r` (the damping's bounded below by
+    0; a part not fitted is 0)."""
     n = coarse.N - 1
     active = np.r_[np.full(n, "hamiltonian" in parts), np.full(n, "damping" in parts)]
     out = np.zeros(2 * n)
     if not active.any():
         return out
     G, b, Z = np.zeros((2 * n, 2 * n)), np.zeros(2 * n), np.zeros(n + 1)
-    for start in range(0, states.shape[0], _CHUNK):
-        idx = np.minimum(np.arange(start, start + _CHUNK), states.shape[0] - 1)
-        weight = jnp.asarray((np.arange(start, start + _CHUNK) < states.shape[0]) * 1.0)
-        wbar, r = missed_tendency(jnp.asarray(states[idx]), fine, coarse)
-        g, c = _normal_sums(wbar, r, weight, coarse)
+    S = wbar.shape[0]
+    for start in range(0, S, _CHUNK):  # (chunks of one compiled size, the last padded)
+        idx = np.minimum(np.arange(start, start + _CHUNK), S - 1)
+        weight = jnp.asarray((np.arange(start, start + _CHUNK) < S) * 1.0)
+        w = jnp.asarray(wbar[idx])
+        g, c = _normal_sums(w, jnp.asarray(r[idx]), weight, coarse)
         G, b = G + np.asarray(g), b + np.asarray(c)
-        Z += np.asarray(weight @ zeitlin.enstrophy_spectrum(wbar))
+        Z += np.asarray(weight @ zeitlin.enstrophy_spectrum(w))
     diag = np.diag(G)
     for block in (slice(0, n), slice(n, 2 * n)):  # (a degree the data lack keeps 0)
         active[block] &= diag[block] > 1e-20 * max(float(np.max(diag[block])), 1e-300)
@@ -391,15 +398,7 @@ def fit_closure(
         raise ValueError(
             f"fit_closure: time_model must be one of {TIME_MODELS}, got {time_model!r}."
         )
-    if n_modes is not None:
-        n_modes = check_count("n_modes", n_modes)
-        if n_modes > min(S - 1, N * N - 1):
-            raise ValueError(
-                f"fit_closure: n_modes = {n_modes} exceeds the {min(S - 1, N * N - 1)} EOFs "
-                f"that {S} snapshots of su({N}) give."
-            )
-    elif isinstance(variance, bool) or not (np.ndim(variance) == 0 and 0 < variance <= 1):
-        raise ValueError(f"fit_closure: variance must be in (0, 1], got {variance!r}.")
+    n_modes = check_eof_options("fit_closure", n_modes, variance, S, N, f"{S} snapshots")
     check_regularization("fit_closure", regularization)
     if time_model == "ou" and "transport" not in parts:
         raise ValueError(
@@ -413,8 +412,9 @@ def fit_closure(
             "without one, or time_model='white'."
         )
 
-    coefficients = _closure_coefficients(states, fine, coarse, parts)
-    wbar, r, closure = _tendencies(states, fine, coarse, coefficients)
+    wbar, r = _missed(states, fine, coarse)
+    coefficients = _closure_coefficients(wbar, r, coarse, parts)
+    closure = _closure_tendency(wbar, coarse, coefficients)
     rest = r - closure.sum(axis=1)
     alpha = tikhonov_parameter(wbar, rest, regularization) if "transport" in parts else 0.0
     xi, off = in_chunks(lambda w, rr: transport_split(w, rr, alpha), wbar, rest)
@@ -468,7 +468,7 @@ def _closed_system(
 ):
     """The coarse system with the fitted parts added, and the driver that runs it."""
     N = coarse.N
-    real = jnp.float64 if jnp.asarray(1.0).dtype == jnp.float64 else jnp.float32
+    real = jnp.asarray(1.0).dtype  # (float64 where enabled)
     linear = coarse.linear
     own = coarse.stream_operator
     stream = own

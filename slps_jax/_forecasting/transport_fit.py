@@ -258,6 +258,21 @@ def check_regularization(caller, regularization):
         )
 
 
+def check_eof_options(caller, n_modes, variance, samples, N, source):
+    """`n_modes` checked (at most the `samples - 1` EOFs that `source` give in su(N)), or
+    else `variance` in (0, 1]; **returns** `n_modes` (an int, or `None`)."""
+    if n_modes is not None:
+        n_modes = check_count("n_modes", n_modes)
+        if n_modes > min(samples - 1, N * N - 1):
+            raise ValueError(
+                f"{caller}: n_modes = {n_modes} exceeds the {min(samples - 1, N * N - 1)} "
+                f"EOFs that {source} of su({N}) give."
+            )
+    elif isinstance(variance, bool) or not (np.ndim(variance) == 0 and 0 < variance <= 1):
+        raise ValueError(f"{caller}: variance must be in (0, 1], got {variance!r}.")
+    return n_modes
+
+
 def fit_transport_noise(
     states,
     *,
@@ -347,15 +362,7 @@ def fit_transport_noise(
             f"fit_transport_noise: {states.shape[0]} snapshots give {K} windows of "
             f"window = {window}; the fit needs at least 4 (a correlation time needs several)."
         )
-    if n_modes is not None:
-        n_modes = check_count("n_modes", n_modes)
-        if n_modes > min(K - 1, N * N - 1):
-            raise ValueError(
-                f"fit_transport_noise: n_modes = {n_modes} exceeds the {min(K - 1, N * N - 1)} "
-                f"EOFs that K = {K} windows of su({N}) give."
-            )
-    elif isinstance(variance, bool) or not (np.ndim(variance) == 0 and 0 < variance <= 1):
-        raise ValueError(f"fit_transport_noise: variance must be in (0, 1], got {variance!r}.")
+    n_modes = check_eof_options("fit_transport_noise", n_modes, variance, K, N, f"K = {K} windows")
     if streams is None:
         xi, alpha, unexplained = _missed_transport(states, N, regularization)
     else:
