@@ -19,7 +19,7 @@ The library in four layers:
 - **Studies**: `strong_convergence`, `weak_convergence`, `calibrate`; the drift's flow
   `drift_flow` and, with one noise proportional to the drift, the `exact_solution`.
 - **Forecasting**: `fit_transport_noise`, `fit_closure`, `forecast_ensembles` and their scores,
-  `particle_filter` and `assimilate`.
+  `particle_filter`, `ensemble_kalman_filter` and `assimilate`.
 """
 
 # Public helper modules
@@ -57,6 +57,9 @@ from ._forecasting.assimilation import Tempering as Tempering
 from ._forecasting.assimilation import assimilate as assimilate
 from ._forecasting.closure import ClosureFit as ClosureFit
 from ._forecasting.closure import fit_closure as fit_closure
+from ._forecasting.orbit_kalman import KalmanAnalysis as KalmanAnalysis
+from ._forecasting.orbit_kalman import KalmanResult as KalmanResult
+from ._forecasting.orbit_kalman import ensemble_kalman_filter as ensemble_kalman_filter
 from ._forecasting.particle_filter import particle_filter as particle_filter
 from ._forecasting.particle_filter import particle_filter_to_store as particle_filter_to_store
 from ._forecasting.scores import ForecastScores as ForecastScores
@@ -171,6 +174,8 @@ __all__ = [
     "Forecast",
     "Observations",
     "Tempering",
+    "KalmanAnalysis",
+    "KalmanResult",
     "assimilate",
     "CalibrationResult",
     "ObservedStatistics",
@@ -184,6 +189,7 @@ __all__ = [
     "weak_convergence",
     "particle_filter",
     "particle_filter_to_store",
+    "ensemble_kalman_filter",
     "ForecastScores",
     "PairedComparison",
     "crps_ensemble",

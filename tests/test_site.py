@@ -114,6 +114,7 @@ _HOUSE_STYLE_EXEMPT = {
             "ModelErrorVariance",
             "CalibrationResult",
             "FilterResult",
+            "KalmanResult",
             "Checkpoint",
             "ConvergenceResult",
             "EnsembleStatistics",

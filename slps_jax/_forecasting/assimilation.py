@@ -370,19 +370,21 @@ class _Cycle(NamedTuple):
 
 
 class _Run(NamedTuple):
-    """A filter's checked inputs (`_prepare`): the particles, observations, errors, window
-    length, the real dtype, and `advance`: the jitted forecast with its likelihoods."""
+    """A filter's checked inputs (`_prepare`): the particles, observations, errors, the
+    tempering (`None` for a filter without, `ensemble_kalman_filter`), the real dtype, and
+    `advance`: the jitted forecast with its likelihoods."""
 
     x: Any
     ys: Any
     std: Any
-    tempering: Tempering
+    tempering: Tempering | None
     real: Any
     advance: Any
 
     @property
     def lag(self) -> int:
-        return self.tempering.jitter_lag
+        """The pCN window in observation intervals (0 without tempering: no window)."""
+        return 0 if self.tempering is None else self.tempering.jitter_lag
 
     def cycles(self, state, *, increments_shape, dt):
         """The assimilation of observations `state.k`, `state.k + 1`, ... (a generator of

@@ -133,6 +133,7 @@ def particle_filter(
 
     **Returns:** a `FilterResult` (its `particles` and `mean` the system's states alone).
     """
+    tempering = check_tempering("particle_filter", tempering)
     setup = _setup(
         "particle_filter",
         system,
@@ -144,7 +145,6 @@ def particle_filter(
         failures=failures,
         chunk_size=chunk_size,
         sharding=sharding,
-        tempering=tempering,
         driver=driver,
         key=key,
     )
@@ -158,7 +158,7 @@ def particle_filter(
             increments_shape=setup.innovations[0],
             dt=setup.innovations[1],
             key=key,
-            tempering=setup.tempering,
+            tempering=tempering,
         )
     # (the analyses' states, without the driver's)
     result = result._replace(particles=result.particles[0], mean=result.mean[0])
@@ -204,6 +204,7 @@ def particle_filter_to_store(
     """
     store = check_store("particle_filter_to_store", store)
     store.only_folder_options("particle_filter_to_store")
+    tempering = check_tempering("particle_filter_to_store", tempering)
     setup = _setup(
         "particle_filter_to_store",
         system,
@@ -215,11 +216,10 @@ def particle_filter_to_store(
         failures=failures,
         chunk_size=chunk_size,
         sharding=None,
-        tempering=tempering,
         driver=driver,
         key=key,
     )
-    x, m, lag = setup.x, setup.m, setup.tempering.jitter_lag
+    x, m, lag = setup.x, setup.m, tempering.jitter_lag
     key = checked_key("particle_filter_to_store", key)
     key_data = np.asarray(jax.random.key_data(key))
     key, x0 = setup.initial(key)
@@ -227,7 +227,7 @@ def particle_filter_to_store(
         setup.forecast(system, None),
         x0,
         setup.observing(observations),
-        setup.tempering,
+        tempering,
         "particle_filter_to_store",
     )
     n, ys, real = x.shape[0], run.ys, run.real
@@ -264,7 +264,7 @@ def particle_filter_to_store(
         observe=digest(jax.vmap(observations.observe)(x)),
         obs_std=digest(run.std),
         key_impl=str(jax.random.key_impl(key)),
-        options=[*dataclasses.astuple(setup.tempering), setup.retry],
+        options=[*dataclasses.astuple(tempering), setup.retry],
         driver=repr(driver),
     )
     writer = RunStore(
@@ -310,9 +310,9 @@ def particle_filter_to_store(
 
 
 class _Setup(NamedTuple):
-    """`particle_filter`'s checked inputs: the method, the particles, the steps between
-    observations `m` of `h`, the retry, the layout, the tempering, and the driver's path at
-    steps `h` (a particle is its state and the path's state)."""
+    """A filter's checked inputs: the method, the particles, the steps between observations
+    `m` of `h`, the retry, the layout, and the driver's path at steps `h` (a particle is its
+    state and the path's state)."""
 
     method: Any
     x: Any
@@ -321,7 +321,6 @@ class _Setup(NamedTuple):
     retry: Any
     chunk_size: Any
     sharding: Any
-    tempering: Tempering
     driver: AbstractDriver
     path: Any
     innovations: tuple  # (shape, variance) of a particle's Gaussian numbers per interval
@@ -359,14 +358,12 @@ def _setup(
     failures,
     chunk_size,
     sharding,
-    tempering,
     driver,
     key,
 ):
-    """The inputs of `particle_filter` (`name`) checked, by name, before any work (`key`
-    too, used later)."""
+    """The inputs of a filter `name` (`particle_filter`, `ensemble_kalman_filter`) but its
+    analysis's options checked, by name, before any work (`key` too, used later)."""
     checked_key(name, key)
-    tempering = check_tempering(name, tempering)
     observations = check_observations(name, observations, timed=True)
     failures = check_failures(name, failures)
     if failures.throw:
@@ -426,9 +423,7 @@ def _setup(
         innovations = path.innovations(m)
     except ValueError as err:
         raise ValueError(f"{name}: {err}") from None
-    return _Setup(
-        method, x, m, h, retry, chunk_size, sharding, tempering, driver, path, innovations
-    )
+    return _Setup(method, x, m, h, retry, chunk_size, sharding, driver, path, innovations)
 
 
 def _carry(state, lag, observations):
