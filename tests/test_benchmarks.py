@@ -345,6 +345,26 @@ def test_transport_skill(tmp_path):
     assert "| 0 |" in (tmp_path / "transport_skill.md").read_text()
 
 
+@pytest.mark.full  # (about 30 s of a twin, a closure and three filters: second tier)
+def test_filters(tmp_path):
+    """`filters.py --fast` (su(20) -> su(5), 8 members, 4 observations): every filter's
+    scores at every observation, paired CIs that contain their estimates, the thinned ranks
+    in range, and the Kalman moves' Casimirs on the conservative model."""
+    run_script("filters.py", tmp_path)
+    out = json.loads((tmp_path / "filters.json").read_text())
+    (r,) = out["rows"]
+    assert (r["M"], r["N"], r["members"], r["observations"]) == (20, 5, 8, 4)
+    assert set(r["scores"]) == {"free", "particle filter", "orbit Kalman"}
+    for s in r["scores"].values():
+        assert len(s["sq_error_unobserved"]) == len(s["variance_observed"]) == 4
+        assert all(0 <= t[2] <= 8 for t in s["thinned_ranks"])
+    for name in ("particle filter", "orbit Kalman"):
+        c = out["pooled"][name]["unobserved_vs_free"]
+        assert c["ci"][0] <= c["relative"] <= c["ci"][1], c
+    assert r["casimir_drift_conservative"] < 1e-12
+    assert "| orbit Kalman |" in (tmp_path / "filters.md").read_text()
+
+
 @pytest.mark.full  # (40 s of compiling four forecast systems and two searches: second tier)
 def test_closure(tmp_path):
     """`closure.py --fast` (M = 16, N = 4, one seed): the shares (each at most 1, the closure
