@@ -63,6 +63,12 @@ FULL = dict(M=32, spin=15.0, train=4000, n_obs=40, interval=10, n=64, tune=8, bl
 FAST = dict(M=20, spin=1.0, train=60, n_obs=4, interval=4, n=8, tune=2, block=2)
 
 
+def _filter_driver(fit):
+    """A closure's driver for the filters: its OU traces as fitted; white noise as the filters'
+    default, Gaussian increments untruncated and without areas."""
+    return fit.driver if isinstance(fit.driver, sj.OrnsteinUhlenbeck) else None
+
+
 def _kalman(inflation):
     return "orbit Kalman" if inflation == 1.0 else f"orbit Kalman, inflation {inflation:g}"
 
@@ -100,8 +106,7 @@ def case(seed, size, inflations=(1.0,)):
         ).factor
     seconds["tuning"] = watch.seconds
     model = fit.scaled(factor)
-    # (the filters draw Gaussian increments, untruncated, without areas; OU traces as fitted)
-    driver = fit.driver if isinstance(fit.driver, sj.OrnsteinUhlenbeck) else None
+    driver = _filter_driver(fit)
     obs = np.arange(1, 16)  # degrees 1..3
     unobs = np.arange(16, N * N)
     observe = lambda w: jnp.real(zeitlin.mat2shr(w))[..., obs]
@@ -234,9 +239,8 @@ def _conservative_drift(train, fine, N, members, observations, seed):
         std=observations.std,
         times=observations.times[:5],
     )
-    driver = part.driver if isinstance(part.driver, sj.OrnsteinUhlenbeck) else None
     res = sj.ensemble_kalman_filter(
-        part.system, members, five, dt=H, key=jax.random.key(seed + 16), driver=driver
+        part.system, members, five, dt=H, key=jax.random.key(seed + 16), driver=_filter_driver(part)
     )
     c0 = np.asarray(sj.su(N).casimirs(members))[:, ::2]
     cs = np.asarray(sj.su(N).casimirs(res.particles))[..., ::2]
@@ -248,6 +252,11 @@ def summary(rows):
     lines = []
     pooled = {}
     filters = list(rows[0]["scores"])
+    # (the free ensemble's: unobserved by blocks of observations, observed per observation)
+    free = {
+        key: np.concatenate([r["scores"]["free"][key] for r in rows])
+        for key in ("sq_error_unobserved_blocks", "sq_error_observed")
+    }
     for name in filters:
         s = [r["scores"][name] for r in rows]
         cat = lambda key: np.concatenate([x[key] for x in s])
@@ -265,17 +274,15 @@ def summary(rows):
             rank_lag1=_lag_one(s),
         )
         if name != "free":
-            free = np.concatenate([r["scores"]["free"]["sq_error_unobserved_blocks"] for r in rows])
-            c = sj.paired_comparison(cat("sq_error_unobserved_blocks"), free)
-            pooled[name]["unobserved_vs_free"] = dict(relative=c.relative, ci=[*c.relative_ci])
-            o = sj.paired_comparison(
-                cat("sq_error_observed"),
-                np.concatenate([r["scores"]["free"]["sq_error_observed"] for r in rows]),
-            )
+            for part, key in (
+                ("unobserved", "sq_error_unobserved_blocks"),
+                ("observed", "sq_error_observed"),
+            ):
+                c = sj.paired_comparison(cat(key), free[key])
+                pooled[name][f"{part}_vs_free"] = dict(relative=c.relative, ci=[*c.relative_ci])
             pooled[name]["observed_rmse_ratio"] = float(
-                np.sqrt(cat("sq_error_observed").mean() / pooled_free_obs(rows))
+                np.sqrt(cat("sq_error_observed").mean() / free["sq_error_observed"].mean())
             )
-            pooled[name]["observed_vs_free"] = dict(relative=o.relative, ci=[*o.relative_ci])
     seeds = ", ".join(str(r["seed"]) for r in rows)
     lines.append(
         f"su({rows[0]['M']}) truth -> su({rows[0]['N']}), seeds {seeds}, "
@@ -331,10 +338,6 @@ def summary(rows):
         )
     lines.append(_common.markdown_table(per, list(per[0]), {k: ".3g" for k in per[0]}))
     return "".join(lines), pooled
-
-
-def pooled_free_obs(rows):
-    return np.concatenate([r["scores"]["free"]["sq_error_observed"] for r in rows]).mean()
 
 
 def _ci(c):
