@@ -166,6 +166,18 @@ def test_chunking_the_members_does_not_change_the_filter(twin_runs):
         system, members, observations, dt=0.02, key=jax.random.key(6), chunk_size=5
     )
     np.testing.assert_allclose(chunked.particles, filtered.particles, rtol=0, atol=1e-10)
+    # another inflation and regularisation (traced) compile nothing again
+    events = []
+    listener = lambda name, seconds, **kw: events.append(kw) if "backend_compile" in name else None
+    jax.monitoring.register_event_duration_secs_listener(listener)
+    try:
+        options = sj.KalmanAnalysis(inflation=1.1, regularization=1e-2)
+        sj.ensemble_kalman_filter(
+            system, members, observations, dt=0.02, key=jax.random.key(7), analysis=options
+        )
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listener)
+    assert events == []
 
 
 BAD = [
