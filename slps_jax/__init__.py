@@ -59,6 +59,7 @@ from ._forecasting.closure import ClosureFit as ClosureFit
 from ._forecasting.closure import fit_closure as fit_closure
 from ._forecasting.orbit_kalman import KalmanAnalysis as KalmanAnalysis
 from ._forecasting.orbit_kalman import KalmanResult as KalmanResult
+from ._forecasting.orbit_kalman import Localization as Localization
 from ._forecasting.orbit_kalman import ensemble_kalman_filter as ensemble_kalman_filter
 from ._forecasting.particle_filter import particle_filter as particle_filter
 from ._forecasting.particle_filter import particle_filter_to_store as particle_filter_to_store
@@ -176,6 +177,7 @@ __all__ = [
     "Tempering",
     "KalmanAnalysis",
     "KalmanResult",
+    "Localization",
     "assimilate",
     "CalibrationResult",
     "ObservedStatistics",

@@ -50,6 +50,74 @@ def test_inflation_scales_the_anomalies_and_the_gain():
     np.testing.assert_allclose(out, x.mean(0) + 1.5 * (x - x.mean(0)), rtol=0, atol=1e-7)
 
 
+def _ensemble(seed=4, n=30, d=5, p=3):
+    rng = np.random.default_rng(seed)
+    x = rng.standard_normal((n, d)) @ rng.standard_normal((d, d))
+    H = rng.standard_normal((p, d))
+    return rng, x, x @ H.T, rng.standard_normal(p), np.array([0.3, 0.5, 0.7])[:p]
+
+
+def test_without_a_taper_the_analysis_is_the_same_in_every_basis():
+    from slps_jax import Localization
+
+    rng, x, hx, y, std = _ensemble()
+    basis = rng.standard_normal((5, 5))  # (not orthogonal)
+    loc = Localization(np.arange(5.0), np.arange(3.0), 1e9, basis)
+    b, inv, rho_xh, rho_hh = loc.tapers(jnp.float64)
+    key = jax.random.key(2)
+    plain = kalman_targets(key, x, hx, y, std, 1.2)
+    in_basis = kalman_targets(key, x @ inv, hx, y, std, 1.2, (rho_xh, rho_hh)) @ b
+    np.testing.assert_allclose(in_basis, plain, rtol=0, atol=1e-11)
+
+
+def test_the_tapered_analysis_is_the_schur_product_kalman_update():
+    # Houtekamer & Mitchell (2001): K = (rho_xh o C_xh)(rho_hh o C_hh + R)^-1, written here
+    # with numpy's covariances; a coordinate far from every observation is not moved
+    from slps_jax import Localization
+
+    rng, x, hx, y, std = _ensemble(n=12)
+    positions, observed = np.array([0.0, 1.0, 2.0, 3.0, 50.0]), np.array([0.0, 1.5, 3.0])
+    loc = Localization(positions, observed, 1.3)
+    _, _, rho_xh, rho_hh = loc.tapers(jnp.float64)
+    targets = np.asarray(kalman_targets(jax.random.key(3), x, hx, y, std, 1.0, (rho_xh, rho_hh)))
+    C = np.cov(np.c_[x, hx].T)
+    c_xh, c_hh = C[:5, 5:], C[5:, 5:]
+    taper = lambda a, b: np.exp(-0.5 * np.subtract.outer(a, b) ** 2 / 1.3**2)
+    K = (taper(positions, observed) * c_xh) @ np.linalg.inv(
+        taper(observed, observed) * c_hh + np.diag(std**2)
+    )
+    np.testing.assert_allclose(
+        targets.mean(0), x.mean(0) + K @ (y - hx.mean(0)), rtol=0, atol=1e-12
+    )
+    np.testing.assert_allclose(targets[:, 4], x[:, 4], rtol=0, atol=1e-12)
+    # (the same localisation refuses ill-formed pieces by name)
+    for bad, match in [
+        (dict(length=0.0), "length must be a finite number > 0"),
+        (dict(positions=np.zeros((2, 2))), "positions must be a non-empty 1-d array"),
+        (dict(observed=[np.nan]), "observed must be a non-empty 1-d array of finite"),
+        (dict(basis=np.eye(4)), r"basis must be \(5, 5\)"),
+        (dict(basis=np.ones((5, 5))), "basis must be finite and invertible"),
+        (dict(positions="ab"), "positions must be real numbers"),
+    ]:
+        kw = dict(positions=positions, observed=observed, length=1.3) | bad
+        with pytest.raises((ValueError, TypeError), match=f"^Localization: {match}"):
+            Localization(**kw)
+
+
+def test_the_degree_localization_is_in_the_spherical_harmonics():
+    import slps_jax as sj
+    from slps_jax import zeitlin as z
+
+    N = 6
+    loc = sj.Localization.by_degree(N, [1, 1, 1, 2], 1.0)
+    c = np.random.default_rng(5).standard_normal(N * N - 1)
+    # the basis' rows are the harmonics' coordinates: mat2shr reads the coefficients back
+    w = sj.su(N).from_coordinates(c @ loc.basis)
+    np.testing.assert_allclose(np.asarray(z.mat2shr(w))[1:], c, rtol=0, atol=1e-12)
+    degrees = [z.elm2ind(ell, m) for ell in (1, 4, 5) for m in (-ell, ell)]
+    assert loc.positions[np.asarray(degrees) - 1].tolist() == [1, 1, 4, 4, 5, 5]
+
+
 def _orbit_point(w, xi, eps):
     a = scipy.linalg.expm(eps * xi)
     return a @ w @ a.conj().T
@@ -160,6 +228,30 @@ def test_the_filter_follows_the_observed_truth_on_every_members_orbit(twin_runs)
     assert 0 < float(np.max(filtered.off_orbit)) < 1
 
 
+def test_the_localised_filter_keeps_the_orbits_and_is_the_filter_without_a_taper(twin_runs):
+    sj, system, members, observations, truth, filtered, free = twin_runs
+    degrees = np.floor(np.sqrt(np.arange(1, 9)))  # (the observed values' degrees)
+    kw = dict(dt=0.02, key=jax.random.key(6))
+    run = lambda length: sj.ensemble_kalman_filter(
+        system,
+        members,
+        observations,
+        analysis=sj.KalmanAnalysis(localization=sj.Localization.by_degree(5, degrees, length)),
+        **kw,
+    )
+    # an infinite taper: the filter in the harmonics' basis is the filter itself
+    np.testing.assert_allclose(run(1e9).particles, filtered.particles, rtol=0, atol=1e-9)
+    local = run(0.5)
+    c0 = np.asarray(sj.su(5).casimirs(members))
+    cs = np.asarray(sj.su(5).casimirs(local.particles))
+    assert np.max(np.abs(cs - c0) / np.max(np.abs(c0), 0)) < 1e-12
+    observed = lambda res: np.asarray(jax.vmap(observations.observe)(res.mean))
+    truth_obs = np.asarray(jax.vmap(observations.observe)(truth[1:]))
+    assert np.mean((observed(local) - truth_obs) ** 2) < 0.25 * np.mean(
+        (observed(free) - truth_obs) ** 2
+    )
+
+
 def test_chunking_the_members_does_not_change_the_filter(twin_runs):
     sj, system, members, observations, _, filtered, _ = twin_runs
     chunked = sj.ensemble_kalman_filter(
@@ -186,6 +278,12 @@ BAD = [
     (dict(dt=-0.1), ValueError, "dt must be positive"),
     (dict(std=-1.0), ValueError, "std must be positive"),
     (dict(key=0), TypeError, r"pass jax.random.key\(0\)"),
+    (
+        dict(analysis="localization"),  # (one observed value's position for 8 values)
+        ValueError,
+        "the localization has 24 positions and 1 observed ones; the algebra has dimension 24 "
+        "and each observation 8 values",
+    ),
 ]
 
 
@@ -201,6 +299,9 @@ def test_the_filter_refuses_bad_calls_by_name_before_any_forecast(bad, exc, matc
             std=bad.pop("std"),
             times=observations.times,
         )
+    if bad.get("analysis") == "localization":
+        loc = sj.Localization.by_degree(5, [1.0], 1.0)
+        bad = dict(analysis=sj.KalmanAnalysis(localization=loc))
     kw = dict(dt=0.02, key=jax.random.key(0)) | bad
 
     def boom(*args, **kwargs):
@@ -217,12 +318,13 @@ def test_the_filter_refuses_bad_calls_by_name_before_any_forecast(bad, exc, matc
         (dict(inflation=0.9), "inflation must be a finite number >= 1"),
         (dict(regularization=0.0), "regularization must be a finite number > 0"),
         (dict(iterations=0), "iterations"),
+        (dict(localization=1.5), "localization must be a Localization"),
     ],
 )
 def test_the_analysis_options_are_refused_by_name(bad, match):
     import slps_jax as sj
 
-    with pytest.raises(ValueError, match=f"^KalmanAnalysis: {match}"):
+    with pytest.raises((ValueError, TypeError), match=f"^KalmanAnalysis: {match}"):
         sj.KalmanAnalysis(**bad)
 
 
