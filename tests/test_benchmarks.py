@@ -354,15 +354,16 @@ def test_filters(tmp_path):
     out = json.loads((tmp_path / "filters.json").read_text())
     (r,) = out["rows"]
     assert (r["M"], r["N"], r["members"], r["observations"]) == (20, 5, 8, 4)
-    assert set(r["scores"]) == {"free", "particle filter", "orbit Kalman"}
+    kalman = ("orbit Kalman", "orbit Kalman, localised 1.5")
+    assert set(r["scores"]) == {"free", "particle filter", *kalman}
     for s in r["scores"].values():
         assert len(s["sq_error_unobserved"]) == len(s["variance_observed"]) == 4
         assert all(0 <= t[2] <= 8 for t in s["thinned_ranks"])
-    for name in ("particle filter", "orbit Kalman"):
+    for name in ("particle filter", *kalman):
         c = out["pooled"][name]["unobserved_vs_free"]
         assert c["ci"][0] <= c["relative"] <= c["ci"][1], c
     assert r["casimir_drift_conservative"] < 1e-12
-    assert "| orbit Kalman |" in (tmp_path / "filters.md").read_text()
+    assert all(f"| {name} |" in (tmp_path / "filters.md").read_text() for name in kalman)
 
 
 @pytest.mark.full  # (40 s of compiling four forecast systems and two searches: second tier)
