@@ -1,4 +1,5 @@
-"""A twin experiment for `particle_filter` on the sphere: the truth a run of su(M) coarse-grained
+"""A twin experiment for the filters on the sphere (`particle_filter`, and
+`ensemble_kalman_filter` without and with localisation by degree): the truth a run of su(M) coarse-grained
 to su(N), the model su(N) with the transport noise `fit_transport_noise` fits to the truth's
 spin-up, the degrees 1..3 observed every `every` steps with errors of 10 % of each coefficient's
 standard deviation (over the training run; degree 1, conserved by the truth, gets that of degrees
@@ -6,11 +7,14 @@ standard deviation (over the training run; degree 1, conserved by the truth, get
 truth an interval before (not from the first state, which would leave them an interval ahead of
 the truth). pCN moves the increments of the last `lag` intervals (`jitter_lag`).
 
-Against the free ensemble, the same particles run on without observations: the RMSE of the
-ensemble mean and the spread on the observed and the unobserved coefficients, the paired gain
-in squared error at each observation time, the least stage ESS, the tempering stages, pCN's
-acceptance, a rank histogram of the truth among the particles with its chi-square p-value,
-every particle's Casimir drift, and the time.
+Against the free ensemble, the same particles run on without observations, for each filter:
+the RMSE of the ensemble mean and the spread on the observed and the unobserved
+coefficients, the paired gain in squared error at each observation time, a rank histogram of
+the truth among the members on the observed coefficients with its chi-square p-value, every
+member's Casimir drift, and the time; for the particle filter also the least stage ESS, the
+tempering stages and pCN's acceptance. The Kalman filters run with `KalmanAnalysis()` and
+with `KalmanAnalysis(localization=Localization.by_degree(N, degrees, 1.5))`, as in
+`filters.py`.
 
     python benchmarks/assimilation.py                  # M = 32, N = 8, 64 particles, 20 obs.
     python benchmarks/assimilation.py --fast           # M = 10, N = 5, 8 particles, 2 obs.
@@ -137,23 +141,39 @@ def experiment(
         key=jax.random.key(9),
         driver=sj.BrownianMotion(levy_area=False),
     ).ys[:, -1]
+    observations = sj.Observations(
+        ys, times=every * h * np.arange(1, n_obs + 1), observe=observe, std=filter_std
+    )
+    seconds, ensembles = {}, {}
     t0 = time.perf_counter()
     res = sj.particle_filter(
         model,
         init,
-        sj.Observations(
-            ys, times=every * h * np.arange(1, n_obs + 1), observe=observe, std=filter_std
-        ),
+        observations,
         dt=h,
         key=jax.random.key(seed),
         tempering=sj.Tempering(jitter_lag=lag),
     )
-    filter_s = time.perf_counter() - t0
+    ensembles["particle filter"] = res.particles
+    seconds["particle filter"] = time.perf_counter() - t0
+    degrees = np.floor(np.sqrt(obs))
+    for name, analysis in (
+        ("orbit Kalman", sj.KalmanAnalysis()),
+        (
+            "orbit Kalman, localised 1.5",
+            sj.KalmanAnalysis(localization=sj.Localization.by_degree(N, degrees, 1.5)),
+        ),
+    ):
+        t0 = time.perf_counter()
+        kf = sj.ensemble_kalman_filter(
+            model, init, observations, dt=h, key=jax.random.key(seed + 3), analysis=analysis
+        )
+        ensembles[name] = kf.particles
+        seconds[name] = time.perf_counter() - t0
     # (the free ensemble: the filter's initial particles run on without observations)
     free = sj.forecast_ensembles(
         model, init, lead=every * n_obs, dt=h, every=every, members=1, key=jax.random.key(1)
     )[:, 0]
-    ca = np.asarray(z.mat2shr(res.particles)).real
     cf = np.asarray(z.mat2shr(free)).real.transpose(1, 0, 2)
 
     def rmse(c, idx, axis=None):  # (over times and coefficients, or per time: axis=1)
@@ -166,32 +186,56 @@ def experiment(
         d = rmse(c1, idx, 1) ** 2 - rmse(c2, idx, 1) ** 2
         return [float(d.mean()), float(d.std(ddof=1) / np.sqrt(d.size))]
 
-    ranks = (ca[:, :, obs] < c_truth[1:, None, obs]).sum(1).ravel()
-    bins = np.add.reduceat(
-        np.bincount(ranks, minlength=n + 1), np.linspace(0, n + 1, 6, dtype=int)[:-1]
-    )
     c0 = np.asarray(sj.su(N).casimirs(init))[:, None, ::2]  # tr W^2, tr W^4, ...
-    cs = np.asarray(sj.su(N).casimirs(res.particles)).transpose(1, 0, 2)[..., ::2]
-    drift = np.abs(cs / c0.mean(0) - 1).max(axis=(1, 2))  # (per particle slot, all times)
+
+    def scores(x):
+        c = np.asarray(z.mat2shr(x)).real
+        ranks = (c[:, :, obs] < c_truth[1:, None, obs]).sum(1).ravel()
+        bins = np.add.reduceat(
+            np.bincount(ranks, minlength=n + 1), np.linspace(0, n + 1, 6, dtype=int)[:-1]
+        )
+        cs = np.asarray(sj.su(N).casimirs(x)).transpose(1, 0, 2)[..., ::2]
+        drift = np.abs(cs / c0.mean(0) - 1).max(axis=(1, 2))  # (per member slot, all times)
+        table = dict(
+            rmse_observed=rmse(c, obs),
+            rmse_unobserved=rmse(c, unobs),
+            # (free minus filter squared error, mean and standard error over the observation
+            # times; the times are correlated, so the error bar is optimistic)
+            gain_observed=paired(cf, c, obs),
+            gain_unobserved=paired(cf, c, unobs),
+            spread_observed=spread(c, obs),
+            spread_unobserved=spread(c, unobs),
+            rank_bins=bins.tolist(),
+            rank_chi2_p=float(stats.chisquare(bins).pvalue),
+            casimir_drift=float(drift.max()),
+        )
+        per_time = dict(
+            rmse={
+                part: rmse(c, idx, 1) for part, idx in (("observed", obs), ("unobserved", unobs))
+            },
+            spread={
+                part: spread(c, idx, 1) for part, idx in (("observed", obs), ("unobserved", unobs))
+            },
+            ranks=np.bincount(ranks, minlength=n + 1),
+            casimir_drift=drift,
+        )
+        return {
+            k: float(v) if isinstance(v, np.floating) else v for k, v in table.items()
+        }, per_time
+
+    filters, per_time = {}, {}
+    ensembles = {"free": jnp.swapaxes(free, 0, 1), **ensembles}
+    for name, x in ensembles.items():
+        filters[name], per_time[name] = scores(x)
     series = dict(
         times=every * h * np.arange(1, n_obs + 1),
-        rmse=dict(
-            observed=(rmse(ca, obs, 1), rmse(cf, obs, 1)),
-            unobserved=(rmse(ca, unobs, 1), rmse(cf, unobs, 1)),
-        ),
-        spread=dict(
-            observed=(spread(ca, obs, 1), spread(cf, obs, 1)),
-            unobserved=(spread(ca, unobs, 1), spread(cf, unobs, 1)),
-        ),
+        ensembles=per_time,
         ess_share=np.asarray(res.ess) / n,
         stages=np.array([len(t) for t in res.temperatures]),
-        ranks=np.bincount(ranks, minlength=n + 1),
-        casimir_drift=drift,
         # (the last observation time's states: the truth, and each ensemble's mean)
         final=dict(
             truth=np.asarray(truth[-1]),
-            filter=np.asarray(res.particles[-1]).mean(0),
-            free=np.asarray(free[:, -1]).mean(0),
+            **{name: np.asarray(x[-1]).mean(0) for name, x in ensembles.items()},
         ),
     )
     row = dict(
@@ -206,24 +250,11 @@ def experiment(
         model_error=model_error,
         model_error_share=share,
         model_error_z=z_score,
-        rmse_observed=rmse(ca, obs),
-        rmse_observed_free=rmse(cf, obs),
-        rmse_unobserved=rmse(ca, unobs),
-        rmse_unobserved_free=rmse(cf, unobs),
-        # (free minus filter squared error, mean and standard error over the observation
-        # times; the times are correlated, so the error bar is optimistic)
-        gain_observed=paired(cf, ca, obs),
-        gain_unobserved=paired(cf, ca, unobs),
-        spread_observed=spread(ca, obs),
-        spread_unobserved=spread(ca, unobs),
-        spread_unobserved_free=spread(cf, unobs),
+        ensembles=filters,
         least_ess_share=float(res.ess.min()) / n,
         stages_mean=float(np.mean([len(t) for t in res.temperatures])),
         acceptance=float(np.mean([a.mean() for a in res.acceptance])),
-        rank_bins=bins.tolist(),
-        rank_chi2_p=float(stats.chisquare(bins).pvalue),
-        casimir_drift=float(drift.max()),
-        filter_s=filter_s,
+        seconds=seconds,
         total_s=time.perf_counter() - start,
     )
     return {k: float(v) if isinstance(v, np.floating) else v for k, v in row.items()}, series
@@ -265,10 +296,34 @@ def main(argv=None):
         **sizes,
         perfect=args.perfect_model,
     )
-    for k, v in row.items():
-        print(f"{k}: {v}", flush=True)
+    print(summary(row), flush=True)
     results.json("assimilation", dict(rows=[row]))
-    results.markdown("assimilation", "\n".join(f"- {k}: {v}" for k, v in row.items()) + "\n")
+    results.markdown("assimilation", summary(row))
+
+
+def summary(row):
+    """The run's settings, then a table of the filters against the free ensemble."""
+    lines = [f"- {k}: {v}" for k, v in row.items() if k not in ("ensembles", "seconds")]
+    table = []
+    for name, f in row["ensembles"].items():
+        gain, se = f["gain_unobserved"]
+        table.append(
+            dict(
+                ensemble=name,
+                **{k: f[k] for k in ("rmse_observed", "rmse_unobserved")},
+                gain_unobserved="" if name == "free" else f"{gain:+.5f} ± {se:.5f}",
+                **{k: f[k] for k in ("spread_unobserved", "rank_chi2_p", "casimir_drift")},
+                seconds=f"{row['seconds'][name]:.1f}" if name in row["seconds"] else "",
+            )
+        )
+    formats = dict(
+        rmse_observed=".4f",
+        rmse_unobserved=".4f",
+        spread_unobserved=".4f",
+        rank_chi2_p=".2g",
+        casimir_drift=".2g",
+    )
+    return "\n".join(lines) + "\n\n" + _common.markdown_table(table, list(table[0]), formats)
 
 
 if __name__ == "__main__":
