@@ -18,8 +18,8 @@ The library in four layers:
   failures, and refuses a method that the system cannot serve.
 - **Studies**: `strong_convergence`, `weak_convergence`, `calibrate`; the drift's flow
   `drift_flow` and, with one noise proportional to the drift, the `exact_solution`.
-- **Forecasting**: `fit_transport_noise`, `fit_closure`, `forecast_ensembles` and their scores,
-  `particle_filter`, `ensemble_kalman_filter` and `assimilate`.
+- **Forecasting**: `fit_transport_noise`, `fit_closure`, `train_closure`, `forecast_ensembles`
+  and their scores, `particle_filter`, `ensemble_kalman_filter` and `assimilate`.
 """
 
 # Public helper modules
@@ -57,6 +57,7 @@ from ._forecasting.assimilation import Tempering as Tempering
 from ._forecasting.assimilation import assimilate as assimilate
 from ._forecasting.closure import ClosureFit as ClosureFit
 from ._forecasting.closure import fit_closure as fit_closure
+from ._forecasting.closure_training import train_closure as train_closure
 from ._forecasting.orbit_kalman import KalmanAnalysis as KalmanAnalysis
 from ._forecasting.orbit_kalman import KalmanResult as KalmanResult
 from ._forecasting.orbit_kalman import Localization as Localization
@@ -200,6 +201,7 @@ __all__ = [
     "TransportNoiseFit",
     "ClosureFit",
     "fit_closure",
+    "train_closure",
     "fit_transport_noise",
     "AmplitudeSearch",
     "AmplitudeTuning",

@@ -21,6 +21,7 @@ from .._brownian import BrownianMotion, OrnsteinUhlenbeck
 from .._support.checks import check_positive
 from .._systems.additive_forcing import AdditiveForcing
 from .._systems.euler_zeitlin import EulerZeitlin
+from .._systems.noise import salt_noise
 from .._systems.stream_operator import Stream
 from .transport_fit import (
     _CHUNK,
@@ -36,7 +37,6 @@ from .transport_fit import (
     tikhonov_parameter,
     transport_split,
 )
-from .verification import scaled_noise
 
 PARTS = ("hamiltonian", "damping", "transport", "additive")
 """The parts of a closure (`fit_closure`'s `parts=`)."""
@@ -129,7 +129,8 @@ class ClosureFit:
       $g_\ell$ and the damping rate $d_\ell \ge 0$ (per second).
     - `transport`: the transport noise's `TransportNoiseFit` (`None` without that part):
       the EOFs of the rest's transports, and their traces' statistics.
-    - `transport_scale`: the factor on those traces' amplitudes in `system`: it makes the
+    - `transport_scale`: the factor on those traces' amplitudes in `system` (a number; a
+      trained closure's, `train_closure`, one per mode `(r,)`): the fit's makes the
       noise's mean-square tendency at the data's states, $\sum_r\sigma_r^2\langle|[e_r,
       \bar W_n]|^2\rangle$, the part of the rest the modes represent (`shares`'s
       `"transport"` times $|R|^2$). The EOFs of the transports overstate it ($\mathrm{ad}_
@@ -147,24 +148,28 @@ class ClosureFit:
       each snapshot; `"additive"`: $|\rho_\perp|^2/|R|^2$, the rest's part that no
       transport produces. Shares of the noises say what they represent, not what they
       predict (their means, a bias, are not in the noise). `explained(states)` gives them
-      all on held-out snapshots.
+      all on held-out snapshots. A trained closure's are `None` (its parts were not fitted
+      to $R$): `explained(states)` gives them.
     - `parts`: the parts fitted; `time_model`: the noises' (`"white"` or `"ou"`);
       `regularization`: the transport solve's Tikhonov $\alpha$;
       `fine`, `coarse`: the systems the fit compared.
+    - `training`: `None` for a fit; for a closure trained by `train_closure`, the training
+      loss (the mean fair CRPS) at its start and after each step.
     """
 
     gain: np.ndarray
     damping: np.ndarray
     transport: TransportNoiseFit | None
-    transport_scale: float
+    transport_scale: float | np.ndarray
     additive_std: np.ndarray
     additive_time: np.ndarray
-    shares: dict
+    shares: dict | None
     parts: tuple
     time_model: str
     regularization: float
     fine: EulerZeitlin
     coarse: EulerZeitlin
+    training: np.ndarray | None = None
 
     @property
     def system(self):
@@ -478,11 +483,10 @@ def _closed_system(
     alpha = 0.0 if linear is None else np.asarray(linear.damping(real))
     if "damping" in parts:
         alpha = alpha + damping
-    noise = (
-        coarse.noise
-        if transport is None
-        else scaled_noise(transport.noise, transport_scale * factor)
-    )
+    noise = coarse.noise
+    if transport is not None:  # (one factor per mode: a trained closure's are its own)
+        per_mode = np.broadcast_to(np.asarray(transport_scale, float) * factor, transport.std.shape)
+        noise = salt_noise(np.asarray(transport.noise.chi) * per_mode[:, None, None])
     additive = coarse.additive
     times = [] if transport is None or time_model == "white" else list(transport.correlation_time)
     if "additive" in parts:

@@ -115,20 +115,47 @@ def forecast_ensembles(
 
     **Returns:** a NumPy array `(n_starts, members, lead // every, *state)`.
     """
+    run = forecast_setup(
+        "forecast_ensembles",
+        system,
+        starts,
+        lead,
+        dt,
+        every,
+        members,
+        key,
+        driver,
+        method,
+        failures,
+    )
+    ys, fail_step = _forecasts(*run.arguments)
+    failed = int(np.sum(np.asarray(fail_step) >= 0))
+    refuse_failed("forecast_ensembles", failed, fail_step.size, run.failures, "they are not scored")
+    return np.asarray(ys)
+
+
+class ForecastRun(NamedTuple):
+    """A checked forecast: `_forecasts`'s arguments (`arguments`), and the failure options."""
+
+    arguments: tuple
+    failures: Failures
+
+
+def forecast_setup(caller, system, starts, lead, dt, every, members, key, driver, method, failures):
+    """`forecast_ensembles`'s arguments checked (by name, for `caller`), and the keys, path
+    and start states of its program."""
     lead, every = check_count("lead", lead), check_count("every", every)
     members = check_count("members", members)
     if lead % every:
-        raise ValueError(
-            f"forecast_ensembles: lead = {lead} must be a multiple of every = {every}."
-        )
+        raise ValueError(f"{caller}: lead = {lead} must be a multiple of every = {every}.")
     dt = float(np.asarray(check_positive("dt", dt)))
     check_system(system)
     method = check_method(method, system)
-    failures = check_failures("forecast_ensembles", failures)
+    failures = check_failures(caller, failures)
     starts = jnp.asarray(starts)
     if starts.ndim != len(system.algebra.shape) + 1 or starts.shape[1:] != system.algebra.shape:
         raise ValueError(
-            f"forecast_ensembles: starts must be (n_starts, *{system.algebra.shape}), states of "
+            f"{caller}: starts must be (n_starts, *{system.algebra.shape}), states of "
             f"{system.algebra.name}, got shape {starts.shape}."
         )
     dtype = system.dtype
@@ -139,17 +166,19 @@ def forecast_ensembles(
         jnp.arange(starts.shape[0], dtype=jnp.uint32)
     )
     y0 = starts.astype(system.algebra.state_dtype(dtype))
-    ys, fail_step = _forecasts(
-        method, system, y0, keys, path, lead // every, every, failures.retry_substeps
-    )
-    failed = int(np.sum(np.asarray(fail_step) >= 0))
+    arguments = (method, system, y0, keys, path, lead // every, every, failures.retry_substeps)
+    return ForecastRun(arguments, failures)
+
+
+def refuse_failed(caller, failed, total, failures, why):
+    """Raise `RuntimeError` if `failed` of `total` members failed: `why` says what that
+    stops."""
     if failed:
         raise RuntimeError(
-            f"forecast_ensembles: {failed} of {fail_step.size} members failed (their steps could "
-            f"not be solved{'' if failures.retried else ', and Failures(retry_substeps=None)'}): they are "
-            f"not scored."
+            f"{caller}: {failed} of {total} members failed (their steps could not be "
+            f"solved{'' if failures.retried else ', and Failures(retry_substeps=None)'}): "
+            f"{why}."
         )
-    return np.asarray(ys)
 
 
 @functools.partial(jax.jit, static_argnames=("method", "n_blocks", "every", "retry"))
