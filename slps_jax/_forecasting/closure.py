@@ -166,10 +166,15 @@ class ClosureFit:
     shares: dict | None
     parts: tuple
     time_model: str
-    regularization: float
     fine: EulerZeitlin
     coarse: EulerZeitlin
     training: np.ndarray | None = None
+
+    @property
+    def regularization(self):
+        """The transport solve's Tikhonov $\\alpha$ (`transport.regularization`; 0 without
+        that part)."""
+        return 0.0 if self.transport is None else self.transport.regularization
 
     @property
     def system(self):
@@ -460,7 +465,6 @@ def fit_closure(
         transport_scale=scale,
         parts=parts,
         time_model=time_model,
-        regularization=alpha,
         fine=fine,
         coarse=coarse,
     )

@@ -160,8 +160,6 @@ def train_closure(
     factor=1.0,
     parts=None,
     optimisation=Optimisation(steps=40),
-    method="auto",
-    failures: Failures = Failures(),
 ):
     r"""`fit`'s closure trained on its forecasts: its parameters moved by gradient descent on
     the mean fair CRPS of ensemble forecasts from `starts`, scored against `truth`.
@@ -191,9 +189,10 @@ def train_closure(
     - `starts`: `(n_starts, N, N)`, the coarse truth at the starts (inside the period the
       closure was fitted on: the held-out starts are for scoring).
     - `truth`: `(n_starts, lead // every, N, N)`, the coarse truth at the lead times.
-    - `lead`, `dt`, `every`, `members`, `key`, `method`, `failures`: as for
-      `forecast_ensembles` (`members` at least 2; the driver is `fit.driver`); a member
-      that fails stops the training with a `RuntimeError`.
+    - `lead`, `dt`, `every`, `members`, `key`: as for `forecast_ensembles` (`members` at
+      least 2; the driver is `fit.driver`, the method the system's default, a failed step
+      retried in substeps); a member that still fails stops the training with a
+      `RuntimeError`.
     - `observe`: a function from states `(..., N, N)` to observables `(..., k)`, traceable
       (for example `lambda w: zeitlin.mat2shr(w)[..., 4:]`, the degrees 2 and up).
     - `factor`: the noises' amplitude factor at the start (`ClosureFit.scaled`), for example
@@ -228,7 +227,19 @@ def train_closure(
     if isinstance(members, (int, np.integer)) and not isinstance(members, bool) and members < 2:
         raise ValueError(f"train_closure: the fair CRPS needs members >= 2, got {members}.")
     loss, theta, closure, run = _training(
-        fit, starts, truth, lead, dt, every, members, key, observe, factor, parts, method, failures
+        fit,
+        starts,
+        truth,
+        lead,
+        dt,
+        every,
+        members,
+        key,
+        observe,
+        factor,
+        parts,
+        "auto",
+        Failures(),
     )
     opt = optax.adam(0.1, b1=0.5) if optimisation.optimizer is None else optimisation.optimizer
     opt = optax.with_extra_args_support(opt)
