@@ -369,8 +369,8 @@ def test_filters(tmp_path):
 @pytest.mark.full  # (40 s of compiling four forecast systems and two searches: second tier)
 def test_closure(tmp_path):
     """`closure.py --fast` (M = 16, N = 4, one seed): the shares (each at most 1, the closure
-    no worse than nothing on its training data), tuned factors, CIs that contain their
-    estimates, spread/RMSE at every lead, and the fit's time."""
+    no worse than nothing on its training data), tuned factors, the trained closure, CIs that
+    contain their estimates, spread/RMSE at every lead, and the fit's time."""
     run_script("closure.py", tmp_path)
     out = json.loads((tmp_path / "closure.json").read_text())
     (r,) = out["rows"]
@@ -382,4 +382,6 @@ def test_closure(tmp_path):
     assert all(f > 0 for f in r["factors"].values())
     assert all(len(v) == len(r["lead_times"]) for v in r["spread_rmse"].values())
     assert out["cost"][0]["seconds"] > 0
-    assert "| 16 → 4 | 0 |" in (tmp_path / "closure.md").read_text()
+    assert len(r["trained"]["loss"]) == 3 and r["factors"]["closure, trained"] > 0
+    assert "closure, trained vs closure" in r["comparisons"]
+    assert (tmp_path / "closure.md").read_text().count("| 16 → 4 | 0 |") == 3
