@@ -67,7 +67,7 @@ def test_the_gradient_is_the_losss_finite_differences(run):
         0.5,
         fit.parts,
         "auto",
-        sj.Failures(),
+        closure_training._NO_RETRY,
     )
     rng = np.random.default_rng(1)
     theta = {k: jnp.asarray(0.3 * rng.normal(size=v.shape)) for k, v in theta.items()}
@@ -149,7 +149,7 @@ def test_the_trained_closure_is_the_system_it_was_trained_as(run, tmp_path):
         0.5,
         fit.parts,
         "auto",
-        sj.Failures(),
+        closure_training._NO_RETRY,
     )
     rng = np.random.default_rng(2)
     theta = {k: jnp.asarray(rng.normal(size=v.shape)) for k, v in theta.items()}

@@ -21,6 +21,8 @@ from .._support.checks import check_positive
 from .closure import PARTS, ClosureFit
 from .verification import _forecasts, forecast_setup, refuse_failed
 
+_NO_RETRY = Failures(retry_substeps=None)  # (see train_closure)
+
 UNITS = {"transport": 1.0, "additive": 1.0, "hamiltonian": 0.05, "damping": 0.1}
 r"""What one unit of each part's trained parameter changes (`train_closure`): the logarithm
 of each mode's or degree's noise amplitude, the stream's gain $g_\ell$ (in 0.05), the damping
@@ -190,9 +192,10 @@ def train_closure(
       closure was fitted on: the held-out starts are for scoring).
     - `truth`: `(n_starts, lead // every, N, N)`, the coarse truth at the lead times.
     - `lead`, `dt`, `every`, `members`, `key`: as for `forecast_ensembles` (`members` at
-      least 2; the driver is `fit.driver`, the method the system's default, a failed step
-      retried in substeps); a member that still fails stops the training with a
-      `RuntimeError`.
+      least 2; the driver is `fit.driver`, the method the system's default). A member that
+      fails stops the training with a `RuntimeError`: failed steps are not retried in
+      substeps, whose reverse mode would hold about 80 times the memory (measured at
+      su(8)).
     - `observe`: a function from states `(..., N, N)` to observables `(..., k)`, traceable
       (for example `lambda w: zeitlin.mat2shr(w)[..., 4:]`, the degrees 2 and up).
     - `factor`: the noises' amplitude factor at the start (`ClosureFit.scaled`), for example
@@ -239,7 +242,7 @@ def train_closure(
         factor,
         parts,
         "auto",
-        Failures(),
+        _NO_RETRY,
     )
     opt = optax.adam(0.1, b1=0.5) if optimisation.optimizer is None else optimisation.optimizer
     opt = optax.with_extra_args_support(opt)
