@@ -248,6 +248,9 @@ def case(M, seed, size):
         factors={k: v.factor for k, v in tuning.items()},
         trained=dict(
             protocol=dict(training),
+            start=dict(  # (the fit's, before the training's factor)
+                transport_scale=float(fit.transport_scale), additive_std=fit.additive_std.tolist()
+            ),
             loss=trained.training.tolist(),
             gain=trained.gain.tolist(),
             damping=trained.damping.tolist(),

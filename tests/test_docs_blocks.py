@@ -14,10 +14,11 @@ within one unit of the expected number's last printed digit (`2.02` matches 2.02
 and the test still fails when a result moves. The blocks run at the sizes shown: a reader
 copies them as they are.
 
-Three blocks reproduce a documented study at its documented size (a strong-convergence
+Four blocks reproduce a documented study at its documented size (a strong-convergence
 study with its reference, a fine run with its fit and forecast, a forced-dissipative run and
-its closure), a minute and a half of the suite between them: they are full-size checks, run
-by the second tier (`-m full`, `.ci/run` after the README's command), as `FULL_SIZE` lists.
+its closure, a closure trained and scored), a few minutes of the suite between them: they
+are full-size checks, run by the second tier (`-m full`, `.ci/run` after the README's
+command), as `FULL_SIZE` lists.
 
 Also checked: the README has at most `MAX_LINES` lines, and no history ("was 4.97 s"): the
 regex `was \\d` finds nothing (measurements and their history belong in benchmarks/README.md).
@@ -93,6 +94,7 @@ FULL_SIZE = {
     ("docs/levy-area.md", 0): "strong_convergence of 100 samples to a 2^-12 reference",
     ("docs/data-driven-noise.md", 0): "a 44-second su(32) run, its fit and a 32-member forecast",
     ("docs/data-driven-noise.md", 1): "a forced-dissipative su(32) run of 50 s and its closure",
+    ("docs/data-driven-noise.md", 2): "a forced-dissipative su(16) run, its closure trained",
 }
 
 
