@@ -7,6 +7,8 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
+import dataclasses
+
 import jax.numpy as jnp
 import numpy as np
 import optax
@@ -199,3 +201,23 @@ def test_bad_input_is_refused_before_any_work(run):
     ]:
         with pytest.raises(error, match=match):
             sj.train_closure(*args, **{**ok, **change})
+
+
+def test_a_degree_without_any_additive_forcing_has_a_finite_gradient(run):
+    """A degree inside the additive band with neither a fitted nor an own amplitude keeps
+    amplitude 0 and a finite gradient (the square root's is infinite at 0)."""
+    fit = run["fit"]
+    fit = dataclasses.replace(
+        fit,
+        coarse=sj.EulerZeitlin(N, nu=1e-4, p=2, alpha=0.1),
+        additive_std=np.array([0.0, 0.1, 0.0, 0.2]),
+        additive_time=np.array([0.0, 0.5, 0.0, 0.5]),
+    )
+    base = fit.scaled(1.0)
+    closure = closure_training._closure(fit, 1.0, ("additive",), base)
+    theta = {"additive": jnp.zeros(N)}
+    amplitude = lambda t: closure.system(base, t).additive.amplitude
+    np.testing.assert_allclose(amplitude(theta), base.additive.amplitude, rtol=1e-15)
+    assert float(amplitude(theta)[1]) == 0.0  # (degree 2 of the band 1..3)
+    grad = jax.grad(lambda t: jnp.sum(amplitude(t)))(theta)["additive"]
+    assert np.all(np.isfinite(grad)) and float(grad[2]) == 0.0 and float(grad[3]) > 0

@@ -49,7 +49,10 @@ class _Closure:
             base = eqx.tree_at(lambda s: s.noise.chi, base, chi.astype(base.noise.chi.dtype))
         if "additive" in self.parts:
             sigma = jnp.asarray(self.fitted) * jnp.exp(theta["additive"][self.band :])
-            amplitude = jnp.sqrt(jnp.asarray(self.own) + sigma**2)
+            variance = jnp.asarray(self.own) + sigma**2
+            positive = variance > 0  # (a degree without either forcing: 0, and no NaN in
+            # the gradient of the square root there)
+            amplitude = jnp.where(positive, jnp.sqrt(jnp.where(positive, variance, 1.0)), 0.0)
             base = eqx.tree_at(lambda s: s.additive.amplitude, base, amplitude)
         if "hamiltonian" in self.parts:
             change = (UNITS["hamiltonian"] * theta["hamiltonian"]).at[0].set(0.0)
