@@ -51,26 +51,19 @@ def _starts(coarse, at, leads):
     return coarse[at], coarse[np.asarray(at)[:, None] + np.arange(1, leads + 1)]
 
 
+def _problem(run):
+    """The training problem of the closure at factor 0.5 on 5 starts, 3 members, 2 leads."""
+    fit = run["fit"]
+    starts, truth = _starts(run["coarse"], np.arange(0, 60, 12), 2)
+    return closure_training._training(
+        fit, starts, truth, 10, H, 5, 3, jax.random.key(4), OBSERVE, 0.5, fit.parts
+    )
+
+
 def test_the_gradient_is_the_losss_finite_differences(run):
     """Every part's gradient (pathwise, through the integrator's steps and the damping's
     bound) against central differences of the loss along a random direction."""
-    fit = run["fit"]
-    starts, truth = _starts(run["coarse"], np.arange(0, 60, 12), 2)
-    loss, theta, _, _ = closure_training._training(
-        fit,
-        starts,
-        truth,
-        10,
-        H,
-        5,
-        3,
-        jax.random.key(4),
-        OBSERVE,
-        0.5,
-        fit.parts,
-        "auto",
-        closure_training._NO_RETRY,
-    )
+    loss, theta, _, _ = _problem(run)
     rng = np.random.default_rng(1)
     theta = {k: jnp.asarray(0.3 * rng.normal(size=v.shape)) for k, v in theta.items()}
     direction = {k: jnp.asarray(rng.normal(size=v.shape)) for k, v in theta.items()}
@@ -137,22 +130,7 @@ def test_the_trained_closure_is_the_system_it_was_trained_as(run, tmp_path):
     `fit_closure`'s own construction) the system the loss differentiated, leaf for leaf;
     it saves, loads and scores held-out snapshots."""
     fit = run["fit"]
-    starts, truth = _starts(run["coarse"], np.arange(0, 60, 12), 2)
-    _, theta, closure, _ = closure_training._training(
-        fit,
-        starts,
-        truth,
-        10,
-        H,
-        5,
-        3,
-        jax.random.key(4),
-        OBSERVE,
-        0.5,
-        fit.parts,
-        "auto",
-        closure_training._NO_RETRY,
-    )
+    _, theta, closure, _ = _problem(run)
     rng = np.random.default_rng(2)
     theta = {k: jnp.asarray(rng.normal(size=v.shape)) for k, v in theta.items()}
     theta["damping"] = theta["damping"].at[3].set(-30.0)  # (below the bound: 0)

@@ -121,14 +121,13 @@ def _trained(fit, factor, closure, theta):
     return dataclasses.replace(fit, **replace)
 
 
-def _training(
-    fit, starts, truth, lead, dt, every, members, key, observe, factor, parts, method, failures
-):
+def _training(fit, starts, truth, lead, dt, every, members, key, observe, factor, parts):
     """`train_closure`'s problem: its loss `theta -> (fair CRPS, failed members)`, the
-    parameters at the start (zeros), the `_Closure`, and the checked `ForecastRun`."""
+    parameters at the start (zeros), the `_Closure`, and the checked `ForecastRun` (the
+    default method, no substep retries)."""
     base, driver = fit._closed(factor)
     run = forecast_setup(
-        "train_closure", base, starts, lead, dt, every, members, key, driver, method, failures
+        "train_closure", base, starts, lead, dt, every, members, key, driver, "auto", _NO_RETRY
     )
     n_starts, n_leads = run.arguments[2].shape[0], run.arguments[5]
     truth = np.asarray(truth)
@@ -233,19 +232,7 @@ def train_closure(
     if isinstance(members, (int, np.integer)) and not isinstance(members, bool) and members < 2:
         raise ValueError(f"train_closure: the fair CRPS needs members >= 2, got {members}.")
     loss, theta, closure, run = _training(
-        fit,
-        starts,
-        truth,
-        lead,
-        dt,
-        every,
-        members,
-        key,
-        observe,
-        factor,
-        parts,
-        "auto",
-        _NO_RETRY,
+        fit, starts, truth, lead, dt, every, members, key, observe, factor, parts
     )
     opt = optax.adam(0.1, b1=0.5) if optimisation.optimizer is None else optimisation.optimizer
     opt = optax.with_extra_args_support(opt)
