@@ -13,8 +13,9 @@ of degrees 2..N-1 at leads 0.4, 0.8, ..., 4 s; 8 tuning starts inside the traini
 midpoints beside the best) of the closure's noises (`ClosureFit.scaled`: transport and
 additive together) and of an isotropic transport noise of degrees 2..N-1 on the coarse
 model; 16 held-out starts spread over the held-out span, 32 members; and the closure trained
-on the fair CRPS of 1 s forecasts (`train_closure`: 32 other training starts, 8 members,
-leads 0.2 ... 1 s, 40 steps from the tuned factor), its factor then tuned as the others'.
+on the fair CRPS of forecasts from other training starts (`train_closure`: 8 members, 40 steps
+from the tuned factor), twice: on 1 s forecasts from 32 starts (leads 0.2 ... 1 s) and on the
+evaluation's leads (0.4 ... 4 s) from 16 starts, each one's factor then tuned as the others'.
 Per held-out start the fair CRPS over the leads, paired bootstrap 90 % CIs of the closure
 against the isotropic noise and against the coarse model with its forcing alone, and the
 spread/RMSE at every lead. First, the fit's time alone at each size of `--cost` (run it
@@ -46,11 +47,17 @@ from slps_jax import zeitlin  # noqa: E402
 
 H, EVERY = 0.01, 5  # the truth's step and the snapshots' spacing in steps
 FULL = dict(spin=15.0, train=4000, held=1000, tune=8, starts=16, lead=400, every=40, members=32)
-TRAINING = dict(starts=32, lead=100, every=20, members=8, steps=40)  # (train_closure's)
+TRAININGS = (  # (train_closure's: 1 s forecasts, and the evaluation's leads)
+    dict(starts=32, lead=100, every=20, members=8, steps=40),
+    dict(starts=16, lead=400, every=40, members=8, steps=40),
+)
 FACTORS = tuple(2.0 ** np.arange(-5.0, 3.25, 0.5))  # 1/32 ... 8 (the fitted noise's optimum
 # can lie below the default grid's 1/8)
 FAST = dict(spin=1.0, train=40, held=24, tune=2, starts=3, lead=20, every=10, members=4)
-FAST_TRAINING = dict(starts=3, lead=10, every=5, members=3, steps=2)
+FAST_TRAININGS = (
+    dict(starts=3, lead=10, every=5, members=3, steps=2),
+    dict(starts=2, lead=20, every=10, members=3, steps=2),
+)
 
 
 def terms(M):
@@ -152,43 +159,47 @@ def case(M, seed, size):
             for name, (system, search, driver) in searches.items()
         }
     seconds["tuning"] = watch.seconds
-    # the closure trained on the CRPS of short forecasts from other training starts (from the
-    # tuned factor), then its own factor tuned as the others'
-    training = size["training"]
-    t_span = training["lead"] // EVERY
-    train_at = np.linspace(0, size["train"] - t_span - 1, training["starts"]).astype(int)
-    t_times = (training["every"] // EVERY) * np.arange(1, training["lead"] // training["every"] + 1)
-    with _common.Stopwatch() as watch:
-        trained = sj.train_closure(
-            fit,
-            coarse_of(train_at),
-            coarse_of(train_at[:, None] + t_times),
-            lead=training["lead"],
-            dt=H,
-            every=training["every"],
-            members=training["members"],
-            key=jax.random.key(seed + 30),
-            observe=observe,
-            factor=tuning["closure"].factor,
-            optimisation=sj.Optimisation(steps=training["steps"], progress=False),
+    # the closure trained on the CRPS of forecasts from other training starts (from the tuned
+    # factor), at each protocol's leads, then its own factor tuned as the others'
+    trained = {}
+    for training in size["trainings"]:
+        name = trained_name(training)
+        t_span = training["lead"] // EVERY
+        train_at = np.linspace(0, size["train"] - t_span - 1, training["starts"]).astype(int)
+        t_times = (training["every"] // EVERY) * np.arange(
+            1, training["lead"] // training["every"] + 1
         )
-    seconds["training"] = watch.seconds
-    tuning["closure, trained"] = sj.tune_amplitude(
-        trained.system,
-        coarse_of(tune_at),
-        coarse_of(tune_at[:, None] + times),
-        observe=observe,
-        members=max(2, size["members"] // 2),
-        key=jax.random.key(seed + 10),
-        search=sj.AmplitudeSearch(FACTORS, scale=lambda s, f: trained.scaled(f)),
-        driver=trained.driver,
-        **forecast,
-    )
+        with _common.Stopwatch() as watch:
+            trained[name] = t = sj.train_closure(
+                fit,
+                coarse_of(train_at),
+                coarse_of(train_at[:, None] + t_times),
+                lead=training["lead"],
+                dt=H,
+                every=training["every"],
+                members=training["members"],
+                key=jax.random.key(seed + 30),
+                observe=observe,
+                factor=tuning["closure"].factor,
+                optimisation=sj.Optimisation(steps=training["steps"], progress=False),
+            )
+        seconds[f"training, {name}"] = watch.seconds
+        tuning[name] = sj.tune_amplitude(
+            t.system,
+            coarse_of(tune_at),
+            coarse_of(tune_at[:, None] + times),
+            observe=observe,
+            members=max(2, size["members"] // 2),
+            key=jax.random.key(seed + 10),
+            search=sj.AmplitudeSearch(FACTORS, scale=lambda s, f, t=t: t.scaled(f)),
+            driver=t.driver,
+            **forecast,
+        )
     systems = {
         "closure": (fit.scaled(tuning["closure"].factor), fit.driver),
         "closure, untuned": (fit.system, fit.driver),
         "closure, no noise": (fit.scaled(0.0), fit.driver),
-        "closure, trained": (trained.system, trained.driver),
+        **{name: (t.system, t.driver) for name, t in trained.items()},
         "isotropic": (_with_factor(baseline, tuning["isotropic"].factor), None),
         "no closure": (coarse, None),
     }
@@ -215,8 +226,7 @@ def case(M, seed, size):
     }
     pairs = [
         ("closure", "isotropic"),
-        ("closure, trained", "closure"),
-        ("closure, trained", "isotropic"),
+        *((name, other) for name in trained for other in ("closure", "isotropic")),
         ("closure, untuned", "isotropic"),
         ("closure", "no closure"),
         ("closure, no noise", "no closure"),
@@ -226,16 +236,20 @@ def case(M, seed, size):
     for a, b in pairs:
         c = sj.paired_comparison(crps[a], crps[b])
         comparisons[f"{a} vs {b}"] = dict(relative=c.relative, ci=[*c.relative_ci])
-    # the trained closure at the leads it was trained on (up to its training lead)
-    short = int(np.sum(H * every * np.arange(1, lead // every + 1) <= H * training["lead"] + 1e-9))
-    early = {
-        name: sj.start_crps(ensembles[name][:, :, :short], y[:, :short], observe)
-        for name in ("closure, trained", "closure")
-    }
-    c = sj.paired_comparison(early["closure, trained"], early["closure"])
-    comparisons["closure, trained vs closure, trained leads"] = dict(
-        relative=c.relative, ci=[*c.relative_ci], leads=short
-    )
+    # each trained closure at the leads it was trained on, where they are fewer than all
+    for training, name in zip(size["trainings"], trained):
+        leads = H * every * np.arange(1, lead // every + 1)
+        short = int(np.sum(leads <= H * training["lead"] + 1e-9))
+        if short == len(leads):
+            continue
+        early = {
+            n: sj.start_crps(ensembles[n][:, :, :short], y[:, :short], observe)
+            for n in (name, "closure")
+        }
+        c = sj.paired_comparison(early[name], early["closure"])
+        comparisons[f"{name} vs closure, trained leads"] = dict(
+            relative=c.relative, ci=[*c.relative_ci], leads=short
+        )
     return dict(
         M=M,
         N=N,
@@ -246,23 +260,32 @@ def case(M, seed, size):
         gain=fit.gain.tolist(),
         damping=fit.damping.tolist(),
         factors={k: v.factor for k, v in tuning.items()},
-        trained=dict(
-            protocol=dict(training),
-            start=dict(  # (the fit's, before the training's factor)
-                transport_scale=float(fit.transport_scale), additive_std=fit.additive_std.tolist()
-            ),
-            loss=trained.training.tolist(),
-            gain=trained.gain.tolist(),
-            damping=trained.damping.tolist(),
-            transport_scale=np.asarray(trained.transport_scale).tolist(),
-            additive_std=trained.additive_std.tolist(),
-            held_out_shares=trained.explained(held),
-        ),
+        trained={
+            name: dict(
+                protocol=dict(training),
+                start=dict(  # (the fit's, before the training's factor)
+                    transport_scale=float(fit.transport_scale),
+                    additive_std=fit.additive_std.tolist(),
+                ),
+                loss=t.training.tolist(),
+                gain=t.gain.tolist(),
+                damping=t.damping.tolist(),
+                transport_scale=np.asarray(t.transport_scale).tolist(),
+                additive_std=t.additive_std.tolist(),
+                held_out_shares=t.explained(held),
+            )
+            for training, (name, t) in zip(size["trainings"], trained.items())
+        },
         crps={k: float(np.mean(v)) for k, v in crps.items()},
         comparisons=comparisons,
         spread_rmse={k: [float(x) for x in v] for k, v in ratio.items()},
         lead_times=(H * every * np.arange(1, lead // every + 1)).tolist(),
     )
+
+
+def trained_name(training):
+    """The label of the closure trained with `training`'s protocol: by its forecasts' lead."""
+    return f"closure, trained {H * training['lead']:g} s"
 
 
 def fit_cost(sizes, snapshots):
@@ -313,21 +336,24 @@ def summary(rows, cost):
             f"{span(q['isotropic'])} |\n"
         )
     text += (
-        "\nThe closure trained on the CRPS of short forecasts (`train_closure`), on the same "
-        "held-out starts: paired 90 % CIs, its factor tuned after training, spread/RMSE, the "
-        "training loss at its start and end, and its time:\n\n"
-        "| M → N | seed | trained vs closure | the same, leads trained on | trained vs isotropic "
-        "| factor trained | spread/RMSE trained | training loss | seconds |\n" + "|---" * 9 + "|\n"
+        "\nThe closure trained on the CRPS of forecasts (`train_closure`), by its training "
+        "starts and leads, on the same held-out starts: paired 90 % CIs, its factor tuned after "
+        "training, spread/RMSE, the training loss at its start and end, and its time:\n\n"
+        "| M → N | seed | trained on | trained vs closure | the same, leads trained on | "
+        "trained vs isotropic | factor trained | spread/RMSE trained | training loss | seconds "
+        "|\n" + "|---" * 10 + "|\n"
     )
-    for r in (r for r in rows if "trained" in r):
-        c, q, loss = r["comparisons"], r["spread_rmse"]["closure, trained"], r["trained"]["loss"]
-        text += (
-            f"| {r['M']} → {r['N']} | {r['seed']} | {ci(c['closure, trained vs closure'])} | "
-            f"{ci(c['closure, trained vs closure, trained leads'])} | "
-            f"{ci(c['closure, trained vs isotropic'])} | {r['factors']['closure, trained']:.2f} | "
-            f"{min(q):.2f}–{max(q):.2f} | {loss[0]:.4g} → {loss[-1]:.4g} | "
-            f"{r['seconds']['training']:.0f} |\n"
-        )
+    for r in rows:
+        for name, t in r.get("trained", {}).items():
+            c, q, loss = r["comparisons"], r["spread_rmse"][name], t["loss"]
+            early = c.get(f"{name} vs closure, trained leads")
+            text += (
+                f"| {r['M']} → {r['N']} | {r['seed']} | {t['protocol']['starts']} starts, "
+                f"{H * t['protocol']['lead']:g} s | {ci(c[f'{name} vs closure'])} | "
+                f"{ci(early) if early else 'all leads'} | {ci(c[f'{name} vs isotropic'])} | "
+                f"{r['factors'][name]:.2f} | {min(q):.2f}–{max(q):.2f} | "
+                f"{loss[0]:.4g} → {loss[-1]:.4g} | {r['seconds'][f'training, {name}']:.0f} |\n"
+            )
     if cost:
         text += "\nThe fit's time alone (compilation included):\n\n"
         text += _common.markdown_table(cost, ["M", "N", "snapshots", "seconds"], {"seconds": ".3g"})
@@ -339,21 +365,9 @@ def main(argv=None):
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     p.add_argument("--sizes", type=int, nargs="+", default=[32], help="the truths' M")
     p.add_argument("--cost", type=int, nargs="*", default=[32, 64], help="M of the cost rows")
-    p.add_argument(
-        "--train-lead",
-        type=int,
-        nargs=2,
-        metavar=("LEAD", "EVERY"),
-        help="the training forecasts' lead and spacing in steps (default 100 20: 1 s)",
-    )
-    p.add_argument("--train-starts", type=int, help="training starts (default 32)")
     args = p.parse_args(argv)
     results = _common.Output(args.out)
-    size = dict(FAST, training=FAST_TRAINING) if args.fast else dict(FULL, training=TRAINING)
-    if args.train_lead:
-        size["training"] = dict(size["training"], lead=args.train_lead[0], every=args.train_lead[1])
-    if args.train_starts:
-        size["training"] = dict(size["training"], starts=args.train_starts)
+    size = dict(FAST, trainings=FAST_TRAININGS) if args.fast else dict(FULL, trainings=TRAININGS)
     sizes, seeds = ([16], [0]) if args.fast else (args.sizes, args.seeds)
     cost = fit_cost([16] if args.fast else args.cost, size["train"])  # (first: compiles)
     rows = []

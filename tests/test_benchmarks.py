@@ -382,6 +382,13 @@ def test_closure(tmp_path):
     assert all(f > 0 for f in r["factors"].values())
     assert all(len(v) == len(r["lead_times"]) for v in r["spread_rmse"].values())
     assert out["cost"][0]["seconds"] > 0
-    assert len(r["trained"]["loss"]) == 3 and r["factors"]["closure, trained"] > 0
-    assert "closure, trained vs closure" in r["comparisons"]
-    assert (tmp_path / "closure.md").read_text().count("| 16 → 4 | 0 |") == 3
+    short, long = "closure, trained 0.1 s", "closure, trained 0.2 s"  # (lead 10 and 20 steps)
+    assert set(r["trained"]) == {short, long}
+    assert all(len(t["loss"]) == 3 and r["factors"][n] > 0 for n, t in r["trained"].items())
+    assert {f"{n} vs {o}" for n in (short, long) for o in ("closure", "isotropic")} <= set(
+        r["comparisons"]
+    )
+    # the leads trained on are compared apart only where they are fewer than all
+    assert r["comparisons"][f"{short} vs closure, trained leads"]["leads"] == 1
+    assert f"{long} vs closure, trained leads" not in r["comparisons"]
+    assert (tmp_path / "closure.md").read_text().count("| 16 → 4 | 0 |") == 4
