@@ -126,6 +126,7 @@ def case(M, seed, size):
     every, lead = size["every"], size["lead"]
     stride, span = every // EVERY, lead // EVERY
     times = stride * np.arange(1, lead // every + 1)
+    lead_times = H * every * np.arange(1, lead // every + 1)  # (in seconds)
 
     def coarse_of(idx):
         return np.asarray(zeitlin.truncate(ys[idx.ravel()], N)).reshape(*idx.shape, N, N)
@@ -238,9 +239,8 @@ def case(M, seed, size):
         comparisons[f"{a} vs {b}"] = dict(relative=c.relative, ci=[*c.relative_ci])
     # each trained closure at the leads it was trained on, where they are fewer than all
     for training, name in zip(size["trainings"], trained):
-        leads = H * every * np.arange(1, lead // every + 1)
-        short = int(np.sum(leads <= H * training["lead"] + 1e-9))
-        if short == len(leads):
+        short = int(np.sum(lead_times <= H * training["lead"] + 1e-9))
+        if short == len(lead_times):
             continue
         early = {
             n: sj.start_crps(ensembles[n][:, :, :short], y[:, :short], observe)
@@ -279,7 +279,7 @@ def case(M, seed, size):
         crps={k: float(np.mean(v)) for k, v in crps.items()},
         comparisons=comparisons,
         spread_rmse={k: [float(x) for x in v] for k, v in ratio.items()},
-        lead_times=(H * every * np.arange(1, lead // every + 1)).tolist(),
+        lead_times=lead_times.tolist(),
     )
 
 
